@@ -1,0 +1,280 @@
+"""Configuration-space grids and bitmaps.
+
+A :class:`Grid` divides the robot's configuration space into boxes (cells);
+cell ``i`` on an axis spans ``[lower + i h, lower + (i + 1) h]`` and its
+configuration is the centre. Periodic axes (free rotations, unlimited joints)
+span ``[-pi, pi)`` and wrap.
+
+**What a free bitmap guarantees.** :func:`free_bitmap` is conservative: a cell
+marked free contains no colliding configuration anywhere in its closed box
+(not only at its centre); a cell marked blocked may still contain free
+configurations, typically within one cell of a C-obstacle boundary. Three
+methods give this guarantee:
+
+* translating and point robots: Kavraki's FFT method (strategies paper,
+  reference [18]). The obstacles are rasterised on a workspace grid aligned
+  with the C-space cells (a workspace cell is set if an obstacle touches its
+  closed box); the robot is rasterised as the set of offset cells that the robot
+  swept over one C-space cell can touch; the C-obstacle is their correlation,
+  computed by FFT. Any collision inside a C-space cell happens at a point lying
+  in some workspace cell that both rasters mark, so it is caught.
+* rotating robots: the same, once per orientation slice, with the robot swept
+  over the slice's angular interval (sampled densely enough, with the sampling
+  gap added to the raster test's box).
+* arms (and any robot on request, ``method="exact"``): the exact batched check at
+  each cell centre, with every body required to keep a clearance equal to the
+  largest distance any of its points can move inside the cell
+  (:meth:`~cellplan.robots.Robot.body_displacement_bounds`).
+
+Region bitmaps (:func:`region_bitmap`) are exact at cell centres.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import fftconvolve
+
+from cellplan.geometry import BoolArray, FloatArray, RigidBodies, ShapeSet, body_gaps
+from cellplan.robots import PlanarArm, Robot, as_batch
+from cellplan.workcell import AvoidSources, RegionTest, Workcell
+
+# Sub-sampling of a rotation slice: the sampling gap may add at most this
+# fraction of a translational cell to the robot's raster test box.
+_ROTATION_GAP_FRACTION = 0.25
+# Workspace raster refinement of the FFT method (odd, so C-cell centres are fine-cell centres).
+SUPERSAMPLE = 5
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A regular grid over a box of configuration space.
+
+    Parameters
+    ----------
+    lower, upper
+        Box corners per axis (``-pi, pi`` on periodic axes).
+    shape
+        Cells per axis.
+    periodic
+        Whether each axis wraps.
+    """
+
+    lower: FloatArray
+    upper: FloatArray
+    shape: tuple[int, ...]
+    periodic: tuple[bool, ...]
+
+    def __post_init__(self) -> None:
+        if not (len(self.lower) == len(self.upper) == len(self.shape) == len(self.periodic)):
+            raise ValueError("lower, upper, shape and periodic must have one entry per axis")
+        if np.any(np.asarray(self.upper) <= np.asarray(self.lower)):
+            raise ValueError("upper must exceed lower on every axis")
+        if any(n < 1 for n in self.shape):
+            raise ValueError("every axis needs at least one cell")
+
+    @staticmethod
+    def for_robot(robot: Robot, shape: Sequence[int]) -> Grid:
+        """The grid over a robot's configuration space (bounds and joint limits)."""
+        return Grid(np.array(robot.lower, float), np.array(robot.upper, float), tuple(int(s) for s in shape), robot.periodic)
+
+    @property
+    def ndim(self) -> int:
+        return len(self.shape)
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape))
+
+    @property
+    def spacing(self) -> FloatArray:
+        return (np.asarray(self.upper) - np.asarray(self.lower)) / np.asarray(self.shape)
+
+    def axis(self, i: int) -> FloatArray:
+        """Cell centres along axis ``i``."""
+        return np.asarray(self.lower[i] + (np.arange(self.shape[i]) + 0.5) * self.spacing[i])
+
+    def points(self) -> FloatArray:
+        """All cell centres, ``(size, ndim)``, in C order (last axis fastest)."""
+        mesh = np.meshgrid(*[self.axis(i) for i in range(self.ndim)], indexing="ij")
+        return np.stack([m.ravel() for m in mesh], axis=1)
+
+    def coordinates(self, q: FloatArray) -> FloatArray:
+        """Continuous cell coordinates of configurations (cell centres are integers)."""
+        q = as_batch(q, self.ndim)
+        return (q - self.lower) / self.spacing - 0.5
+
+    def index_of(self, q: FloatArray) -> NDArray[np.int64]:
+        """Index ``(N, ndim)`` of the cell containing each configuration (wrapped or clipped)."""
+        q = as_batch(q, self.ndim)
+        idx = np.floor((q - self.lower) / self.spacing).astype(np.int64)
+        for i, per in enumerate(self.periodic):
+            idx[:, i] = np.mod(idx[:, i], self.shape[i]) if per else np.clip(idx[:, i], 0, self.shape[i] - 1)
+        return idx
+
+    def config_of(self, index: NDArray[np.int64]) -> FloatArray:
+        """Centre configurations of cells given by integer indices ``(N, ndim)``."""
+        index = np.atleast_2d(np.asarray(index))
+        return np.asarray(self.lower + (index + 0.5) * self.spacing)
+
+    def contains(self, q: FloatArray) -> BoolArray:
+        """Which configurations lie inside the grid's box (periodic axes always do)."""
+        q = as_batch(q, self.ndim)
+        ok = np.ones(len(q), bool)
+        for i, per in enumerate(self.periodic):
+            if not per:
+                ok &= (q[:, i] >= self.lower[i]) & (q[:, i] <= self.upper[i])
+        return ok
+
+
+Method = Literal["auto", "fft", "exact"]
+
+
+def free_bitmap(
+    cell: Workcell,
+    grid: Grid,
+    carrying: str | None = None,
+    avoid_sources: AvoidSources = "all",
+    method: Method = "auto",
+) -> BoolArray:
+    """Conservative bitmap of free cells (see the module docstring for the guarantee).
+
+    Parameters
+    ----------
+    cell
+        The workcell.
+    grid
+        A grid over the robot's configuration space (:meth:`Grid.for_robot`).
+    carrying
+        The part the robot carries, if any (equation (2)).
+    avoid_sources
+        Which source regions are obstacles (equations (1)-(3)).
+    method
+        ``"fft"`` for translating, point and rotating robots; ``"exact"`` for any;
+        ``"auto"`` picks FFT where it applies.
+    """
+    return ~obstacle_bitmap(cell, grid, cell.obstacle_set(avoid_sources), carrying, method)
+
+
+def obstacle_bitmap(
+    cell: Workcell,
+    grid: Grid,
+    obstacles: ShapeSet,
+    carrying: str | None = None,
+    method: Method = "auto",
+) -> BoolArray:
+    """Conservative C-obstacle bitmap of an arbitrary obstacle set (include ``cell.outside``
+    to keep the robot within the bounds)."""
+    robot = cell.robot
+    if method == "auto":
+        method = "exact" if isinstance(robot, PlanarArm) else "fft"
+    if method == "fft":
+        if isinstance(robot, PlanarArm):
+            raise ValueError("the FFT method applies to rigid robots only")
+        return _fft_bitmap(cell, grid, obstacles, carrying)
+    return _exact_bitmap(cell, grid, obstacles, carrying)
+
+
+def region_bitmap(
+    cell: Workcell,
+    grid: Grid,
+    name: str,
+    kind: RegionTest = "contact",
+    component: int | None = None,
+    carrying: str | None = None,
+) -> BoolArray:
+    """Cells whose centre configuration contacts (or is enclosed in) a region."""
+    return cell.in_region(grid.points(), name, kind, component, carrying).reshape(grid.shape)
+
+
+# --- exact method ----------------------------------------------------------------------------
+
+
+def _exact_bitmap(cell: Workcell, grid: Grid, obstacles: ShapeSet, carrying: str | None) -> BoolArray:
+    robot = cell.robot
+    half = grid.spacing / 2
+    margins = list(robot.body_displacement_bounds(half))
+    if carrying is not None:
+        margins.append(robot.tool_displacement_bound(half, cell.part(carrying).reach()))
+    q = grid.points()
+    bodies, poses = cell.posed_bodies(q, carrying)
+    hit = body_gaps(bodies, poses, obstacles, np.array(margins), exact=False) <= 0.0
+    hit |= ~robot.within_limits(q)
+    return hit.reshape(grid.shape)
+
+
+# --- FFT method ------------------------------------------------------------------------------
+
+
+def _robot_shape(cell: Workcell, carrying: str | None) -> ShapeSet:
+    """The rigid robot (and carried part, fixed in its frame) as one local shape set."""
+    shapes = list(cell.robot.bodies.bodies)
+    if carrying is not None:
+        shapes.append(cell.part(carrying))
+    return ShapeSet.union(shapes)
+
+
+def _touching(shapes: ShapeSet, cx: FloatArray, cy: FloatArray, hx: float, hy: float) -> BoolArray:
+    """Which closed boxes of half-widths ``(hx, hy)`` centred at ``(cx, cy)`` meet ``shapes``."""
+    box = RigidBodies((ShapeSet.from_polygons([np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])]),))
+    poses = np.stack([cx, cy, np.zeros_like(cx)], axis=1)[:, None, :]
+    return body_gaps(box, poses, shapes, exact=False) <= 0.0
+
+
+def _fft_bitmap(
+    cell: Workcell, grid: Grid, obstacles: ShapeSet, carrying: str | None, supersample: int = SUPERSAMPLE
+) -> BoolArray:
+    """Kavraki's FFT C-obstacles on a workspace raster ``supersample`` times finer than the grid.
+
+    With fine spacing ``f = h / s`` (odd ``s``, so each C-cell centre is a fine cell
+    centre), a C-cell is blocked iff some fine offset cell ``u`` is marked in both
+    the obstacle raster (obstacle meets the fine cell) and the robot raster (the
+    robot meets the box of half-width ``h/2 + f/2`` around offset ``u``, i.e. the
+    robot swept over the C-cell meets the fine cell). The over-approximation
+    beyond the cell box itself is therefore one fine cell, not one coarse cell.
+    """
+    if supersample < 1 or supersample % 2 == 0:
+        raise ValueError("supersample must be a positive odd integer")
+    hx, hy = float(grid.spacing[0]), float(grid.spacing[1])
+    fx, fy = hx / supersample, hy / supersample
+    nx, ny = grid.shape[0] * supersample, grid.shape[1] * supersample
+    shape = _robot_shape(cell, carrying)
+    reach = shape.reach()
+    rotating = grid.ndim == 3
+    gap = _ROTATION_GAP_FRACTION * min(fx, fy) if rotating else 0.0
+    box_hx, box_hy = hx / 2 + fx / 2 + gap, hy / 2 + fy / 2 + gap
+    ux = math.ceil((reach + box_hx) / fx) + 1
+    uy = math.ceil((reach + box_hy) / fy) + 1
+
+    ax = grid.lower[0] + (np.arange(-ux, nx + ux) + 0.5) * fx
+    ay = grid.lower[1] + (np.arange(-uy, ny + uy) + 0.5) * fy
+    mx, my = np.meshgrid(ax, ay, indexing="ij")
+    occupied = _touching(obstacles, mx.ravel(), my.ravel(), fx / 2, fy / 2)
+    obstacle_raster = occupied.reshape(mx.shape).astype(float)
+    ox, oy = np.meshgrid(np.arange(-ux, ux + 1) * fx, np.arange(-uy, uy + 1) * fy, indexing="ij")
+    centre = (supersample - 1) // 2
+
+    def blocked_for(robot_shapes: ShapeSet) -> BoolArray:
+        raster = _touching(robot_shapes, ox.ravel(), oy.ravel(), box_hx, box_hy).reshape(ox.shape)
+        # correlation: blocked[a] = sum_u R[u] * O[a + u], evaluated at C-cell centres
+        corr = fftconvolve(obstacle_raster, raster[::-1, ::-1].astype(float), mode="valid")
+        return np.asarray(corr[centre::supersample, centre::supersample] > 0.5)
+
+    if not rotating:
+        return blocked_for(shape)
+
+    hth = float(grid.spacing[2])
+    # Orientation samples per slice: consecutive samples move no point more than 2 * gap.
+    n_sub = max(2, math.ceil(reach * hth / (2 * gap)) + 1) if reach > 0 else 1
+    out = np.empty(grid.shape, bool)
+    for k in range(grid.shape[2]):
+        theta_c = grid.lower[2] + (k + 0.5) * hth
+        angles = theta_c + np.linspace(-hth / 2, hth / 2, n_sub)
+        swept = ShapeSet.union(shape.transformed((0.0, 0.0, a)) for a in angles)
+        out[:, :, k] = blocked_for(swept)
+    return out

@@ -1,0 +1,278 @@
+"""Shared drawing: workcells, robots, C-space bitmaps, figure and GIF saving.
+
+matplotlib is imported lazily (inside functions, Agg backend), so importing
+cellplan never pulls it in. Paper packages keep their own figures in
+``<paper>/plots.py`` and build on these helpers. Every file is written
+atomically.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from shapely.geometry.base import BaseGeometry
+
+from cellplan.fileio import atomic_path
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from cellplan.cspace import Grid
+    from cellplan.workcell import Workcell
+
+COLORS = {
+    "obstacle": "#6b6b6b",
+    "source": "#3a9d5d",
+    "destination": "#3b6fb6",
+    "robot": "#e08a1e",
+    "part": "#8c1c13",
+    "free": "#f4f1ea",
+    "blocked": "#2f2f2f",
+    "path": "#c0392b",
+}
+
+
+def new_figure(ncols: int = 1, nrows: int = 1, size: float = 4.8, **subplot_kw: Any) -> tuple[Figure, Any]:
+    """A figure with an ``nrows x ncols`` grid of axes (Agg backend, no display needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(size * ncols, size * nrows), squeeze=False, layout="constrained", **subplot_kw
+    )
+    return fig, axes
+
+
+def save_figure(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
+    """Save atomically and close the figure."""
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return path
+
+
+def figure_to_rgb(fig: Figure, dpi: int = 80) -> np.ndarray:
+    """Render a figure to an ``(H, W, 3)`` uint8 array (for GIF frames)."""
+    fig.set_dpi(dpi)
+    fig.canvas.draw()
+    rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
+    return np.array(rgba[..., :3])
+
+
+def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 8.0, hold_last: int = 4) -> Path:
+    """Write RGB frames as an animated GIF (atomically); frames are padded to a common size."""
+    from PIL import Image
+
+    if not frames:
+        raise ValueError("a GIF needs at least one frame")
+    h = max(f.shape[0] for f in frames)
+    w = max(f.shape[1] for f in frames)
+    images = []
+    for f in frames:
+        canvas = np.full((h, w, 3), 255, np.uint8)
+        canvas[: f.shape[0], : f.shape[1]] = f
+        images.append(Image.fromarray(canvas).convert("P", palette=Image.Palette.ADAPTIVE))
+    images += [images[-1]] * hold_last
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        images[0].save(
+            tmp, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0
+        )
+    return path
+
+
+# --- workcell drawing ------------------------------------------------------------------------
+
+
+def draw_geometry(ax: Axes, geom: BaseGeometry, **style: Any) -> None:
+    """Fill a shapely polygon / multipolygon (holes respected) or draw a line or point."""
+    from matplotlib.patches import PathPatch
+    from matplotlib.path import Path as MplPath
+
+    if geom.is_empty:
+        return
+    if geom.geom_type in ("MultiPolygon", "GeometryCollection", "MultiLineString", "MultiPoint"):
+        for g in geom.geoms:  # type: ignore[attr-defined]
+            draw_geometry(ax, g, **style)
+        return
+    if geom.geom_type == "Polygon":
+        rings = [geom.exterior, *geom.interiors]  # type: ignore[attr-defined]
+        verts = np.concatenate([np.asarray(r.coords) for r in rings])
+        codes = np.concatenate(
+            [[MplPath.MOVETO] + [MplPath.LINETO] * (len(r.coords) - 2) + [MplPath.CLOSEPOLY] for r in rings]
+        )
+        ax.add_patch(PathPatch(MplPath(verts, codes), **style))
+    elif geom.geom_type == "LineString":
+        xy = np.asarray(geom.coords)  # type: ignore[attr-defined]
+        ax.plot(xy[:, 0], xy[:, 1], color=style.get("edgecolor", style.get("facecolor", "k")), lw=2)
+    elif geom.geom_type == "Point":
+        ax.plot(geom.x, geom.y, "o", color=style.get("facecolor", "k"), ms=5)  # type: ignore[attr-defined]
+
+
+def _label(ax: Axes, geom: BaseGeometry, text: str, color: str) -> None:
+    p = geom.representative_point()
+    ax.annotate(text, (p.x, p.y), ha="center", va="center", fontsize=8, color=color, weight="bold",
+                bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7})
+
+
+def draw_workcell(
+    ax: Axes,
+    cell: Workcell,
+    highlight: Sequence[str] = (),
+    labels: bool = True,
+) -> None:
+    """Bounds, obstacles, sources and destinations; regions named in ``highlight`` are shaded darker."""
+    xmin, ymin, xmax, ymax = cell.bounds
+    ax.add_patch(_rect(xmin, ymin, xmax, ymax))
+    for name, geom in cell.obstacle_geometries.items():
+        draw_geometry(ax, geom, facecolor=COLORS["obstacle"], edgecolor="black", lw=0.8)
+        if labels:
+            _label(ax, geom, name, "black")
+    for regions, color in ((cell.sources, COLORS["source"]), (cell.destinations, COLORS["destination"])):
+        for name, region in regions.items():
+            on = name in highlight
+            for geom in region.geometries:
+                draw_geometry(ax, geom, facecolor=color, alpha=0.75 if on else 0.25, edgecolor=color,
+                              lw=2.0 if on else 1.0)
+                if labels:
+                    _label(ax, geom, name, color)
+    pad = 0.02 * max(xmax - xmin, ymax - ymin)
+    ax.set_xlim(xmin - pad, xmax + pad)
+    ax.set_ylim(ymin - pad, ymax + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+
+
+def _rect(xmin: float, ymin: float, xmax: float, ymax: float) -> Any:
+    from matplotlib.patches import Rectangle
+
+    return Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, lw=1.5, ec="black")
+
+
+def draw_robot(
+    ax: Axes,
+    cell: Workcell,
+    q: np.ndarray,
+    carrying: str | None = None,
+    alpha: float = 1.0,
+    color: str | None = None,
+) -> None:
+    """The robot (and the carried part, in the part colour) at configuration ``q``."""
+    bodies, part = cell.robot_shapes(np.asarray(q, float), carrying)
+    c = color or COLORS["robot"]
+    for g in bodies:
+        draw_geometry(ax, g, facecolor=c, edgecolor="black", lw=0.6, alpha=alpha)
+    if part is not None:
+        draw_geometry(ax, part, facecolor=COLORS["part"], edgecolor="black", lw=0.6, alpha=alpha)
+    if cell.robot.kind == "arm":
+        joints = cell.robot.joint_positions(q)[0]  # type: ignore[attr-defined]
+        ax.plot(joints[:, 0], joints[:, 1], "o", color="black", ms=3, alpha=alpha)
+
+
+def save_workcell(cell: Workcell, path: str | Path, q: np.ndarray | None = None, carrying: str | None = None) -> Path:
+    """The workcell with the robot at ``q`` (default: start); by default it carries the first part."""
+    from matplotlib.patches import Patch
+
+    fig, axes = new_figure(size=6.0)
+    ax = axes[0, 0]
+    draw_workcell(ax, cell)
+    if carrying is None and cell.parts:
+        carrying = next(iter(cell.parts))
+    draw_robot(ax, cell, cell.robot.start if q is None else q, carrying)
+    handles = [
+        Patch(color=COLORS["obstacle"], label="obstacle"),
+        Patch(color=COLORS["source"], alpha=0.5, label="source"),
+        Patch(color=COLORS["destination"], alpha=0.5, label="destination"),
+        Patch(color=COLORS["robot"], label=f"robot ({cell.robot.kind}) at start"),
+    ]
+    if carrying is not None:
+        handles.append(Patch(color=COLORS["part"], label=f"carried part {carrying}"))
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    ax.set_title(cell.name or "workcell")
+    return save_figure(fig, path)
+
+
+# --- C-space drawing -------------------------------------------------------------------------
+
+
+def _axis_extent(grid: Grid, i: int, robot_axis: str) -> tuple[float, float, str]:
+    lo, hi = float(grid.lower[i]), float(grid.upper[i])
+    if robot_axis in ("x", "y"):
+        return lo, hi, robot_axis
+    return math.degrees(lo), math.degrees(hi), f"{robot_axis} (deg)"
+
+
+def draw_cspace_slice(ax: Axes, grid: Grid, free2d: np.ndarray, names: tuple[str, str], title: str = "") -> None:
+    """One 2-D slice of a free bitmap (first two axes), free light and blocked dark."""
+    from matplotlib.colors import ListedColormap
+
+    x0, x1, xl = _axis_extent(grid, 0, names[0])
+    y0, y1, yl = _axis_extent(grid, 1, names[1])
+    ax.imshow(free2d.T, origin="lower", extent=(x0, x1, y0, y1), interpolation="nearest",
+              cmap=ListedColormap([COLORS["blocked"], COLORS["free"]]), vmin=0, vmax=1, aspect="auto")
+    ax.set_xlabel(xl)
+    ax.set_ylabel(yl)
+    if names[0] in ("x", "y") and names[1] in ("x", "y"):
+        ax.set_aspect("equal")
+    if title:
+        ax.set_title(title, fontsize=9)
+
+
+def save_cspace(
+    cell: Workcell,
+    grid: Grid,
+    free: np.ndarray,
+    path: str | Path,
+    slice_index: int | None = None,
+    title_extra: str = "",
+) -> Path:
+    """The workcell beside its free-configuration bitmap (2-D), or slices of a 3-D one.
+
+    For 3-D spaces, ``slice_index`` picks one slice along the last axis; by
+    default six evenly spaced slices are drawn.
+    """
+    names = cell.robot.axis_names
+    if grid.ndim == 2:
+        fig, axes = new_figure(ncols=2, size=5.0)
+        draw_workcell(axes[0, 0], cell)
+        draw_robot(axes[0, 0], cell, cell.robot.start)
+        axes[0, 0].set_title("workcell")
+        draw_cspace_slice(axes[0, 1], grid, free, (names[0], names[1]),
+                          f"free configurations ({title_extra}): {free.mean():.1%} free")
+        return save_figure(fig, path)
+    if grid.ndim != 3:
+        raise ValueError("C-space pictures are for 2-D and 3-D spaces")
+    n = grid.shape[2]
+    picks = [slice_index] if slice_index is not None else list(np.linspace(0, n - 1, 6).round().astype(int))
+    if any(not 0 <= k < n for k in picks):
+        raise ValueError(f"slice index must be in [0, {n - 1}]")
+    ncols = min(3, len(picks)) + 1
+    nrows = math.ceil(len(picks) / (ncols - 1))
+    fig, axes = new_figure(ncols=ncols, nrows=nrows, size=3.6)
+    draw_workcell(axes[0, 0], cell, labels=False)
+    draw_robot(axes[0, 0], cell, cell.robot.start)
+    axes[0, 0].set_title("workcell", fontsize=9)
+    for r in range(1, nrows):
+        axes[r, 0].axis("off")
+    third = grid.axis(2)
+    unit = "" if names[2] in ("x", "y") else " deg"
+    for idx, k in enumerate(picks):
+        ax = axes[idx // (ncols - 1), 1 + idx % (ncols - 1)]
+        value = third[k] if names[2] in ("x", "y") else math.degrees(third[k])
+        draw_cspace_slice(ax, grid, free[:, :, k], (names[0], names[1]),
+                          f"{names[2]} = {value:.1f}{unit}: {free[:, :, k].mean():.0%} free")
+    for idx in range(len(picks), nrows * (ncols - 1)):
+        axes[idx // (ncols - 1), 1 + idx % (ncols - 1)].axis("off")
+    fig.suptitle(f"free configurations ({title_extra}), {free.mean():.1%} of {grid.size} cells")
+    return save_figure(fig, path)

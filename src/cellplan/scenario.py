@@ -1,0 +1,390 @@
+"""Scenario files: load, validate, dump, and describe (JSON Schema).
+
+A scenario is a versioned YAML file (``cellplan: 1``). The core sections
+(``workcell``, ``robot``, ``parts``, ``sources``, ``destinations``, ``cspace``)
+are defined here; each paper package contributes one optional section, defined
+in its own ``section.py`` and added to :class:`Scenario` by one line below.
+
+Validation happens in three layers, each reporting *every* problem it finds as
+one line naming the field:
+
+1. YAML syntax (with line and column) and duplicate keys;
+2. the schema (types, unknown keys, ranges, polygon simplicity), by pydantic;
+3. cross-references (names used before being defined, dimensions, joint limits,
+   regions inside the bounds), by :func:`check_references` and each section's
+   ``check(scenario)`` method.
+
+Geometric consistency that needs collision checks (a start configuration in
+collision, say) is checked when the model is built, in
+:meth:`cellplan.workcell.Workcell.from_scenario`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import Field, ValidationError
+
+from cellplan.adaptive.section import AdaptiveSection
+from cellplan.assembly.section import DiscsSection
+from cellplan.errors import Problem, ScenarioError
+from cellplan.schema import (
+    Bounds,
+    Name,
+    PositiveFloat,
+    Shape,
+    StrictModel,
+    Vec2,
+)
+from cellplan.strategies.section import StrategySection
+
+SCHEMA_VERSION = 1
+
+
+# --- core sections ---------------------------------------------------------------------------
+
+
+class WorkcellSpec(StrictModel):
+    """Rectangular bounds and named static obstacles."""
+
+    bounds: Bounds
+    obstacles: dict[Name, Shape] = Field(default_factory=dict)
+
+
+class PointRobotSpec(StrictModel):
+    """A point robot; C = R^2."""
+
+    type: Literal["point"]
+    start: Vec2
+
+
+class TranslatingRobotSpec(StrictModel):
+    """A rigid body that translates only; C = R^2. ``shape`` is in the robot frame."""
+
+    type: Literal["translating"]
+    shape: Shape
+    start: Vec2
+
+
+class RotatingRobotSpec(StrictModel):
+    """A rigid body that translates and rotates; C = R^2 x S^1.
+
+    ``start`` is ``(x, y, theta)`` with theta in degrees. The robot's axis of
+    orientation (the direction it moves along in problem 3 of the strategies
+    paper) is the +x axis of its frame.
+    """
+
+    type: Literal["rotating"]
+    shape: Shape
+    start: tuple[float, float, float]
+
+
+class LinkSpec(StrictModel):
+    """One link of a planar arm: a rectangle from its joint, ``length`` long, ``width`` wide."""
+
+    length: PositiveFloat
+    width: PositiveFloat
+
+
+class ArmRobotSpec(StrictModel):
+    """A planar n-link revolute chain; C = the joint angles.
+
+    Angles are in degrees. Joint i is measured relative to link i-1 (joint 1 from
+    the world +x axis). ``joint_limits`` default to the full circle (-180, 180],
+    making that joint periodic. ``end_effector_orientation``, when given, holds
+    the gripper frame at that fixed world orientation (problem 5 of the
+    strategies paper); otherwise the gripper frame follows the last link.
+    """
+
+    type: Literal["arm"]
+    base: Vec2 = (0.0, 0.0)
+    links: list[LinkSpec] = Field(min_length=1)
+    joint_limits: list[tuple[float, float]] | None = None
+    end_effector_orientation: float | None = None
+    start: list[float]
+
+
+RobotSpec = Annotated[
+    PointRobotSpec | TranslatingRobotSpec | RotatingRobotSpec | ArmRobotSpec,
+    Field(discriminator="type"),
+]
+
+
+class PartSpec(StrictModel):
+    """A part's shape in the gripper frame; while carried it moves rigidly with the gripper."""
+
+    shape: Shape
+
+
+class RegionSpec(StrictModel):
+    """A source or destination: one or more disjoint components."""
+
+    components: list[Shape] = Field(min_length=1)
+
+
+class CSpaceSpec(StrictModel):
+    """Default configuration-space resolution (cells per axis) for bitmaps and reports."""
+
+    cells: list[Annotated[int, Field(ge=2, le=4096)]] | None = None
+
+
+# --- the scenario ----------------------------------------------------------------------------
+
+
+class Scenario(StrictModel):
+    """A workcell and what runs in it. See ``cellplan schema`` for the full schema."""
+
+    cellplan: Literal[1] = Field(description="scenario format version")
+    name: str = ""
+    description: str = ""
+    workcell: WorkcellSpec
+    robot: RobotSpec | None = None
+    parts: dict[Name, PartSpec] = Field(default_factory=dict)
+    sources: dict[Name, RegionSpec] = Field(default_factory=dict)
+    destinations: dict[Name, RegionSpec] = Field(default_factory=dict)
+    cspace: CSpaceSpec = Field(default_factory=CSpaceSpec)
+    # One optional section per paper package; adding a section is one line here.
+    strategy: StrategySection | None = None
+    adaptive: AdaptiveSection | None = None
+    discs: DiscsSection | None = None
+
+    def digest(self) -> str:
+        """SHA-256 of the canonical JSON form; identifies a scenario in saved artefacts."""
+        canonical = json.dumps(self.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(canonical.encode()).hexdigest()
+
+    def section_names(self) -> list[str]:
+        """Names of the optional paper sections present in this scenario."""
+        return [n for n in PAPER_SECTIONS if getattr(self, n) is not None]
+
+
+PAPER_SECTIONS = ("strategy", "adaptive", "discs")
+
+
+# --- loading ---------------------------------------------------------------------------------
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that rejects duplicate mapping keys instead of keeping the last one."""
+
+
+def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
+    seen: dict[Any, yaml.Node] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+        if key in seen:
+            mark = key_node.start_mark
+            raise yaml.constructor.ConstructorError(
+                None, None, f"duplicate key {key!r}", mark
+            )
+        seen[key] = key_node
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(
+    yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
+    _construct_mapping,  # type: ignore[arg-type]
+)
+
+
+def parse_yaml(text: str, source: str = "<string>") -> Any:
+    """Parse YAML safely; syntax errors become a :class:`ScenarioError` with line and column."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - SafeLoader subclass
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
+        raise ScenarioError([Problem(where, f"YAML syntax: {exc.problem or exc}")]) from None
+    except yaml.YAMLError as exc:
+        raise ScenarioError([Problem(source, f"YAML syntax: {exc}")]) from None
+
+
+def format_location(loc: Iterable[Any], data: Any) -> str:
+    """Turn a pydantic error location into ``a.b[0].c``, dropping union tags.
+
+    Discriminated unions add the tag (``translating``) to the location although it
+    is not a key of the input; walking the input data tells the two apart.
+    """
+    parts: list[str] = []
+    node = data
+    for item in loc:
+        if isinstance(node, dict) and item in node:
+            parts.append(str(item))
+            node = node[item]
+        elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
+            parts.append(f"[{item}]")
+            node = node[item]
+        elif isinstance(node, dict | list):
+            # A tag of a union, or a missing key (then it is the field that is missing).
+            if isinstance(item, str) and not _is_union_tag(item, node):
+                parts.append(item)
+                node = None
+        else:
+            parts.append(str(item))
+    return ".".join(parts).replace(".[", "[")
+
+
+def _is_union_tag(item: str, node: Any) -> bool:
+    return isinstance(node, dict) and node.get("type") == item or item in {
+        "function-after",
+        "function-before",
+        "tagged-union",
+    }
+
+
+def problems_from_validation(exc: ValidationError, data: Any) -> list[Problem]:
+    """One :class:`Problem` per pydantic error, with readable field paths and messages."""
+    problems = []
+    for err in exc.errors(include_url=False):
+        field = format_location(err["loc"], data)
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        elif msg.startswith("Value error, "):
+            msg = msg[len("Value error, ") :]
+        elif msg.startswith("Assertion failed, "):
+            msg = msg[len("Assertion failed, ") :]
+        problems.append(Problem(field, msg))
+    return problems
+
+
+def scenario_from_data(data: Any, source: str = "<data>") -> Scenario:
+    """Validate already-parsed data (a dict) into a :class:`Scenario`."""
+    if not isinstance(data, dict):
+        raise ScenarioError([Problem(source, "a scenario must be a YAML mapping")])
+    if "cellplan" not in data:
+        raise ScenarioError([Problem("cellplan", f"missing format version (write 'cellplan: {SCHEMA_VERSION}')")])
+    if data["cellplan"] != SCHEMA_VERSION:
+        raise ScenarioError(
+            [Problem("cellplan", f"unsupported format version {data['cellplan']!r}; this cellplan reads {SCHEMA_VERSION}")]
+        )
+    try:
+        scenario = Scenario.model_validate(data)
+    except ValidationError as exc:
+        raise ScenarioError(problems_from_validation(exc, data)) from None
+    problems = check_references(scenario)
+    for name in scenario.section_names():
+        section = getattr(scenario, name)
+        check: Callable[[Scenario], list[Problem]] | None = getattr(section, "check", None)
+        if check is not None:
+            problems.extend(check(scenario))
+    if problems:
+        raise ScenarioError(problems)
+    return scenario
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read, parse and validate a scenario file (or a bundled scenario's name).
+
+    Raises
+    ------
+    ScenarioError
+        With one problem per mistake found; nothing is built from a bad file.
+    """
+    from cellplan.registry import resolve_scenario_path
+
+    resolved = resolve_scenario_path(path)
+    try:
+        text = resolved.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ScenarioError([Problem(str(path), f"cannot read: {exc.strerror or exc}")]) from None
+    data = parse_yaml(text, source=str(resolved))
+    return scenario_from_data(data, source=str(resolved))
+
+
+def loads_scenario(text: str) -> Scenario:
+    """Parse and validate scenario YAML text."""
+    return scenario_from_data(parse_yaml(text), source="<string>")
+
+
+def dump_scenario(scenario: Scenario) -> str:
+    """The scenario as YAML; ``loads_scenario(dump_scenario(s)) == s``."""
+    data = scenario.model_dump(mode="json", exclude_none=True)
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def json_schema() -> dict[str, Any]:
+    """The JSON Schema of scenario files."""
+    return Scenario.model_json_schema()
+
+
+# --- cross-reference checks ------------------------------------------------------------------
+
+
+def robot_dimension(robot: Any) -> int:
+    """Dimension of the robot's configuration space."""
+    if robot.type in ("point", "translating"):
+        return 2
+    if robot.type == "rotating":
+        return 3
+    return len(robot.links)
+
+
+def check_references(sc: Scenario) -> list[Problem]:
+    """Consistency checks that span fields; returns every problem found."""
+    problems: list[Problem] = []
+    names: dict[str, str] = {}
+    for section, entries in (
+        ("workcell.obstacles", sc.workcell.obstacles),
+        ("sources", sc.sources),
+        ("destinations", sc.destinations),
+    ):
+        for name in entries:
+            if name in names:
+                problems.append(Problem(f"{section}.{name}", f"name already used in {names[name]}"))
+            names[name] = section
+
+    bounds = sc.workcell.bounds.to_shapely()
+    for section, regions in (("sources", sc.sources), ("destinations", sc.destinations)):
+        for name, region in regions.items():
+            geoms = [c.to_shapely() for c in region.components]
+            for i, g in enumerate(geoms):
+                if not bounds.covers(g):
+                    problems.append(Problem(f"{section}.{name}.components[{i}]", "lies outside the workcell bounds"))
+                for j in range(i):
+                    if g.intersects(geoms[j]):
+                        problems.append(
+                            Problem(f"{section}.{name}.components[{i}]", f"overlaps components[{j}]; components must be disjoint")
+                        )
+    for name, shape in sc.workcell.obstacles.items():
+        if not bounds.intersects(shape.to_shapely()):
+            problems.append(Problem(f"workcell.obstacles.{name}", "lies entirely outside the workcell bounds"))
+
+    robot = sc.robot
+    if robot is not None:
+        dim = robot_dimension(robot)
+        if robot.type == "arm":
+            n = len(robot.links)
+            if len(robot.start) != n:
+                problems.append(Problem("robot.start", f"has {len(robot.start)} joint angles; the arm has {n} links"))
+            if robot.joint_limits is not None:
+                if len(robot.joint_limits) != n:
+                    problems.append(Problem("robot.joint_limits", f"has {len(robot.joint_limits)} entries; the arm has {n} links"))
+                for i, (lo, hi) in enumerate(robot.joint_limits):
+                    for v in (lo, hi):
+                        if not -180.0 <= v <= 180.0:
+                            problems.append(Problem(f"robot.joint_limits[{i}]", f"limit {v} deg is outside [-180, 180]"))
+                    if not lo < hi:
+                        problems.append(Problem(f"robot.joint_limits[{i}]", f"lower limit {lo} is not below upper limit {hi}"))
+                if len(robot.joint_limits) == n and len(robot.start) == n:
+                    for i, (q, (lo, hi)) in enumerate(zip(robot.start, robot.joint_limits, strict=True)):
+                        if not lo <= q <= hi:
+                            problems.append(Problem(f"robot.start[{i}]", f"joint angle {q} deg is outside its limits [{lo}, {hi}]"))
+            for i, q in enumerate(robot.start):
+                if not -180.0 < q <= 180.0:
+                    problems.append(Problem(f"robot.start[{i}]", f"joint angle {q} deg is outside (-180, 180]"))
+            if robot.end_effector_orientation is not None and not -180.0 < robot.end_effector_orientation <= 180.0:
+                problems.append(Problem("robot.end_effector_orientation", "must be in (-180, 180] degrees"))
+        elif robot.type == "rotating" and not -180.0 < robot.start[2] <= 180.0:
+            problems.append(Problem("robot.start", f"orientation {robot.start[2]} deg is outside (-180, 180]"))
+        if sc.cspace.cells is not None and len(sc.cspace.cells) != dim:
+            problems.append(Problem("cspace.cells", f"has {len(sc.cspace.cells)} entries; the robot's C-space has dimension {dim}"))
+    elif sc.parts or sc.sources or sc.destinations:
+        problems.append(Problem("robot", "parts, sources and destinations need a robot"))
+
+    return problems

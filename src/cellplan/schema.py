@@ -1,0 +1,135 @@
+"""Building blocks of the scenario schema: strict models, shapes, angles.
+
+Every section of a scenario file (core or contributed by a paper package) is a
+:class:`StrictModel`: unknown keys are errors, values are immutable once
+loaded. Shapes are tagged unions on ``type``. Angles are written in degrees in
+files and converted to radians by the code that consumes them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import shapely
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from shapely.geometry.base import BaseGeometry
+
+Vec2 = tuple[float, float]
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Probability = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+Name = Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.\-]+$")]
+
+
+class StrictModel(BaseModel):
+    """Base of every scenario model: unknown keys are errors, values are frozen."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class PolygonShape(StrictModel):
+    """A simple polygon (convex or not) given by its vertices in order."""
+
+    type: Literal["polygon"] = "polygon"
+    points: list[Vec2] = Field(min_length=3, description="vertices, in either winding order")
+
+    @model_validator(mode="after")
+    def _simple_and_non_degenerate(self) -> PolygonShape:
+        ring = shapely.LinearRing(self.points)
+        if not ring.is_simple:
+            raise ValueError("polygon is self-intersecting")
+        if shapely.Polygon(self.points).area <= 1e-12:
+            raise ValueError("polygon is degenerate (zero area)")
+        return self
+
+    def to_shapely(self) -> BaseGeometry:
+        return shapely.Polygon(self.points)
+
+
+class BoxShape(StrictModel):
+    """An axis-aligned rectangle ``[min, max]``; shorthand for a four-point polygon."""
+
+    type: Literal["box"]
+    min: Vec2
+    max: Vec2
+
+    @model_validator(mode="after")
+    def _ordered(self) -> BoxShape:
+        if not (self.max[0] > self.min[0] and self.max[1] > self.min[1]):
+            raise ValueError("box needs max > min on both axes")
+        return self
+
+    def to_shapely(self) -> BaseGeometry:
+        return shapely.box(self.min[0], self.min[1], self.max[0], self.max[1])
+
+
+class DiscShape(StrictModel):
+    """A closed disc."""
+
+    type: Literal["disc"]
+    center: Vec2
+    radius: PositiveFloat
+
+    def to_shapely(self) -> BaseGeometry:
+        # Only for drawing and reference checks; collision code uses the exact disc.
+        return shapely.Point(self.center).buffer(self.radius, quad_segs=32)
+
+
+Shape = Annotated[PolygonShape | BoxShape | DiscShape, Field(discriminator="type")]
+RigidShape = Annotated[PolygonShape | BoxShape, Field(discriminator="type")]
+
+
+class Bounds(StrictModel):
+    """The rectangular workcell ``[xmin, xmax] x [ymin, ymax]``."""
+
+    xmin: float = 0.0
+    ymin: float = 0.0
+    xmax: float
+    ymax: float
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Bounds:
+        if not (self.xmax > self.xmin and self.ymax > self.ymin):
+            raise ValueError("bounds need xmax > xmin and ymax > ymin")
+        return self
+
+    def to_shapely(self) -> BaseGeometry:
+        return shapely.box(self.xmin, self.ymin, self.xmax, self.ymax)
+
+
+def check_angle_deg(value: float) -> float:
+    """Angles in files are degrees in (-180, 180]."""
+    if not (-180.0 < value <= 180.0):
+        raise ValueError(f"angle {value} deg is outside (-180, 180]")
+    return value
+
+
+AngleDeg = Annotated[float, Field(allow_inf_nan=False)]
+
+
+def deg(values: float | list[float] | tuple[float, ...]) -> float | list[float]:
+    """Degrees to radians for a scalar or a list."""
+    if isinstance(values, list | tuple):
+        return [math.radians(v) for v in values]
+    return math.radians(values)
+
+
+__all__ = [
+    "AngleDeg",
+    "BoxShape",
+    "Bounds",
+    "DiscShape",
+    "Name",
+    "NonNegativeFloat",
+    "PolygonShape",
+    "PositiveFloat",
+    "Probability",
+    "RigidShape",
+    "Shape",
+    "StrictModel",
+    "Vec2",
+    "check_angle_deg",
+    "deg",
+    "field_validator",
+]

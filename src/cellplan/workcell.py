@@ -1,0 +1,345 @@
+"""The workcell model: robot, obstacles, parts, sources and destinations, with batched queries.
+
+Built from a validated :class:`~cellplan.scenario.Scenario` by
+:meth:`Workcell.from_scenario`, which also checks what needs geometry (the
+start configuration must be collision-free and inside the bounds).
+
+Which obstacles count depends on the assembly mode (strategies paper,
+equations (1)-(3)): in NR every source region is an obstacle; while waiting for
+or carrying a part from source s, every *other* source is. ``avoid_sources``
+selects this: ``"all"``, ``"none"``, or the names of the sources to avoid
+(:meth:`Workcell.sources_except` builds the latter). The workcell's outside
+always counts as an obstacle: robots stay inside the bounds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from shapely.geometry.base import BaseGeometry
+
+from cellplan.errors import Problem, ScenarioError
+from cellplan.geometry import (
+    BoolArray,
+    FloatArray,
+    Obstacles,
+    RigidBodies,
+    ShapeSet,
+    body_gaps,
+    complement_within,
+    frame_outside,
+)
+from cellplan.robots import PlanarArm, Robot, as_batch, robot_from_spec
+from cellplan.scenario import Scenario, load_scenario
+
+AvoidSources = Literal["all", "none"] | Collection[str]
+RegionTest = Literal["contact", "enclosure"]
+
+DEFAULT_CELLS = {"point": (128, 128), "translating": (128, 128), "rotating": (64, 64, 32)}
+DEFAULT_ARM_CELLS_PER_JOINT = 64
+
+
+@dataclass(frozen=True)
+class Region:
+    """A source or destination: disjoint components, each a :class:`ShapeSet`."""
+
+    name: str
+    role: Literal["source", "destination"]
+    components: tuple[ShapeSet, ...]
+    geometries: tuple[BaseGeometry, ...]
+    complements: tuple[ShapeSet, ...]
+
+    @property
+    def shapes(self) -> ShapeSet:
+        """All components as one set."""
+        return ShapeSet.union(self.components)
+
+
+@dataclass(frozen=True)
+class Workcell:
+    """A workcell: bounds, named obstacles, one robot, parts, sources, destinations."""
+
+    name: str
+    bounds: tuple[float, float, float, float]
+    obstacles: Mapping[str, ShapeSet]
+    obstacle_geometries: Mapping[str, BaseGeometry]
+    robot: Robot
+    parts: Mapping[str, ShapeSet]
+    part_geometries: Mapping[str, BaseGeometry]
+    sources: Mapping[str, Region]
+    destinations: Mapping[str, Region]
+    default_cells: tuple[int, ...]
+    outside: ShapeSet
+    extent: tuple[float, float, float, float]
+    # Memo of prepared obstacle sets by avoided sources; derived data, never part of equality.
+    _obstacle_cache: dict[tuple[tuple[str, ...], bool], Obstacles] = field(
+        default_factory=dict, compare=False, repr=False
+    )
+
+    # --- construction ------------------------------------------------------------------------
+
+    @staticmethod
+    def from_scenario(sc: Scenario) -> Workcell:
+        """Build the model; raises :class:`ScenarioError` if the start collides or leaves the bounds."""
+        if sc.robot is None:
+            raise ScenarioError([Problem("robot", "this scenario has no robot; a workcell model needs one")])
+        b = sc.workcell.bounds
+        bounds = (b.xmin, b.ymin, b.xmax, b.ymax)
+        robot = robot_from_spec(sc.robot, bounds)
+        parts = {name: ShapeSet.from_spec(p.shape) for name, p in sc.parts.items()}
+        reach = _robot_reach(robot) + max([p.reach() for p in parts.values()] + [0.0])
+        pad = reach + max(b.xmax - b.xmin, b.ymax - b.ymin) + 1.0
+        extent = (b.xmin - pad, b.ymin - pad, b.xmax + pad, b.ymax + pad)
+
+        def region(name: str, role: Literal["source", "destination"], spec: object) -> Region:
+            comps = tuple(ShapeSet.from_spec(c) for c in spec.components)  # type: ignore[attr-defined]
+            geoms = tuple(c.to_shapely() for c in spec.components)  # type: ignore[attr-defined]
+            return Region(name, role, comps, geoms, tuple(complement_within(c, extent) for c in comps))
+
+        cells = tuple(sc.cspace.cells) if sc.cspace.cells else default_cells(robot)
+        cell = Workcell(
+            name=sc.name,
+            bounds=bounds,
+            obstacles={n: ShapeSet.from_spec(s) for n, s in sc.workcell.obstacles.items()},
+            obstacle_geometries={n: s.to_shapely() for n, s in sc.workcell.obstacles.items()},
+            robot=robot,
+            parts=parts,
+            part_geometries={n: p.shape.to_shapely() for n, p in sc.parts.items()},
+            sources={n: region(n, "source", r) for n, r in sc.sources.items()},
+            destinations={n: region(n, "destination", r) for n, r in sc.destinations.items()},
+            default_cells=cells,
+            outside=frame_outside(bounds, pad),
+            extent=extent,
+        )
+        cell.check_start()
+        return cell
+
+    def check_start(self) -> None:
+        """Raise a :class:`ScenarioError` naming what the start configuration hits."""
+        q = self.robot.start[None, :]
+        shown = "(" + ", ".join(f"{v:.4g}" for v in _display_config(self.robot, self.robot.start)) + ")"
+        problems = []
+        if not self.robot.within_limits(q)[0]:
+            problems.append(Problem("robot.start", f"configuration {shown} violates the joint limits"))
+        bodies, poses = self.posed_bodies(q, None)
+        if _gap(bodies, poses, self.outside)[0] <= 0:
+            problems.append(Problem("robot.start", f"configuration {shown} leaves the workcell bounds"))
+        for name, obs in self.obstacles.items():
+            if _gap(bodies, poses, obs)[0] <= 0:
+                problems.append(Problem("robot.start", f"configuration {shown} collides with obstacle '{name}'"))
+        if problems:
+            raise ScenarioError(problems)
+
+    # --- obstacle sets -----------------------------------------------------------------------
+
+    def sources_except(self, source: str | None) -> list[str]:
+        """Names of the sources to avoid while serving ``source`` (equations (1)-(2))."""
+        return [s for s in self.sources if s != source]
+
+    def obstacle_set(self, avoid_sources: AvoidSources = "all", include_outside: bool = True) -> ShapeSet:
+        """Static obstacles, the chosen sources, and (by default) the outside of the bounds."""
+        return self.prepared_obstacles(avoid_sources, include_outside).shapes
+
+    def prepared_obstacles(self, avoid_sources: AvoidSources = "all", include_outside: bool = True) -> Obstacles:
+        """:meth:`obstacle_set` prepared for the kernels, memoised per choice of sources."""
+        key = (tuple(self._avoided(avoid_sources)), include_outside)
+        if key not in self._obstacle_cache:
+            sets = list(self.obstacles.values())
+            sets += [self.sources[s].shapes for s in key[0]]
+            if include_outside:
+                sets.append(self.outside)
+            self._obstacle_cache[key] = Obstacles(ShapeSet.union(sets))
+        return self._obstacle_cache[key]
+
+    def _avoided(self, avoid_sources: AvoidSources) -> list[str]:
+        if avoid_sources == "all":
+            return list(self.sources)
+        if avoid_sources == "none":
+            return []
+        names = list(avoid_sources)
+        unknown = [s for s in names if s not in self.sources]
+        if unknown:
+            raise ValueError(f"unknown sources {unknown}; known: {list(self.sources)}")
+        return names
+
+    # --- batched queries ---------------------------------------------------------------------
+
+    def posed_bodies(self, q: FloatArray, carrying: str | None) -> tuple[RigidBodies, FloatArray]:
+        """Bodies (robot, then the carried part) and their poses ``(N, B, 3)``."""
+        q = as_batch(q, self.robot.dim)
+        poses = self.robot.body_poses(q)
+        bodies = self.robot.bodies
+        if carrying is not None:
+            part = self.part(carrying)
+            bodies = RigidBodies((*bodies.bodies, part))
+            poses = np.concatenate([poses, self.robot.tool_pose(q)[:, None, :]], axis=1)
+        return bodies, poses
+
+    def part(self, name: str) -> ShapeSet:
+        """A part's shape in the gripper frame."""
+        try:
+            return self.parts[name]
+        except KeyError:
+            raise ValueError(f"unknown part {name!r}; known: {list(self.parts)}") from None
+
+    def collides(
+        self,
+        q: FloatArray,
+        carrying: str | None = None,
+        avoid_sources: AvoidSources = "all",
+        margin: float | FloatArray = 0.0,
+    ) -> BoolArray:
+        """``(N,)``: does the robot (with the carried part) touch an obstacle or leave the bounds?
+
+        Configurations outside the joint limits count as colliding. ``margin``
+        (a number, or one per body with the part last) demands extra clearance.
+        """
+        q = as_batch(q, self.robot.dim)
+        bodies, poses = self.posed_bodies(q, carrying)
+        margins = np.broadcast_to(np.asarray(margin, float), (len(bodies.bodies),))
+        hit = body_gaps(bodies, poses, self.prepared_obstacles(avoid_sources), margins, exact=False) <= 0.0
+        return hit | ~self.robot.within_limits(q)
+
+    def free(self, q: FloatArray, carrying: str | None = None, avoid_sources: AvoidSources = "all") -> BoolArray:
+        """``(N,)``: the negation of :meth:`collides`."""
+        return ~self.collides(q, carrying, avoid_sources)
+
+    def clearance(
+        self, q: FloatArray, carrying: str | None = None, avoid_sources: AvoidSources = "all"
+    ) -> FloatArray:
+        """``(N,)`` distance from the robot (and carried part) to the nearest obstacle or the
+        workcell boundary; 0 on contact and outside the joint limits."""
+        q = as_batch(q, self.robot.dim)
+        bodies, poses = self.posed_bodies(q, carrying)
+        gap = body_gaps(bodies, poses, self.prepared_obstacles(avoid_sources), exact=True)
+        gap = np.maximum(gap, 0.0)
+        gap[~self.robot.within_limits(q)] = 0.0
+        return gap
+
+    def motion_collides(
+        self,
+        q0: FloatArray,
+        q1: FloatArray,
+        step: float,
+        carrying: str | None = None,
+        avoid_sources: AvoidSources = "all",
+        certified: bool = True,
+    ) -> BoolArray:
+        """``(N,)``: does the straight C-space motion ``q0[i] -> q1[i]`` collide?
+
+        The segment is sampled so that no point of the robot moves more than
+        ``step`` (workspace units) between samples. With ``certified`` the samples
+        are checked with a clearance margin of ``step / 2``, so a motion reported
+        free is free everywhere along the segment, not only at the samples.
+        Periodic axes take the short way round.
+        """
+        q0 = as_batch(q0, self.robot.dim)
+        q1 = as_batch(q1, self.robot.dim)
+        if step <= 0:
+            raise ValueError("step must be positive")
+        d = self.robot.difference(q0, q1)
+        reach = self.part(carrying).reach() if carrying is not None else 0.0
+        travel = self.robot.workspace_step(d, reach)
+        counts = np.maximum(1, np.ceil(travel / step).astype(np.int64)) + 1
+        seg = np.repeat(np.arange(len(q0)), counts)
+        offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        t = (np.arange(counts.sum()) - np.repeat(offsets, counts)) / np.repeat(counts - 1, counts)
+        samples = self.robot.wrap(q0[seg] + t[:, None] * d[seg])
+        margin = step / 2 if certified else 0.0
+        hit = self.collides(samples, carrying, avoid_sources, margin=margin)
+        return np.logical_or.reduceat(hit, offsets)
+
+    def in_region(
+        self,
+        q: FloatArray,
+        name: str,
+        kind: RegionTest = "contact",
+        component: int | None = None,
+        carrying: str | None = None,
+    ) -> BoolArray:
+        """``(N,)``: contact with or enclosure in a source or destination region.
+
+        For rigid robots the robot body (and carried part) is tested; for arms,
+        the end-effector point (and carried part), as the strategies paper does
+        for problems 5-6. Contact means touching; enclosure means entirely inside
+        one component (touching its boundary from inside does not count).
+        ``component`` restricts the test to one component.
+        """
+        region = self.region(name)
+        q = as_batch(q, self.robot.dim)
+        bodies, poses = self._region_bodies(q, carrying)
+        indices = range(len(region.components)) if component is None else [component]
+        out = np.zeros(len(q), bool)
+        for i in indices:
+            if kind == "contact":
+                out |= _gap(bodies, poses, region.components[i]) <= 0.0
+            elif kind == "enclosure":
+                out |= _gap(bodies, poses, region.complements[i]) > 0.0
+            else:
+                raise ValueError(f"kind must be 'contact' or 'enclosure', not {kind!r}")
+        return out
+
+    def _region_bodies(self, q: FloatArray, carrying: str | None) -> tuple[RigidBodies, FloatArray]:
+        if not isinstance(self.robot, PlanarArm):
+            return self.posed_bodies(q, carrying)
+        tool = self.robot.tool_pose(q)[:, None, :]
+        shapes: tuple[ShapeSet, ...] = (ShapeSet.point(),)
+        poses = tool
+        if carrying is not None:
+            shapes = (*shapes, self.part(carrying))
+            poses = np.concatenate([tool, tool], axis=1)
+        return RigidBodies(shapes), poses
+
+    def region(self, name: str) -> Region:
+        """A source or destination by name."""
+        if name in self.sources:
+            return self.sources[name]
+        if name in self.destinations:
+            return self.destinations[name]
+        raise ValueError(f"unknown region {name!r}; known: {[*self.sources, *self.destinations]}")
+
+    # --- geometry for drawing ----------------------------------------------------------------
+
+    def robot_shapes(self, q: FloatArray, carrying: str | None = None) -> tuple[list[BaseGeometry], BaseGeometry | None]:
+        """Shapely geometry of the robot's bodies and of the carried part at one configuration."""
+        bodies, poses = self.posed_bodies(np.asarray(q, float)[None, :], carrying)
+        geoms = [b.transformed(p).to_shapely() for b, p in zip(bodies.bodies, poses[0], strict=True)]
+        if carrying is None:
+            return geoms, None
+        return geoms[:-1], geoms[-1]
+
+
+def _gap(bodies: RigidBodies, poses: FloatArray, obstacles: ShapeSet) -> FloatArray:
+    return body_gaps(bodies, poses, obstacles, exact=False)
+
+
+def _robot_reach(robot: Robot) -> float:
+    if isinstance(robot, PlanarArm):
+        return float(robot.lengths.sum() + robot.widths.max())
+    return float(max(b.reach() for b in robot.bodies.bodies))
+
+
+def _display_config(robot: Robot, q: FloatArray) -> list[float]:
+    """Configuration as the user wrote it (degrees for angles)."""
+    out = []
+    for name, v in zip(robot.axis_names, q, strict=True):
+        out.append(math.degrees(v) if name not in ("x", "y") else float(v))
+    return out
+
+
+def default_cells(robot: Robot) -> tuple[int, ...]:
+    """Default bitmap resolution for a robot kind."""
+    if robot.kind in DEFAULT_CELLS:
+        return DEFAULT_CELLS[robot.kind]
+    return (DEFAULT_ARM_CELLS_PER_JOINT,) * robot.dim
+
+
+def load_workcell(path: str | Path) -> tuple[Scenario, Workcell]:
+    """Load and validate a scenario file and build its workcell model."""
+    sc = load_scenario(path)
+    return sc, Workcell.from_scenario(sc)
