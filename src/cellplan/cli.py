@@ -29,7 +29,9 @@ app = typer.Typer(
 console = Console(stderr=True)
 out = Console()
 
-ScenarioArg = Annotated[str, typer.Argument(help="scenario file, or the name of a bundled scenario")]
+ScenarioArg = Annotated[
+    str, typer.Argument(help="scenario file, or the name of a bundled scenario")
+]
 OutputOpt = Annotated[Path, typer.Option("-o", "--output", help="output file")]
 
 
@@ -50,7 +52,12 @@ def scenarios() -> None:
     table = Table("name", "robot", "sections", "description")
     for name in scenario_names():
         sc = load_scenario(scenario_path(name))
-        table.add_row(name, sc.robot.type if sc.robot else "-", ", ".join(sc.section_names()) or "-", sc.description.split("\n")[0])
+        table.add_row(
+            name,
+            sc.robot.type if sc.robot else "-",
+            ", ".join(sc.section_names()) or "-",
+            sc.description.split("\n")[0],
+        )
     out.print(table)
 
 
@@ -95,8 +102,12 @@ def cspace(
     scenario: ScenarioArg,
     output: OutputOpt = Path("cspace.png"),
     carrying: Annotated[str | None, typer.Option(help="part carried (default: none)")] = None,
-    cells: Annotated[str | None, typer.Option(help="cells per axis, comma-separated (e.g. 128,128,64)")] = None,
-    slice_index: Annotated[int | None, typer.Option("--slice", help="index of the 2-D slice of a 3-D space")] = None,
+    cells: Annotated[
+        str | None, typer.Option(help="cells per axis, comma-separated (e.g. 128,128,64)")
+    ] = None,
+    slice_index: Annotated[
+        int | None, typer.Option("--slice", help="index of the 2-D slice of a 3-D space")
+    ] = None,
 ) -> None:
     """Draw the free-configuration bitmap (a slice for 3-D spaces)."""
     from cellplan import plots
@@ -106,11 +117,20 @@ def cspace(
     _, cell = load_workcell(scenario)
     check_image_path(output)
     if carrying is not None and carrying not in cell.parts:
-        raise ArgumentError(f"unknown part {carrying!r} (parts: {', '.join(cell.parts) or 'none'})", "--carrying")
+        raise ArgumentError(
+            f"unknown part {carrying!r} (parts: {', '.join(cell.parts) or 'none'})", "--carrying"
+        )
     shape = parse_cells(cells, cell.robot.dim) if cells else cell.default_cells
     grid = Grid.for_robot(cell.robot, shape)
     free = free_bitmap(cell, grid, carrying=carrying)
-    plots.save_cspace(cell, grid, free, output, slice_index=slice_index, title_extra=f"carrying {carrying}" if carrying else "empty")
+    plots.save_cspace(
+        cell,
+        grid,
+        free,
+        output,
+        slice_index=slice_index,
+        title_extra=f"carrying {carrying}" if carrying else "empty",
+    )
     out.print(f"wrote {output}  (free fraction {free.mean():.3f})")
 
 
@@ -139,7 +159,9 @@ def parse_cells(text: str, dim: int) -> tuple[int, ...]:
 def check_image_path(path: Path) -> None:
     """Refuse output names matplotlib cannot write, before any work is done."""
     if path.suffix.lower() not in {".png", ".svg", ".pdf", ".jpg", ".jpeg"}:
-        raise ArgumentError(f"unsupported image type {path.suffix!r}; use .png, .svg or .pdf", "--output")
+        raise ArgumentError(
+            f"unsupported image type {path.suffix!r}; use .png, .svg or .pdf", "--output"
+        )
 
 
 def _register_package_commands() -> None:

@@ -13,11 +13,12 @@ methods give this guarantee:
 
 * translating and point robots: Kavraki's FFT method (strategies paper,
   reference [18]). The obstacles are rasterised on a workspace grid aligned
-  with the C-space cells (a workspace cell is set if an obstacle touches its
-  closed box); the robot is rasterised as the set of offset cells that the robot
-  swept over one C-space cell can touch; the C-obstacle is their correlation,
-  computed by FFT. Any collision inside a C-space cell happens at a point lying
-  in some workspace cell that both rasters mark, so it is caught.
+  with the C-space cells and refined by an odd factor (a raster cell is set if
+  an obstacle touches its closed box); the robot is rasterised as the set of
+  offset raster cells that the robot, swept over one C-space cell, can touch;
+  the C-obstacle is their correlation, computed by FFT and read at the C-cell
+  centres. Any collision inside a C-space cell happens at a point lying in some
+  raster cell that both rasters mark, so it is caught.
 * rotating robots: the same, once per orientation slice, with the robot swept
   over the slice's angular interval (sampled densely enough, with the sampling
   gap added to the raster test's box).
@@ -38,17 +39,19 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import fftconvolve
+from scipy import fft as sp_fft
 
-from cellplan.geometry import BoolArray, FloatArray, RigidBodies, ShapeSet, body_gaps
+from cellplan.geometry import BoolArray, FloatArray, ShapeSet, body_gaps, raster_touching
 from cellplan.robots import PlanarArm, Robot, as_batch
 from cellplan.workcell import AvoidSources, RegionTest, Workcell
 
 # Sub-sampling of a rotation slice: the sampling gap may add at most this
 # fraction of a translational cell to the robot's raster test box.
 _ROTATION_GAP_FRACTION = 0.25
-# Workspace raster refinement of the FFT method (odd, so C-cell centres are fine-cell centres).
-SUPERSAMPLE = 5
+# The FFT method's workspace raster has at least this many cells per axis: coarse
+# C-space grids get a finer raster (by an odd factor, so C-cell centres stay raster
+# cell centres), which keeps the over-approximation to a fraction of a C-cell.
+MIN_RASTER_CELLS = 256
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,12 @@ class Grid:
     @staticmethod
     def for_robot(robot: Robot, shape: Sequence[int]) -> Grid:
         """The grid over a robot's configuration space (bounds and joint limits)."""
-        return Grid(np.array(robot.lower, float), np.array(robot.upper, float), tuple(int(s) for s in shape), robot.periodic)
+        return Grid(
+            np.array(robot.lower, float),
+            np.array(robot.upper, float),
+            tuple(int(s) for s in shape),
+            robot.periodic,
+        )
 
     @property
     def ndim(self) -> int:
@@ -114,7 +122,11 @@ class Grid:
         q = as_batch(q, self.ndim)
         idx = np.floor((q - self.lower) / self.spacing).astype(np.int64)
         for i, per in enumerate(self.periodic):
-            idx[:, i] = np.mod(idx[:, i], self.shape[i]) if per else np.clip(idx[:, i], 0, self.shape[i] - 1)
+            idx[:, i] = (
+                np.mod(idx[:, i], self.shape[i])
+                if per
+                else np.clip(idx[:, i], 0, self.shape[i] - 1)
+            )
         return idx
 
     def config_of(self, index: NDArray[np.int64]) -> FloatArray:
@@ -195,7 +207,9 @@ def region_bitmap(
 # --- exact method ----------------------------------------------------------------------------
 
 
-def _exact_bitmap(cell: Workcell, grid: Grid, obstacles: ShapeSet, carrying: str | None) -> BoolArray:
+def _exact_bitmap(
+    cell: Workcell, grid: Grid, obstacles: ShapeSet, carrying: str | None
+) -> BoolArray:
     robot = cell.robot
     half = grid.spacing / 2
     margins = list(robot.body_displacement_bounds(half))
@@ -219,25 +233,31 @@ def _robot_shape(cell: Workcell, carrying: str | None) -> ShapeSet:
     return ShapeSet.union(shapes)
 
 
-def _touching(shapes: ShapeSet, cx: FloatArray, cy: FloatArray, hx: float, hy: float) -> BoolArray:
-    """Which closed boxes of half-widths ``(hx, hy)`` centred at ``(cx, cy)`` meet ``shapes``."""
-    box = RigidBodies((ShapeSet.from_polygons([np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])]),))
-    poses = np.stack([cx, cy, np.zeros_like(cx)], axis=1)[:, None, :]
-    return body_gaps(box, poses, shapes, exact=False) <= 0.0
+def auto_supersample(grid: Grid) -> int:
+    """Smallest odd refinement giving the workspace raster ``MIN_RASTER_CELLS`` cells per axis."""
+    s = math.ceil(MIN_RASTER_CELLS / min(grid.shape[0], grid.shape[1]))
+    return s if s % 2 == 1 else s + 1
 
 
 def _fft_bitmap(
-    cell: Workcell, grid: Grid, obstacles: ShapeSet, carrying: str | None, supersample: int = SUPERSAMPLE
+    cell: Workcell,
+    grid: Grid,
+    obstacles: ShapeSet,
+    carrying: str | None,
+    supersample: int | None = None,
 ) -> BoolArray:
     """Kavraki's FFT C-obstacles on a workspace raster ``supersample`` times finer than the grid.
 
     With fine spacing ``f = h / s`` (odd ``s``, so each C-cell centre is a fine cell
     centre), a C-cell is blocked iff some fine offset cell ``u`` is marked in both
-    the obstacle raster (obstacle meets the fine cell) and the robot raster (the
-    robot meets the box of half-width ``h/2 + f/2`` around offset ``u``, i.e. the
-    robot swept over the C-cell meets the fine cell). The over-approximation
-    beyond the cell box itself is therefore one fine cell, not one coarse cell.
+    the obstacle raster (the obstacle meets the fine cell) and the robot raster
+    (the robot meets the box of half-width ``h/2 + f/2`` around offset ``u``, i.e.
+    the robot swept over the C-cell meets that fine cell). The over-approximation
+    beyond the cell box itself is one fine cell; ``supersample=1`` is Kavraki's
+    plain method, ``None`` picks :func:`auto_supersample`.
     """
+    if supersample is None:
+        supersample = auto_supersample(grid)
     if supersample < 1 or supersample % 2 == 0:
         raise ValueError("supersample must be a positive odd integer")
     hx, hy = float(grid.spacing[0]), float(grid.spacing[1])
@@ -247,23 +267,34 @@ def _fft_bitmap(
     reach = shape.reach()
     rotating = grid.ndim == 3
     gap = _ROTATION_GAP_FRACTION * min(fx, fy) if rotating else 0.0
-    box_hx, box_hy = hx / 2 + fx / 2 + gap, hy / 2 + fy / 2 + gap
-    ux = math.ceil((reach + box_hx) / fx) + 1
-    uy = math.ceil((reach + box_hy) / fy) + 1
+    box = (hx / 2 + fx / 2 + gap, hy / 2 + fy / 2 + gap)
+    ux = math.ceil((reach + box[0]) / fx) + 1
+    uy = math.ceil((reach + box[1]) / fy) + 1
 
-    ax = grid.lower[0] + (np.arange(-ux, nx + ux) + 0.5) * fx
-    ay = grid.lower[1] + (np.arange(-uy, ny + uy) + 0.5) * fy
-    mx, my = np.meshgrid(ax, ay, indexing="ij")
-    occupied = _touching(obstacles, mx.ravel(), my.ravel(), fx / 2, fy / 2)
-    obstacle_raster = occupied.reshape(mx.shape).astype(float)
-    ox, oy = np.meshgrid(np.arange(-ux, ux + 1) * fx, np.arange(-uy, uy + 1) * fy, indexing="ij")
+    origin = (grid.lower[0] + (0.5 - ux) * fx, grid.lower[1] + (0.5 - uy) * fy)
+    obstacle_raster = raster_touching(
+        obstacles, origin, (fx, fy), (nx + 2 * ux, ny + 2 * uy), (fx / 2, fy / 2)
+    )
+    kernel_shape = (2 * ux + 1, 2 * uy + 1)
+    full = (
+        obstacle_raster.shape[0] + kernel_shape[0] - 1,
+        obstacle_raster.shape[1] + kernel_shape[1] - 1,
+    )
+    fft_shape = (sp_fft.next_fast_len(full[0], real=True), sp_fft.next_fast_len(full[1], real=True))
+    # The obstacle spectrum is shared by every robot raster (slices, carried parts).
+    obstacle_spectrum = sp_fft.rfft2(obstacle_raster.astype(np.float32), fft_shape, workers=-1)
     centre = (supersample - 1) // 2
 
     def blocked_for(robot_shapes: ShapeSet) -> BoolArray:
-        raster = _touching(robot_shapes, ox.ravel(), oy.ravel(), box_hx, box_hy).reshape(ox.shape)
-        # correlation: blocked[a] = sum_u R[u] * O[a + u], evaluated at C-cell centres
-        corr = fftconvolve(obstacle_raster, raster[::-1, ::-1].astype(float), mode="valid")
-        return np.asarray(corr[centre::supersample, centre::supersample] > 0.5)
+        raster = raster_touching(robot_shapes, (-ux * fx, -uy * fy), (fx, fy), kernel_shape, box)
+        # correlation: blocked[a] = sum_u R[u] * O[a + u]  (convolution with the flipped raster)
+        spectrum = sp_fft.rfft2(raster[::-1, ::-1].astype(np.float32), fft_shape, workers=-1)
+        conv = sp_fft.irfft2(obstacle_spectrum * spectrum, fft_shape, workers=-1)
+        valid = conv[
+            kernel_shape[0] - 1 : kernel_shape[0] - 1 + nx,
+            kernel_shape[1] - 1 : kernel_shape[1] - 1 + ny,
+        ]
+        return np.asarray(valid[centre::supersample, centre::supersample] > 0.5)
 
     if not rotating:
         return blocked_for(shape)

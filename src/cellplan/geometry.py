@@ -131,7 +131,10 @@ class ShapeSet:
     @staticmethod
     def disc(centre: Sequence[float], radius: float) -> ShapeSet:
         return ShapeSet(
-            np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.array([centre], float), np.array([radius], float)
+            np.zeros((0, 3, 2)),
+            np.zeros(0, np.int64),
+            np.array([centre], float),
+            np.array([radius], float),
         )
 
     @staticmethod
@@ -281,7 +284,9 @@ def complement_within(region: ShapeSet, box: tuple[float, float, float, float]) 
 
 
 @nb.njit(cache=True, inline="always")
-def _project(vx: NDArray[np.float64], vy: NDArray[np.float64], n: int, ax: float, ay: float) -> tuple[float, float]:
+def _project(
+    vx: NDArray[np.float64], vy: NDArray[np.float64], n: int, ax: float, ay: float
+) -> tuple[float, float]:
     lo = vx[0] * ax + vy[0] * ay
     hi = lo
     for i in range(1, n):
@@ -295,8 +300,12 @@ def _project(vx: NDArray[np.float64], vy: NDArray[np.float64], n: int, ax: float
 
 @nb.njit(cache=True)
 def _separated_on_edges(
-    ax_: NDArray[np.float64], ay_: NDArray[np.float64], na: int,
-    bx: NDArray[np.float64], by: NDArray[np.float64], nb_: int,
+    ax_: NDArray[np.float64],
+    ay_: NDArray[np.float64],
+    na: int,
+    bx: NDArray[np.float64],
+    by: NDArray[np.float64],
+    nb_: int,
 ) -> bool:
     # Axes from the edges of A (normals; for a segment also its direction).
     if na == 1:
@@ -321,8 +330,12 @@ def _separated_on_edges(
 
 @nb.njit(cache=True)
 def _polygons_overlap(
-    ax_: NDArray[np.float64], ay_: NDArray[np.float64], na: int,
-    bx: NDArray[np.float64], by: NDArray[np.float64], nb_: int,
+    ax_: NDArray[np.float64],
+    ay_: NDArray[np.float64],
+    na: int,
+    bx: NDArray[np.float64],
+    by: NDArray[np.float64],
+    nb_: int,
 ) -> bool:
     if _separated_on_edges(ax_, ay_, na, bx, by, nb_):
         return False
@@ -348,7 +361,9 @@ def _point_segment_dist(px: float, py: float, x0: float, y0: float, x1: float, y
 
 
 @nb.njit(cache=True)
-def _point_polygon_dist(px: float, py: float, vx: NDArray[np.float64], vy: NDArray[np.float64], n: int) -> float:
+def _point_polygon_dist(
+    px: float, py: float, vx: NDArray[np.float64], vy: NDArray[np.float64], n: int
+) -> float:
     """Distance from a point to a convex CCW polygon (0 inside)."""
     if n == 1:
         return math.hypot(px - vx[0], py - vy[0])
@@ -369,8 +384,12 @@ def _point_polygon_dist(px: float, py: float, vx: NDArray[np.float64], vy: NDArr
 
 @nb.njit(cache=True)
 def _polygon_distance(
-    ax_: NDArray[np.float64], ay_: NDArray[np.float64], na: int,
-    bx: NDArray[np.float64], by: NDArray[np.float64], nb_: int,
+    ax_: NDArray[np.float64],
+    ay_: NDArray[np.float64],
+    na: int,
+    bx: NDArray[np.float64],
+    by: NDArray[np.float64],
+    nb_: int,
 ) -> float:
     """Distance between two convex polygons (0 when they overlap)."""
     if _polygons_overlap(ax_, ay_, na, bx, by, nb_):
@@ -388,20 +407,20 @@ def _polygon_distance(
 
 
 def _gap_impl(
-    poses: NDArray[np.float64],        # (N, B, 3)
-    pv: NDArray[np.float64],           # (P, K, 2) robot polygons, local
-    pc: NDArray[np.int64],             # (P,)
-    pb: NDArray[np.int64],             # (P,) body of each polygon
-    dc: NDArray[np.float64],           # (Dr, 2) robot discs, local
-    dr: NDArray[np.float64],           # (Dr,)
-    db: NDArray[np.int64],             # (Dr,)
-    margin: NDArray[np.float64],       # (B,) clearance each body must keep
-    ov: NDArray[np.float64],           # (M, Ko, 2) obstacle polygons, world
-    oc: NDArray[np.int64],             # (M,)
-    obox: NDArray[np.float64],         # (M, 4) their bounding boxes
-    odc: NDArray[np.float64],          # (Do, 2) obstacle discs
-    odr: NDArray[np.float64],          # (Do,)
-    exact: bool,                       # False: stop at the first contact (a boolean test)
+    poses: NDArray[np.float64],  # (N, B, 3)
+    pv: NDArray[np.float64],  # (P, K, 2) robot polygons, local
+    pc: NDArray[np.int64],  # (P,)
+    pb: NDArray[np.int64],  # (P,) body of each polygon
+    dc: NDArray[np.float64],  # (Dr, 2) robot discs, local
+    dr: NDArray[np.float64],  # (Dr,)
+    db: NDArray[np.int64],  # (Dr,)
+    margin: NDArray[np.float64],  # (B,) clearance each body must keep
+    ov: NDArray[np.float64],  # (M, Ko, 2) obstacle polygons, world
+    oc: NDArray[np.int64],  # (M,)
+    obox: NDArray[np.float64],  # (M, 4) their bounding boxes
+    odc: NDArray[np.float64],  # (Do, 2) obstacle discs
+    odr: NDArray[np.float64],  # (Do,)
+    exact: bool,  # False: stop at the first contact (a boolean test)
 ) -> NDArray[np.float64]:
     """Smallest (distance - margin) between the posed robot and the obstacles, per pose.
 
@@ -501,6 +520,101 @@ _gap_parallel = nb.njit(cache=True, parallel=True)(_gap_impl)
 PARALLEL_THRESHOLD = 4096
 
 
+@nb.njit(cache=True)
+def _raster_kernel(
+    pv: NDArray[np.float64],
+    pc: NDArray[np.int64],
+    dc: NDArray[np.float64],
+    dr: NDArray[np.float64],
+    x0: float,
+    y0: float,
+    fx: float,
+    fy: float,
+    nx: int,
+    ny: int,
+    hx: float,
+    hy: float,
+) -> NDArray[np.bool_]:
+    out = np.zeros((nx, ny), np.bool_)
+    bx = np.empty(4)
+    by = np.empty(4)
+    for m in range(pv.shape[0]):
+        n = pc[m]
+        xmin = pv[m, 0, 0]
+        xmax = xmin
+        ymin = pv[m, 0, 1]
+        ymax = ymin
+        for i in range(1, n):
+            xmin = min(xmin, pv[m, i, 0])
+            xmax = max(xmax, pv[m, i, 0])
+            ymin = min(ymin, pv[m, i, 1])
+            ymax = max(ymax, pv[m, i, 1])
+        a0 = max(0, int(math.floor((xmin - hx - x0) / fx)))
+        a1 = min(nx - 1, int(math.ceil((xmax + hx - x0) / fx)))
+        b0 = max(0, int(math.floor((ymin - hy - y0) / fy)))
+        b1 = min(ny - 1, int(math.ceil((ymax + hy - y0) / fy)))
+        for a in range(a0, a1 + 1):
+            cx = x0 + a * fx
+            for b in range(b0, b1 + 1):
+                if out[a, b]:
+                    continue
+                cy = y0 + b * fy
+                bx[0] = cx - hx
+                bx[1] = cx + hx
+                bx[2] = cx + hx
+                bx[3] = cx - hx
+                by[0] = cy - hy
+                by[1] = cy - hy
+                by[2] = cy + hy
+                by[3] = cy + hy
+                if _polygons_overlap(bx, by, 4, pv[m, :, 0], pv[m, :, 1], n):
+                    out[a, b] = True
+    for k in range(dc.shape[0]):
+        r = dr[k]
+        a0 = max(0, int(math.floor((dc[k, 0] - r - hx - x0) / fx)))
+        a1 = min(nx - 1, int(math.ceil((dc[k, 0] + r + hx - x0) / fx)))
+        b0 = max(0, int(math.floor((dc[k, 1] - r - hy - y0) / fy)))
+        b1 = min(ny - 1, int(math.ceil((dc[k, 1] + r + hy - y0) / fy)))
+        for a in range(a0, a1 + 1):
+            cx = x0 + a * fx
+            ex = max(abs(dc[k, 0] - cx) - hx, 0.0)
+            for b in range(b0, b1 + 1):
+                cy = y0 + b * fy
+                ey = max(abs(dc[k, 1] - cy) - hy, 0.0)
+                if ex * ex + ey * ey <= r * r:
+                    out[a, b] = True
+    return out
+
+
+def raster_touching(
+    shapes: ShapeSet,
+    origin: tuple[float, float],
+    step: tuple[float, float],
+    shape: tuple[int, int],
+    half: tuple[float, float],
+) -> BoolArray:
+    """Raster of the closed boxes that meet ``shapes``.
+
+    Box ``(a, b)`` is centred at ``origin + (a, b) * step`` with half-widths
+    ``half``; the work is proportional to the boxes inside each primitive's
+    bounding box, not to the whole raster.
+    """
+    return _raster_kernel(
+        np.ascontiguousarray(shapes.verts),
+        shapes.counts,
+        shapes.centres,
+        shapes.radii,
+        float(origin[0]),
+        float(origin[1]),
+        float(step[0]),
+        float(step[1]),
+        int(shape[0]),
+        int(shape[1]),
+        float(half[0]),
+        float(half[1]),
+    )
+
+
 # --- public batched queries ------------------------------------------------------------------
 
 
@@ -515,13 +629,19 @@ class RigidBodies:
     bodies: tuple[ShapeSet, ...]
 
     @functools.cached_property
-    def flat(self) -> tuple[FloatArray, NDArray[np.int64], NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64]]:
+    def flat(
+        self,
+    ) -> tuple[
+        FloatArray, NDArray[np.int64], NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64]
+    ]:
         merged = ShapeSet.union(self.bodies)
         poly_body = np.concatenate(
-            [np.full(s.n_polygons, i, np.int64) for i, s in enumerate(self.bodies)] or [np.zeros(0, np.int64)]
+            [np.full(s.n_polygons, i, np.int64) for i, s in enumerate(self.bodies)]
+            or [np.zeros(0, np.int64)]
         )
         disc_body = np.concatenate(
-            [np.full(s.n_discs, i, np.int64) for i, s in enumerate(self.bodies)] or [np.zeros(0, np.int64)]
+            [np.full(s.n_discs, i, np.int64) for i, s in enumerate(self.bodies)]
+            or [np.zeros(0, np.int64)]
         )
         return merged.verts, merged.counts, poly_body, merged.centres, merged.radii, disc_body
 
@@ -540,7 +660,9 @@ class Obstacles:
         mask = np.arange(s.verts.shape[1])[None, :] < s.counts[:, None]
         x = np.where(mask, s.verts[..., 0], np.nan)
         y = np.where(mask, s.verts[..., 1], np.nan)
-        return np.stack([np.nanmin(x, 1), np.nanmin(y, 1), np.nanmax(x, 1), np.nanmax(y, 1)], axis=1)
+        return np.stack(
+            [np.nanmin(x, 1), np.nanmin(y, 1), np.nanmax(x, 1), np.nanmax(y, 1)], axis=1
+        )
 
 
 def body_gaps(
@@ -581,13 +703,28 @@ def body_gaps(
     o = prepared.shapes
     kernel = _gap_parallel if len(poses) >= PARALLEL_THRESHOLD else _gap_serial
     return kernel(
-        poses, pv, pc, pb, dc, dr, db, margin_arr,
-        o.verts, o.counts, prepared.boxes, o.centres, o.radii, exact,
+        poses,
+        pv,
+        pc,
+        pb,
+        dc,
+        dr,
+        db,
+        margin_arr,
+        o.verts,
+        o.counts,
+        prepared.boxes,
+        o.centres,
+        o.radii,
+        exact,
     )
 
 
 def bodies_collide(
-    bodies: RigidBodies, poses: FloatArray, obstacles: ShapeSet | Obstacles, margins: FloatArray | None = None
+    bodies: RigidBodies,
+    poses: FloatArray,
+    obstacles: ShapeSet | Obstacles,
+    margins: FloatArray | None = None,
 ) -> BoolArray:
     """Per pose: do the posed bodies touch ``obstacles`` (within ``margins``)?"""
     return body_gaps(bodies, poses, obstacles, margins, exact=False) <= 0.0

@@ -37,7 +37,9 @@ COLORS = {
 }
 
 
-def new_figure(ncols: int = 1, nrows: int = 1, size: float = 4.8, **subplot_kw: Any) -> tuple[Figure, Any]:
+def new_figure(
+    ncols: int = 1, nrows: int = 1, size: float = 4.8, **subplot_kw: Any
+) -> tuple[Figure, Any]:
     """A figure with an ``nrows x ncols`` grid of axes (Agg backend, no display needed)."""
     import matplotlib
 
@@ -45,7 +47,12 @@ def new_figure(ncols: int = 1, nrows: int = 1, size: float = 4.8, **subplot_kw: 
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(
-        nrows, ncols, figsize=(size * ncols, size * nrows), squeeze=False, layout="constrained", **subplot_kw
+        nrows,
+        ncols,
+        figsize=(size * ncols, size * nrows),
+        squeeze=False,
+        layout="constrained",
+        **subplot_kw,
     )
     return fig, axes
 
@@ -56,7 +63,7 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
 
     path = Path(path)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
     plt.close(fig)
     return path
 
@@ -69,7 +76,9 @@ def figure_to_rgb(fig: Figure, dpi: int = 80) -> np.ndarray:
     return np.array(rgba[..., :3])
 
 
-def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 8.0, hold_last: int = 4) -> Path:
+def save_gif(
+    frames: Sequence[np.ndarray], path: str | Path, fps: float = 8.0, hold_last: int = 4
+) -> Path:
     """Write RGB frames as an animated GIF (atomically); frames are padded to a common size."""
     from PIL import Image
 
@@ -86,7 +95,12 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 8.0, h
     path = Path(path)
     with atomic_path(path) as tmp:
         images[0].save(
-            tmp, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0
+            tmp,
+            format="GIF",
+            save_all=True,
+            append_images=images[1:],
+            duration=int(1000 / fps),
+            loop=0,
         )
     return path
 
@@ -102,27 +116,38 @@ def draw_geometry(ax: Axes, geom: BaseGeometry, **style: Any) -> None:
     if geom.is_empty:
         return
     if geom.geom_type in ("MultiPolygon", "GeometryCollection", "MultiLineString", "MultiPoint"):
-        for g in geom.geoms:  # type: ignore[attr-defined]
+        for g in geom.geoms:
             draw_geometry(ax, g, **style)
         return
     if geom.geom_type == "Polygon":
-        rings = [geom.exterior, *geom.interiors]  # type: ignore[attr-defined]
+        rings = [geom.exterior, *geom.interiors]
         verts = np.concatenate([np.asarray(r.coords) for r in rings])
         codes = np.concatenate(
-            [[MplPath.MOVETO] + [MplPath.LINETO] * (len(r.coords) - 2) + [MplPath.CLOSEPOLY] for r in rings]
+            [
+                [MplPath.MOVETO] + [MplPath.LINETO] * (len(r.coords) - 2) + [MplPath.CLOSEPOLY]
+                for r in rings
+            ]
         )
         ax.add_patch(PathPatch(MplPath(verts, codes), **style))
     elif geom.geom_type == "LineString":
-        xy = np.asarray(geom.coords)  # type: ignore[attr-defined]
+        xy = np.asarray(geom.coords)
         ax.plot(xy[:, 0], xy[:, 1], color=style.get("edgecolor", style.get("facecolor", "k")), lw=2)
     elif geom.geom_type == "Point":
-        ax.plot(geom.x, geom.y, "o", color=style.get("facecolor", "k"), ms=5)  # type: ignore[attr-defined]
+        ax.plot(geom.x, geom.y, "o", color=style.get("facecolor", "k"), ms=5)
 
 
 def _label(ax: Axes, geom: BaseGeometry, text: str, color: str) -> None:
     p = geom.representative_point()
-    ax.annotate(text, (p.x, p.y), ha="center", va="center", fontsize=8, color=color, weight="bold",
-                bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7})
+    ax.annotate(
+        text,
+        (p.x, p.y),
+        ha="center",
+        va="center",
+        fontsize=8,
+        color=color,
+        weight="bold",
+        bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7},
+    )
 
 
 def draw_workcell(
@@ -131,19 +156,28 @@ def draw_workcell(
     highlight: Sequence[str] = (),
     labels: bool = True,
 ) -> None:
-    """Bounds, obstacles, sources and destinations; regions named in ``highlight`` are shaded darker."""
+    """Bounds, obstacles, sources and destinations; ``highlight``ed regions are shaded darker."""
     xmin, ymin, xmax, ymax = cell.bounds
     ax.add_patch(_rect(xmin, ymin, xmax, ymax))
     for name, geom in cell.obstacle_geometries.items():
         draw_geometry(ax, geom, facecolor=COLORS["obstacle"], edgecolor="black", lw=0.8)
         if labels:
             _label(ax, geom, name, "black")
-    for regions, color in ((cell.sources, COLORS["source"]), (cell.destinations, COLORS["destination"])):
+    for regions, color in (
+        (cell.sources, COLORS["source"]),
+        (cell.destinations, COLORS["destination"]),
+    ):
         for name, region in regions.items():
             on = name in highlight
             for geom in region.geometries:
-                draw_geometry(ax, geom, facecolor=color, alpha=0.75 if on else 0.25, edgecolor=color,
-                              lw=2.0 if on else 1.0)
+                draw_geometry(
+                    ax,
+                    geom,
+                    facecolor=color,
+                    alpha=0.75 if on else 0.25,
+                    edgecolor=color,
+                    lw=2.0 if on else 1.0,
+                )
                 if labels:
                     _label(ax, geom, name, color)
     pad = 0.02 * max(xmax - xmin, ymax - ymin)
@@ -180,11 +214,14 @@ def draw_robot(
         ax.plot(joints[:, 0], joints[:, 1], "o", color="black", ms=3, alpha=alpha)
 
 
-def save_workcell(cell: Workcell, path: str | Path, q: np.ndarray | None = None, carrying: str | None = None) -> Path:
-    """The workcell with the robot at ``q`` (default: start); by default it carries the first part."""
+def save_workcell(
+    cell: Workcell, path: str | Path, q: np.ndarray | None = None, carrying: str | None = None
+) -> Path:
+    """The workcell, the robot at ``q`` (default: start) carrying a part (default: the first)."""
     from matplotlib.patches import Patch
 
     fig, axes = new_figure(size=6.0)
+    fig.set_size_inches(8.5, 6.0)
     ax = axes[0, 0]
     draw_workcell(ax, cell)
     if carrying is None and cell.parts:
@@ -198,7 +235,9 @@ def save_workcell(cell: Workcell, path: str | Path, q: np.ndarray | None = None,
     ]
     if carrying is not None:
         handles.append(Patch(color=COLORS["part"], label=f"carried part {carrying}"))
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    ax.legend(
+        handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
+    )
     ax.set_title(cell.name or "workcell")
     return save_figure(fig, path)
 
@@ -213,14 +252,24 @@ def _axis_extent(grid: Grid, i: int, robot_axis: str) -> tuple[float, float, str
     return math.degrees(lo), math.degrees(hi), f"{robot_axis} (deg)"
 
 
-def draw_cspace_slice(ax: Axes, grid: Grid, free2d: np.ndarray, names: tuple[str, str], title: str = "") -> None:
+def draw_cspace_slice(
+    ax: Axes, grid: Grid, free2d: np.ndarray, names: tuple[str, str], title: str = ""
+) -> None:
     """One 2-D slice of a free bitmap (first two axes), free light and blocked dark."""
     from matplotlib.colors import ListedColormap
 
     x0, x1, xl = _axis_extent(grid, 0, names[0])
     y0, y1, yl = _axis_extent(grid, 1, names[1])
-    ax.imshow(free2d.T, origin="lower", extent=(x0, x1, y0, y1), interpolation="nearest",
-              cmap=ListedColormap([COLORS["blocked"], COLORS["free"]]), vmin=0, vmax=1, aspect="auto")
+    ax.imshow(
+        free2d.T,
+        origin="lower",
+        extent=(x0, x1, y0, y1),
+        interpolation="nearest",
+        cmap=ListedColormap([COLORS["blocked"], COLORS["free"]]),
+        vmin=0,
+        vmax=1,
+        aspect="auto",
+    )
     ax.set_xlabel(xl)
     ax.set_ylabel(yl)
     if names[0] in ("x", "y") and names[1] in ("x", "y"):
@@ -248,13 +297,22 @@ def save_cspace(
         draw_workcell(axes[0, 0], cell)
         draw_robot(axes[0, 0], cell, cell.robot.start)
         axes[0, 0].set_title("workcell")
-        draw_cspace_slice(axes[0, 1], grid, free, (names[0], names[1]),
-                          f"free configurations ({title_extra}): {free.mean():.1%} free")
+        draw_cspace_slice(
+            axes[0, 1],
+            grid,
+            free,
+            (names[0], names[1]),
+            f"free configurations ({title_extra}): {free.mean():.1%} free",
+        )
         return save_figure(fig, path)
     if grid.ndim != 3:
         raise ValueError("C-space pictures are for 2-D and 3-D spaces")
     n = grid.shape[2]
-    picks = [slice_index] if slice_index is not None else list(np.linspace(0, n - 1, 6).round().astype(int))
+    picks = (
+        [slice_index]
+        if slice_index is not None
+        else list(np.linspace(0, n - 1, 6).round().astype(int))
+    )
     if any(not 0 <= k < n for k in picks):
         raise ValueError(f"slice index must be in [0, {n - 1}]")
     ncols = min(3, len(picks)) + 1
@@ -270,8 +328,13 @@ def save_cspace(
     for idx, k in enumerate(picks):
         ax = axes[idx // (ncols - 1), 1 + idx % (ncols - 1)]
         value = third[k] if names[2] in ("x", "y") else math.degrees(third[k])
-        draw_cspace_slice(ax, grid, free[:, :, k], (names[0], names[1]),
-                          f"{names[2]} = {value:.1f}{unit}: {free[:, :, k].mean():.0%} free")
+        draw_cspace_slice(
+            ax,
+            grid,
+            free[:, :, k],
+            (names[0], names[1]),
+            f"{names[2]} = {value:.1f}{unit}: {free[:, :, k].mean():.0%} free",
+        )
     for idx in range(len(picks), nrows * (ncols - 1)):
         axes[idx // (ncols - 1), 1 + idx % (ncols - 1)].axis("off")
     fig.suptitle(f"free configurations ({title_extra}), {free.mean():.1%} of {grid.size} cells")

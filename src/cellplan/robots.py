@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cellplan.geometry import FloatArray, RigidBodies, ShapeSet, wrap_angle
+from cellplan.geometry import BoolArray, FloatArray, RigidBodies, ShapeSet, wrap_angle
 from cellplan.scenario import PointRobotSpec, RobotSpec, RotatingRobotSpec, TranslatingRobotSpec
 
 
@@ -67,7 +67,7 @@ class Robot(ABC):
     def tool_pose(self, q: FloatArray) -> FloatArray:
         """``(N, 3)`` pose of the gripper frame."""
 
-    def within_limits(self, q: FloatArray) -> FloatArray:
+    def within_limits(self, q: FloatArray) -> BoolArray:
         """Boolean ``(N,)``: each non-periodic coordinate within ``[lower, upper]``."""
         q = as_batch(q, self.dim)
         ok = np.ones(len(q), bool)
@@ -143,7 +143,9 @@ class RigidRobot(Robot):
         return float(math.hypot(d[0], d[1]) + rot)
 
 
-def point_robot(start: tuple[float, float], bounds: tuple[float, float, float, float]) -> RigidRobot:
+def point_robot(
+    start: tuple[float, float], bounds: tuple[float, float, float, float]
+) -> RigidRobot:
     """A point robot moving in the workcell's bounds."""
     return RigidRobot(
         kind="point",
@@ -318,7 +320,9 @@ def planar_arm(
             lower[i], upper[i] = lo, hi
             periodic[i] = False
     bodies = tuple(
-        ShapeSet.from_polygons([np.array([[0, -w / 2], [ln, -w / 2], [ln, w / 2], [0, w / 2]], float)])
+        ShapeSet.from_polygons(
+            [np.array([[0, -w / 2], [ln, -w / 2], [ln, w / 2], [0, w / 2]], float)]
+        )
         for ln, w in zip(lengths, widths, strict=True)
     )
     return PlanarArm(
@@ -351,7 +355,9 @@ def robot_from_spec(spec: RobotSpec, bounds: tuple[float, float, float, float]) 
         base=spec.base,
         lengths=[link.length for link in spec.links],
         widths=[link.width for link in spec.links],
-        joint_limits=None if limits is None else [(math.radians(a), math.radians(b)) for a, b in limits],
+        joint_limits=None
+        if limits is None
+        else [(math.radians(a), math.radians(b)) for a, b in limits],
         start=[math.radians(v) for v in spec.start],
         tool_orientation=None if eo is None else math.radians(eo),
     )

@@ -176,26 +176,24 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
     seen: dict[Any, yaml.Node] = {}
     for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+        key = loader.construct_object(key_node, deep=deep)
         if key in seen:
             mark = key_node.start_mark
-            raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r}", mark
-            )
+            raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", mark)
         seen[key] = key_node
     return loader.construct_mapping(node, deep=deep)
 
 
 _UniqueKeyLoader.add_constructor(
     yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
-    _construct_mapping,  # type: ignore[arg-type]
+    _construct_mapping,
 )
 
 
 def parse_yaml(text: str, source: str = "<string>") -> Any:
     """Parse YAML safely; syntax errors become a :class:`ScenarioError` with line and column."""
     try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - SafeLoader subclass
+        return yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
@@ -230,11 +228,16 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
 
 
 def _is_union_tag(item: str, node: Any) -> bool:
-    return isinstance(node, dict) and node.get("type") == item or item in {
-        "function-after",
-        "function-before",
-        "tagged-union",
-    }
+    return (
+        (isinstance(node, dict)
+        and node.get("type") == item)
+        or item
+        in {
+            "function-after",
+            "function-before",
+            "tagged-union",
+        }
+    )
 
 
 def problems_from_validation(exc: ValidationError, data: Any) -> list[Problem]:
@@ -258,10 +261,18 @@ def scenario_from_data(data: Any, source: str = "<data>") -> Scenario:
     if not isinstance(data, dict):
         raise ScenarioError([Problem(source, "a scenario must be a YAML mapping")])
     if "cellplan" not in data:
-        raise ScenarioError([Problem("cellplan", f"missing format version (write 'cellplan: {SCHEMA_VERSION}')")])
+        raise ScenarioError(
+            [Problem("cellplan", f"missing format version (write 'cellplan: {SCHEMA_VERSION}')")]
+        )
     if data["cellplan"] != SCHEMA_VERSION:
         raise ScenarioError(
-            [Problem("cellplan", f"unsupported format version {data['cellplan']!r}; this cellplan reads {SCHEMA_VERSION}")]
+            [
+                Problem(
+                    "cellplan",
+                    f"unsupported format version {data['cellplan']!r}; "
+                    f"this cellplan reads {SCHEMA_VERSION}",
+                )
+            ]
         )
     try:
         scenario = Scenario.model_validate(data)
@@ -345,15 +356,24 @@ def check_references(sc: Scenario) -> list[Problem]:
             geoms = [c.to_shapely() for c in region.components]
             for i, g in enumerate(geoms):
                 if not bounds.covers(g):
-                    problems.append(Problem(f"{section}.{name}.components[{i}]", "lies outside the workcell bounds"))
+                    problems.append(
+                        Problem(
+                            f"{section}.{name}.components[{i}]", "lies outside the workcell bounds"
+                        )
+                    )
                 for j in range(i):
                     if g.intersects(geoms[j]):
                         problems.append(
-                            Problem(f"{section}.{name}.components[{i}]", f"overlaps components[{j}]; components must be disjoint")
+                            Problem(
+                                f"{section}.{name}.components[{i}]",
+                                f"overlaps components[{j}]; components must be disjoint",
+                            )
                         )
     for name, shape in sc.workcell.obstacles.items():
         if not bounds.intersects(shape.to_shapely()):
-            problems.append(Problem(f"workcell.obstacles.{name}", "lies entirely outside the workcell bounds"))
+            problems.append(
+                Problem(f"workcell.obstacles.{name}", "lies entirely outside the workcell bounds")
+            )
 
     robot = sc.robot
     if robot is not None:
@@ -361,29 +381,69 @@ def check_references(sc: Scenario) -> list[Problem]:
         if robot.type == "arm":
             n = len(robot.links)
             if len(robot.start) != n:
-                problems.append(Problem("robot.start", f"has {len(robot.start)} joint angles; the arm has {n} links"))
+                problems.append(
+                    Problem(
+                        "robot.start", f"has {len(robot.start)} joint angles; the arm has {n} links"
+                    )
+                )
             if robot.joint_limits is not None:
                 if len(robot.joint_limits) != n:
-                    problems.append(Problem("robot.joint_limits", f"has {len(robot.joint_limits)} entries; the arm has {n} links"))
+                    problems.append(
+                        Problem(
+                            "robot.joint_limits",
+                            f"has {len(robot.joint_limits)} entries; the arm has {n} links",
+                        )
+                    )
                 for i, (lo, hi) in enumerate(robot.joint_limits):
                     for v in (lo, hi):
                         if not -180.0 <= v <= 180.0:
-                            problems.append(Problem(f"robot.joint_limits[{i}]", f"limit {v} deg is outside [-180, 180]"))
+                            problems.append(
+                                Problem(
+                                    f"robot.joint_limits[{i}]",
+                                    f"limit {v} deg is outside [-180, 180]",
+                                )
+                            )
                     if not lo < hi:
-                        problems.append(Problem(f"robot.joint_limits[{i}]", f"lower limit {lo} is not below upper limit {hi}"))
+                        problems.append(
+                            Problem(
+                                f"robot.joint_limits[{i}]",
+                                f"lower limit {lo} is not below upper limit {hi}",
+                            )
+                        )
                 if len(robot.joint_limits) == n and len(robot.start) == n:
-                    for i, (q, (lo, hi)) in enumerate(zip(robot.start, robot.joint_limits, strict=True)):
+                    for i, (q, (lo, hi)) in enumerate(
+                        zip(robot.start, robot.joint_limits, strict=True)
+                    ):
                         if not lo <= q <= hi:
-                            problems.append(Problem(f"robot.start[{i}]", f"joint angle {q} deg is outside its limits [{lo}, {hi}]"))
+                            problems.append(
+                                Problem(
+                                    f"robot.start[{i}]",
+                                    f"joint angle {q} deg is outside its limits [{lo}, {hi}]",
+                                )
+                            )
             for i, q in enumerate(robot.start):
                 if not -180.0 < q <= 180.0:
-                    problems.append(Problem(f"robot.start[{i}]", f"joint angle {q} deg is outside (-180, 180]"))
-            if robot.end_effector_orientation is not None and not -180.0 < robot.end_effector_orientation <= 180.0:
-                problems.append(Problem("robot.end_effector_orientation", "must be in (-180, 180] degrees"))
+                    problems.append(
+                        Problem(f"robot.start[{i}]", f"joint angle {q} deg is outside (-180, 180]")
+                    )
+            if (
+                robot.end_effector_orientation is not None
+                and not -180.0 < robot.end_effector_orientation <= 180.0
+            ):
+                problems.append(
+                    Problem("robot.end_effector_orientation", "must be in (-180, 180] degrees")
+                )
         elif robot.type == "rotating" and not -180.0 < robot.start[2] <= 180.0:
-            problems.append(Problem("robot.start", f"orientation {robot.start[2]} deg is outside (-180, 180]"))
+            problems.append(
+                Problem("robot.start", f"orientation {robot.start[2]} deg is outside (-180, 180]")
+            )
         if sc.cspace.cells is not None and len(sc.cspace.cells) != dim:
-            problems.append(Problem("cspace.cells", f"has {len(sc.cspace.cells)} entries; the robot's C-space has dimension {dim}"))
+            problems.append(
+                Problem(
+                    "cspace.cells",
+                    f"has {len(sc.cspace.cells)} entries; the robot's C-space has dimension {dim}",
+                )
+            )
     elif sc.parts or sc.sources or sc.destinations:
         problems.append(Problem("robot", "parts, sources and destinations need a robot"))
 

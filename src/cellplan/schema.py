@@ -36,11 +36,13 @@ class PolygonShape(StrictModel):
 
     @model_validator(mode="after")
     def _simple_and_non_degenerate(self) -> PolygonShape:
-        ring = shapely.LinearRing(self.points)
-        if not ring.is_simple:
-            raise ValueError("polygon is self-intersecting")
-        if shapely.Polygon(self.points).area <= 1e-12:
+        if (
+            abs(shapely.Polygon(self.points).area) <= 1e-12
+            and shapely.Polygon(self.points).convex_hull.area <= 1e-12
+        ):
             raise ValueError("polygon is degenerate (zero area)")
+        if not shapely.LinearRing(self.points).is_simple:
+            raise ValueError("polygon is self-intersecting")
         return self
 
     def to_shapely(self) -> BaseGeometry:
@@ -117,8 +119,8 @@ def deg(values: float | list[float] | tuple[float, ...]) -> float | list[float]:
 
 __all__ = [
     "AngleDeg",
-    "BoxShape",
     "Bounds",
+    "BoxShape",
     "DiscShape",
     "Name",
     "NonNegativeFloat",

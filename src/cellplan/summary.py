@@ -7,7 +7,7 @@ from cellplan.workcell import Workcell
 
 
 def assembly_modes(sc: Scenario) -> int:
-    """2PSD + 1 assembly modes (strategies paper, Section III-A), over every part/source/destination."""
+    """2PSD + 1 assembly modes (strategies paper, Section III-A), all requests allowed."""
     return 2 * len(sc.parts) * len(sc.sources) * len(sc.destinations) + 1
 
 
@@ -18,7 +18,8 @@ def summarize(sc: Scenario, cell: Workcell | None) -> dict[str, str]:
     b = sc.workcell.bounds
     out = {
         "scenario": sc.name or "(unnamed)",
-        "workcell": f"[{b.xmin:g}, {b.xmax:g}] x [{b.ymin:g}, {b.ymax:g}], {len(sc.workcell.obstacles)} obstacles",
+        "workcell": f"[{b.xmin:g}, {b.xmax:g}] x [{b.ymin:g}, {b.ymax:g}], "
+        f"{len(sc.workcell.obstacles)} obstacles",
         "sections": ", ".join(sc.section_names()) or "none",
     }
     if sc.robot is None or cell is None:

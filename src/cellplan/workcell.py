@@ -85,9 +85,11 @@ class Workcell:
 
     @staticmethod
     def from_scenario(sc: Scenario) -> Workcell:
-        """Build the model; raises :class:`ScenarioError` if the start collides or leaves the bounds."""
+        """Build the model; raises :class:`ScenarioError` if the start is not free."""
         if sc.robot is None:
-            raise ScenarioError([Problem("robot", "this scenario has no robot; a workcell model needs one")])
+            raise ScenarioError(
+                [Problem("robot", "this scenario has no robot; a workcell model needs one")]
+            )
         b = sc.workcell.bounds
         bounds = (b.xmin, b.ymin, b.xmax, b.ymax)
         robot = robot_from_spec(sc.robot, bounds)
@@ -99,7 +101,9 @@ class Workcell:
         def region(name: str, role: Literal["source", "destination"], spec: object) -> Region:
             comps = tuple(ShapeSet.from_spec(c) for c in spec.components)  # type: ignore[attr-defined]
             geoms = tuple(c.to_shapely() for c in spec.components)  # type: ignore[attr-defined]
-            return Region(name, role, comps, geoms, tuple(complement_within(c, extent) for c in comps))
+            return Region(
+                name, role, comps, geoms, tuple(complement_within(c, extent) for c in comps)
+            )
 
         cells = tuple(sc.cspace.cells) if sc.cspace.cells else default_cells(robot)
         cell = Workcell(
@@ -122,16 +126,24 @@ class Workcell:
     def check_start(self) -> None:
         """Raise a :class:`ScenarioError` naming what the start configuration hits."""
         q = self.robot.start[None, :]
-        shown = "(" + ", ".join(f"{v:.4g}" for v in _display_config(self.robot, self.robot.start)) + ")"
+        shown = (
+            "(" + ", ".join(f"{v:.4g}" for v in _display_config(self.robot, self.robot.start)) + ")"
+        )
         problems = []
         if not self.robot.within_limits(q)[0]:
-            problems.append(Problem("robot.start", f"configuration {shown} violates the joint limits"))
+            problems.append(
+                Problem("robot.start", f"configuration {shown} violates the joint limits")
+            )
         bodies, poses = self.posed_bodies(q, None)
         if _gap(bodies, poses, self.outside)[0] <= 0:
-            problems.append(Problem("robot.start", f"configuration {shown} leaves the workcell bounds"))
+            problems.append(
+                Problem("robot.start", f"configuration {shown} leaves the workcell bounds")
+            )
         for name, obs in self.obstacles.items():
             if _gap(bodies, poses, obs)[0] <= 0:
-                problems.append(Problem("robot.start", f"configuration {shown} collides with obstacle '{name}'"))
+                problems.append(
+                    Problem("robot.start", f"configuration {shown} collides with obstacle '{name}'")
+                )
         if problems:
             raise ScenarioError(problems)
 
@@ -141,11 +153,15 @@ class Workcell:
         """Names of the sources to avoid while serving ``source`` (equations (1)-(2))."""
         return [s for s in self.sources if s != source]
 
-    def obstacle_set(self, avoid_sources: AvoidSources = "all", include_outside: bool = True) -> ShapeSet:
+    def obstacle_set(
+        self, avoid_sources: AvoidSources = "all", include_outside: bool = True
+    ) -> ShapeSet:
         """Static obstacles, the chosen sources, and (by default) the outside of the bounds."""
         return self.prepared_obstacles(avoid_sources, include_outside).shapes
 
-    def prepared_obstacles(self, avoid_sources: AvoidSources = "all", include_outside: bool = True) -> Obstacles:
+    def prepared_obstacles(
+        self, avoid_sources: AvoidSources = "all", include_outside: bool = True
+    ) -> Obstacles:
         """:meth:`obstacle_set` prepared for the kernels, memoised per choice of sources."""
         key = (tuple(self._avoided(avoid_sources)), include_outside)
         if key not in self._obstacle_cache:
@@ -202,10 +218,15 @@ class Workcell:
         q = as_batch(q, self.robot.dim)
         bodies, poses = self.posed_bodies(q, carrying)
         margins = np.broadcast_to(np.asarray(margin, float), (len(bodies.bodies),))
-        hit = body_gaps(bodies, poses, self.prepared_obstacles(avoid_sources), margins, exact=False) <= 0.0
+        hit = (
+            body_gaps(bodies, poses, self.prepared_obstacles(avoid_sources), margins, exact=False)
+            <= 0.0
+        )
         return hit | ~self.robot.within_limits(q)
 
-    def free(self, q: FloatArray, carrying: str | None = None, avoid_sources: AvoidSources = "all") -> BoolArray:
+    def free(
+        self, q: FloatArray, carrying: str | None = None, avoid_sources: AvoidSources = "all"
+    ) -> BoolArray:
         """``(N,)``: the negation of :meth:`collides`."""
         return ~self.collides(q, carrying, avoid_sources)
 
@@ -305,10 +326,14 @@ class Workcell:
 
     # --- geometry for drawing ----------------------------------------------------------------
 
-    def robot_shapes(self, q: FloatArray, carrying: str | None = None) -> tuple[list[BaseGeometry], BaseGeometry | None]:
+    def robot_shapes(
+        self, q: FloatArray, carrying: str | None = None
+    ) -> tuple[list[BaseGeometry], BaseGeometry | None]:
         """Shapely geometry of the robot's bodies and of the carried part at one configuration."""
         bodies, poses = self.posed_bodies(np.asarray(q, float)[None, :], carrying)
-        geoms = [b.transformed(p).to_shapely() for b, p in zip(bodies.bodies, poses[0], strict=True)]
+        geoms = [
+            b.transformed(p).to_shapely() for b, p in zip(bodies.bodies, poses[0], strict=True)
+        ]
         if carrying is None:
             return geoms, None
         return geoms[:-1], geoms[-1]

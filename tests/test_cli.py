@@ -1,0 +1,128 @@
+"""The command line: summaries, pictures, and one-line errors with exit status 2."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from cellplan.cli import main
+
+
+@dataclass
+class Result:
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@pytest.fixture
+def cellplan(capsys, monkeypatch):
+    """Run the CLI entry point in-process, as the console script would."""
+
+    def run(*args: str, cwd: Path | None = None) -> Result:
+        if cwd is not None:
+            monkeypatch.chdir(cwd)
+        monkeypatch.setattr(sys, "argv", ["cellplan", *args])
+        code = 0
+        try:
+            main()
+        except SystemExit as exc:
+            code = int(exc.code or 0)
+        out = capsys.readouterr()
+        return Result(code, out.out, out.err)
+
+    return run
+
+
+def test_console_script_runs_as_a_process():
+    r = subprocess.run(
+        [sys.executable, "-m", "cellplan.cli", "validate", "nope"], capture_output=True, text=True
+    )
+    assert (
+        r.returncode == 2
+        and "Traceback" not in r.stderr
+        and "nope: no such bundled scenario" in r.stderr
+    )
+
+
+def test_validate_prints_a_summary(cellplan):
+    r = cellplan("validate", "strategies_p1")
+    assert r.returncode == 0, r.stderr
+    assert "assembly modes: 17" in r.stdout
+    assert "C-space dimension: 2" in r.stdout
+    assert "free fraction" in r.stdout
+
+
+def test_schema_is_json(cellplan):
+    r = cellplan("schema")
+    assert r.returncode == 0
+    assert json.loads(r.stdout)["title"] == "Scenario"
+
+
+def test_show_and_cspace_write_pictures(cellplan, tmp_path):
+    r = cellplan("show", "strategies_p6", "-o", str(tmp_path / "cell.png"))
+    assert r.returncode == 0, r.stderr
+    r = cellplan(
+        "cspace",
+        "strategies_p6",
+        "--cells",
+        "16,16,8",
+        "--slice",
+        "3",
+        "-o",
+        str(tmp_path / "c.png"),
+    )
+    assert r.returncode == 0, r.stderr
+    for name in ("cell.png", "c.png"):
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "c.png",
+        "cell.png",
+    ]  # no temporary leftovers
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["validate", "no_such_file.yaml"], "no_such_file.yaml: no such file"),
+        (["validate", "no_such_scenario"], "no_such_scenario: no such bundled scenario"),
+        (["cspace", "strategies_p1", "--carrying", "P9"], "--carrying: unknown part 'P9'"),
+        (
+            ["cspace", "strategies_p1", "--cells", "10,x"],
+            "--cells: expected comma-separated integers",
+        ),
+        (
+            ["cspace", "strategies_p1", "--cells", "10,10,10"],
+            "--cells: needs 2 values for this robot, got 3",
+        ),
+        (["show", "strategies_p1", "-o", "picture.bmp"], "--output: unsupported image type '.bmp'"),
+    ],
+)
+def test_bad_arguments_give_one_line_and_status_2(cellplan, args, message, tmp_path):
+    r = cellplan(*args, cwd=tmp_path)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and message in lines[0]
+
+
+def test_bad_scenario_lists_every_problem(cellplan, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        "cellplan: 1\nworkcell:\n  bounds: {xmax: 10, ymax: 10}\n  obstacles:\n"
+        "    w: {type: box, min: [4, 0], max: [6, 6]}\n"
+        "robot: {type: point, start: [5, 3]}\n"
+        "parts: {P: {shape: {type: box, min: [0, 0], max: [1, 1]}, mass: 2}}\n"
+    )
+    r = cellplan("validate", str(bad))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "parts.P.mass: unknown key" in r.stderr
+    bad.write_text(bad.read_text().replace(", mass: 2", ""))
+    r = cellplan("validate", str(bad))
+    assert r.returncode == 2
+    assert "robot.start: configuration (5, 3) collides with obstacle 'w'" in r.stderr

@@ -1,0 +1,219 @@
+"""Scenario files: schema, validation messages, round trips."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+from hypothesis import given
+from hypothesis import strategies as st
+
+from cellplan.errors import ScenarioError
+from cellplan.registry import scenario_names
+from cellplan.scenario import dump_scenario, json_schema, load_scenario, loads_scenario
+
+BASE = """
+cellplan: 1
+workcell:
+  bounds: {xmin: 0, ymin: 0, xmax: 50, ymax: 40}
+  obstacles:
+    wall: {type: box, min: [20, 0], max: [24, 20]}
+robot: {type: translating, shape: {type: box, min: [-1, -1], max: [1, 1]}, start: [5, 5]}
+parts:
+  P1: {shape: {type: box, min: [-2, -1], max: [2, 1]}}
+sources:
+  S1: {components: [{type: box, min: [2, 30], max: [8, 36]}]}
+destinations:
+  D1: {components: [{type: box, min: [40, 30], max: [46, 36]}]}
+"""
+
+
+def problems(text: str) -> list[str]:
+    with pytest.raises(ScenarioError) as err:
+        loads_scenario(text)
+    return [str(p) for p in err.value.problems]
+
+
+def edit(path: str, value) -> str:
+    data = yaml.safe_load(BASE)
+    node = data
+    keys = path.split(".")
+    for k in keys[:-1]:
+        node = node[int(k)] if isinstance(node, list) else node[k]
+    node[keys[-1]] = value
+    return yaml.safe_dump(data)
+
+
+def test_base_is_valid():
+    sc = loads_scenario(BASE)
+    assert sc.robot.type == "translating" and list(sc.parts) == ["P1"]
+
+
+@pytest.mark.parametrize("name", scenario_names())
+def test_bundled_scenarios_round_trip(name):
+    sc = load_scenario(name)
+    assert loads_scenario(dump_scenario(sc)) == sc
+    assert loads_scenario(dump_scenario(sc)).digest() == sc.digest()
+
+
+boxes = st.tuples(st.floats(0, 40), st.floats(0, 30), st.floats(1, 9), st.floats(1, 9)).map(
+    lambda t: {"type": "box", "min": [t[0], t[1]], "max": [t[0] + t[2], t[1] + t[3]]}
+)
+
+
+@st.composite
+def scenarios(draw):
+    robot = draw(
+        st.one_of(
+            st.fixed_dictionaries(
+                {"type": st.just("point"), "start": st.tuples(st.floats(0, 50), st.floats(0, 40))}
+            ),
+            st.fixed_dictionaries(
+                {
+                    "type": st.just("rotating"),
+                    "shape": boxes,
+                    "start": st.tuples(st.floats(0, 50), st.floats(0, 40), st.floats(-179, 180)),
+                }
+            ),
+            st.fixed_dictionaries(
+                {
+                    "type": st.just("arm"),
+                    "base": st.tuples(st.floats(10, 40), st.floats(10, 30)),
+                    "links": st.lists(
+                        st.fixed_dictionaries(
+                            {"length": st.floats(1, 10), "width": st.floats(0.1, 2)}
+                        ),
+                        min_size=2,
+                        max_size=3,
+                    ),
+                    "start": st.just([0.0, 0.0, 0.0]),
+                }
+            ).map(lambda r: {**r, "start": r["start"][: len(r["links"])]}),
+        )
+    )
+    names = draw(st.lists(st.sampled_from(["A", "B", "C", "wall", "x1"]), unique=True, max_size=4))
+    return {
+        "cellplan": 1,
+        "name": draw(st.text(max_size=10)),
+        "workcell": {
+            "bounds": {"xmin": 0, "ymin": 0, "xmax": 50, "ymax": 40},
+            "obstacles": {n: draw(boxes) for n in names},
+        },
+        "robot": robot,
+        "parts": {"P": {"shape": draw(boxes)}},
+    }
+
+
+@given(data=scenarios())
+def test_schema_round_trip_is_identity(data):
+    sc = loads_scenario(yaml.safe_dump(data))
+    again = loads_scenario(dump_scenario(sc))
+    assert again == sc
+    assert loads_scenario(dump_scenario(again)) == again
+
+
+def test_yaml_syntax_error_has_line_and_column():
+    (msg,) = problems("cellplan: 1\nworkcell: {bounds: [1, 2\n")
+    assert msg.startswith("<string>:") and "YAML syntax" in msg
+    line, col = msg.split(":")[1:3]
+    assert int(line) >= 2 and int(col) >= 1
+
+
+def test_duplicate_keys_are_rejected():
+    (msg,) = problems(BASE + "parts: {}\n")
+    assert "duplicate key 'parts'" in msg
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "expected"),
+    [
+        ("workcell.obstacles.wall.colour", "red", "workcell.obstacles.wall.colour: unknown key"),
+        (
+            "robot.start",
+            [1, "x"],
+            "robot.start[1]: Input should be a valid number, unable to parse string as a number",
+        ),
+        (
+            "workcell.obstacles.wall",
+            {"type": "polygon", "points": [[0, 0], [4, 4], [4, 0], [0, 4]]},
+            "workcell.obstacles.wall: polygon is self-intersecting",
+        ),
+        (
+            "workcell.obstacles.wall",
+            {"type": "polygon", "points": [[0, 0], [1, 1], [2, 2]]},
+            "workcell.obstacles.wall: polygon is degenerate (zero area)",
+        ),
+        (
+            "sources.S1.components",
+            [{"type": "box", "min": [45, 30], "max": [55, 36]}],
+            "sources.S1.components[0]: lies outside the workcell bounds",
+        ),
+        (
+            "workcell.obstacles.wall",
+            {"type": "disc", "center": [1, 1], "radius": -2},
+            "workcell.obstacles.wall.radius: Input should be greater than 0",
+        ),
+        ("cellplan", 2, "cellplan: unsupported format version 2; this cellplan reads 1"),
+    ],
+)
+def test_each_problem_is_one_line_naming_the_field(path, value, expected):
+    assert expected in problems(edit(path, value))
+
+
+def test_every_problem_is_reported_at_once():
+    data = yaml.safe_load(BASE)
+    data["robot"]["colour"] = "red"
+    data["workcell"]["bounds"]["xmax"] = "wide"
+    data["parts"]["P1"]["shape"]["type"] = "blob"
+    msgs = problems(yaml.safe_dump(data))
+    assert len(msgs) == 3
+    assert any(m.startswith("robot.colour") for m in msgs)
+    assert any(m.startswith("workcell.bounds.xmax") for m in msgs)
+    assert any(m.startswith("parts.P1.shape") for m in msgs)
+
+
+def test_arm_joint_limits_and_start_are_checked():
+    arm = {
+        "type": "arm",
+        "links": [{"length": 5, "width": 1}] * 2,
+        "start": [0, 200],
+        "joint_limits": [[-190, 90], [10, 0]],
+    }
+    msgs = problems(edit("robot", arm))
+    assert "robot.joint_limits[0]: limit -190.0 deg is outside [-180, 180]" in msgs
+    assert "robot.joint_limits[1]: lower limit 10.0 is not below upper limit 0.0" in msgs
+    assert "robot.start[1]: joint angle 200.0 deg is outside (-180, 180]" in msgs
+
+
+def test_names_must_be_unique_across_sections():
+    data = yaml.safe_load(BASE)
+    data["destinations"]["S1"] = data["destinations"].pop("D1")
+    assert "destinations.S1: name already used in sources" in problems(yaml.safe_dump(data))
+
+
+def test_overlapping_components_are_rejected():
+    comps = [
+        {"type": "box", "min": [2, 30], "max": [8, 36]},
+        {"type": "box", "min": [5, 31], "max": [9, 35]},
+    ]
+    assert (
+        "sources.S1.components[1]: overlaps components[0]; components must be disjoint"
+        in problems(edit("sources.S1.components", comps))
+    )
+
+
+def test_json_schema_describes_every_section():
+    schema = json_schema()
+    json.dumps(schema)
+    for key in (
+        "workcell",
+        "robot",
+        "parts",
+        "sources",
+        "destinations",
+        "strategy",
+        "adaptive",
+        "discs",
+    ):
+        assert key in schema["properties"]
