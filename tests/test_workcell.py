@@ -170,3 +170,15 @@ def test_start_in_collision_is_reported_with_the_obstacle_name():
     robot = sc.robot.model_copy(update={"start": (1.0, 50.0)})
     with pytest.raises(ScenarioError, match="leaves the workcell bounds"):
         Workcell.from_scenario(sc.model_copy(update={"robot": robot}))
+
+
+def test_with_obstacles_changes_the_environment_only():
+    from cellplan.geometry import ShapeSet
+
+    q = np.array([[40.5, 51.0]])
+    assert P1.free(q, avoid_sources="none")[0]
+    plug = ShapeSet.from_polygons([np.array([[35.0, 48.0], [46.0, 48.0], [46.0, 54.0], [35.0, 54.0]])])
+    closed = P1.with_obstacles({**P1.obstacles, "plug": plug})
+    assert closed.collides(q, avoid_sources="none")[0]
+    assert P1.free(q, avoid_sources="none")[0]  # the original is unchanged
+    assert "plug" in closed.obstacle_geometries and "plug" not in P1.obstacles

@@ -14,6 +14,7 @@ always counts as an obstacle: robots stay inside the bounds.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
@@ -146,6 +147,19 @@ class Workcell:
                 )
         if problems:
             raise ScenarioError(problems)
+
+    def with_obstacles(self, obstacles: Mapping[str, ShapeSet]) -> Workcell:
+        """A copy of this workcell with another set of named obstacles (environment changes).
+
+        The start configuration is not re-checked: a changed workcell may well
+        block where the robot once started.
+        """
+        return dataclasses.replace(
+            self,
+            obstacles=dict(obstacles),
+            obstacle_geometries={n: s.to_shapely() for n, s in obstacles.items()},
+            _obstacle_cache={},
+        )
 
     # --- obstacle sets -----------------------------------------------------------------------
 
