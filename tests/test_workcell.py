@@ -177,7 +177,7 @@ def test_with_obstacles_changes_the_environment_only():
 
     q = np.array([[40.5, 51.0]])
     assert P1.free(q, avoid_sources="none")[0]
-    plug = ShapeSet.from_polygons([np.array([[35.0, 48.0], [46.0, 48.0], [46.0, 54.0], [35.0, 54.0]])])
+    plug = ShapeSet.from_polygons([np.array([[35, 48], [46, 48], [46, 54], [35, 54]], float)])
     closed = P1.with_obstacles({**P1.obstacles, "plug": plug})
     assert closed.collides(q, avoid_sources="none")[0]
     assert P1.free(q, avoid_sources="none")[0]  # the original is unchanged
