@@ -1,0 +1,371 @@
+"""Algorithm Adapt (Figure 1): the planners R and S, Augment, the trace procedure T.
+
+One :class:`Adapter` holds the experience graph G, the robot position ``u``,
+the pointer ``u_hat`` (a vertex known reachable from ``u`` with one Reach, in
+generation ``link_gen``) and the world. :meth:`Adapter.task` runs one pass of
+the ``do forever`` loop of Figure 1 for a goal:
+
+1. Repair(G) for A0-A2 when the environment changed (:mod:`.repair`);
+2. R(u, w): the vertices of G by heuristic h (nearest to ``w`` first); the
+   first ``v`` with Reach(v, w) becomes ``w_hat``;
+3. otherwise S(u, w): ``w_hat`` = the best vertex by h (the nearest one whose
+   configuration is free now), Solve(w_hat, w), Abstract, Augment; ``w_hat``
+   becomes the last vertex of the chain;
+4. T(u, w) (Section 2.4, steps 1(a), 1(b), 2, 3), then Execute the path
+   ``u, u_hat, Gamma, w_hat, w`` after corner cutting (Section 2.6).
+
+Edges carry the generation they were verified in; T skips edges verified in
+the current generation (they cannot have changed), which is the only departure
+from re-checking the whole chain each task and changes no outcome.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cellplan.adaptive.abstract import abstract
+from cellplan.adaptive.counters import CheckCounter
+from cellplan.adaptive.graph import BLOCKED, FREE, ExperienceGraph
+from cellplan.adaptive.reach import path_is_free, reach, reach_potential
+from cellplan.adaptive.solve import solve_rrtconnect, solve_two_segment
+from cellplan.adaptive.space import FloatArray, PlanSpace
+from cellplan.adaptive.world import Tag, World
+
+Hook = Callable[[str], None]
+
+
+def derive_seed(*parts: int) -> int:
+    """A 31-bit seed from integers (run seed, task, call)."""
+    return int(
+        np.random.SeedSequence([int(p) & 0xFFFFFFFF for p in parts]).generate_state(1)[0] >> 1
+    )
+
+
+@dataclass
+class Settings:
+    """Planner settings (from the scenario section, overridable from the CLI)."""
+
+    repair: str = "A3"
+    solve: str = "rrtconnect"
+    reach: str = "straight"
+    resolution: float = 0.02
+    corner_cutting: bool = True
+    max_chain: int | None = None
+    max_solve_checks: int = 200_000
+    seed: int = 0
+
+
+@dataclass
+class TaskResult:
+    """What one task did: success, cost split, graph size, the executed path."""
+
+    goal: str
+    success: bool
+    solve_calls: int = 0
+    costs: dict[str, int] = field(default_factory=dict)
+    seconds: float = 0.0
+    vertices: int = 0
+    edges: int = 0
+    path: FloatArray | None = None
+    path_ok: bool = True
+    note: str = ""
+
+
+class Adapter:
+    """The state of Adapt between tasks and the procedures of Figure 1."""
+
+    def __init__(
+        self,
+        world: World,
+        settings: Settings,
+        counter: CheckCounter | None = None,
+        hook: Hook | None = None,
+    ) -> None:
+        self.world = world
+        self.settings = settings
+        self.counter = counter or CheckCounter()
+        self.hook = hook
+        robot = world.robot
+        self.space = PlanSpace(
+            world.is_free, robot.lower, robot.upper, settings.resolution, self.counter
+        )
+        self.graph = ExperienceGraph()
+        self.u = np.asarray(robot.start, dtype=float).copy()
+        self.u_hat = self.new_vertex(self.u)
+        self.link_gen = world.gen
+        self.repaired_gen = world.gen
+        self.tasks_done = 0
+        self.current_goal: str | None = None
+        self._solve_calls = 0
+        self._vertex_free: dict[int, tuple[int, bool]] = {}
+        # Reach(v, goal) results of the current generation, by (vertex id, goal name).
+        self.goal_links: dict[tuple[int, str], bool] = {}
+        self._links_gen = world.gen
+
+    # --- primitives ------------------------------------------------------------------------
+
+    @property
+    def gen(self) -> int:
+        return self.world.gen
+
+    def _emit(self, phase: str) -> None:
+        if self.hook is not None:
+            self.hook(phase)
+
+    def reach(self, a: FloatArray, b: FloatArray) -> bool:
+        """Reach(a, b), the variant chosen in the settings (counted)."""
+        if self.settings.reach == "potential":
+            return reach_potential(self.space, a, b) is not None
+        return reach(self.space, a, b)
+
+    def local_path(self, a: FloatArray, b: FloatArray) -> FloatArray:
+        """Reach[a, b]: the polyline Reach follows (uncounted; Reach(a, b) already succeeded)."""
+        if self.settings.reach == "potential":
+            saved = self.counter.snapshot()
+            path = reach_potential(self.space, a, b)
+            self.counter.counts.update(saved)
+            if path is not None:
+                return path
+        return np.stack([np.asarray(a, float), np.asarray(b, float)])
+
+    def solve(self, a: FloatArray, b: FloatArray) -> FloatArray | None:
+        """Solve(a, b) with the configured global planner, seeded per call (counted)."""
+        self._solve_calls += 1
+        if self.settings.solve == "two_segment":
+            return solve_two_segment(self.space, a, b)
+        seed = derive_seed(self.settings.seed, self.tasks_done, self._solve_calls)
+        return solve_rrtconnect(self.space, a, b, seed, self.settings.max_solve_checks)
+
+    def vertex_free(self, vid: int) -> bool:
+        """Is a vertex's configuration free in this generation? (one counted check, cached)."""
+        cached = self._vertex_free.get(vid)
+        if cached is not None and cached[0] == self.gen:
+            return cached[1]
+        ok = bool(self.space.free(self.graph.vertices[vid].q[None, :])[0])
+        self._vertex_free[vid] = (self.gen, ok)
+        return ok
+
+    def new_vertex(self, q: FloatArray) -> int:
+        """Add a vertex for configuration ``q`` with its object-attached tag (Section 2.3)."""
+        tag = self.world.tag_of(q)
+        return self.graph.add_vertex(q, tag.obj, tag.rel, tag.branch)
+
+    def augment(self, first: int, configs: FloatArray, last: int | None = None) -> list[int]:
+        """Augment(G, rho): chain ``first -> configs (-> last)``, edges free in this generation."""
+        ids = [first]
+        for q in configs:
+            ids.append(self.new_vertex(q))
+        if last is not None:
+            ids.append(last)
+        for a, b in itertools.pairwise(ids):
+            self.graph.set_edge(a, b, FREE, self.gen)
+        return ids
+
+    def abstract(self, path: FloatArray) -> FloatArray | None:
+        """Abstract(Solve[...]): the chain's configurations after the first (counted)."""
+        with self.counter.charge("abstract"):
+            idx = abstract(path, self.reach, self.settings.max_chain)
+        return None if idx is None else path[idx[1:]]
+
+    # --- R, S, T ---------------------------------------------------------------------------
+
+    def plan_r(self, w: FloatArray, goal: str | None = None) -> int | None:
+        """R(u, w): the first vertex by h with Reach(v, w); ``None`` if there is none.
+
+        Reach(v, w) is a pure function of the two configurations and the
+        environment, so its answers for a named goal are remembered within a
+        generation (vertex ids are never reused, and a vertex or an attached
+        goal only moves when the generation changes).
+        """
+        links = self.links()
+        with self.counter.charge("reach"):
+            for vid in self.graph.by_heuristic(w):
+                known = links.get((vid, goal)) if goal is not None else None
+                if known is None:
+                    known = self.reach(self.graph.vertices[vid].q, w)
+                    if goal is not None:
+                        links[(vid, goal)] = known
+                if known:
+                    return vid
+        return None
+
+    def links(self) -> dict[tuple[int, str], bool]:
+        """The remembered Reach(vertex, goal) answers of the current generation."""
+        if self._links_gen != self.gen:
+            self.goal_links = {}
+            self._links_gen = self.gen
+        return self.goal_links
+
+    def plan_s(self, w: FloatArray) -> int | None:
+        """S(u, w): Solve from the best free vertex by h, Abstract, Augment; the new w_hat."""
+        with self.counter.charge("solve"):
+            start = next((v for v in self.graph.by_heuristic(w) if self.vertex_free(v)), None)
+            if start is None:
+                return None
+            path = self.solve(self.graph.vertices[start].q, w)
+        if path is None:
+            return None
+        chain = self.abstract(path)
+        if chain is None:
+            return None
+        self._emit("augment")
+        return self.augment(start, chain)[-1]
+
+    def ensure_u_hat(self) -> None:
+        """Re-establish the pointer u_hat after a change: Reach(u, u_hat) or a new vertex at u."""
+        if self.u_hat in self.graph.vertices and self.link_gen == self.gen:
+            return
+        if self.u_hat not in self.graph.vertices or not self.reach(
+            self.u, self.graph.vertices[self.u_hat].q
+        ):
+            self.u_hat = self.new_vertex(self.u)
+        self.link_gen = self.gen
+
+    def trace(self, w_hat: int) -> list[int] | None:
+        """T(u, w): a verified vertex sequence from u_hat to w_hat, repairing G on demand.
+
+        Step 1: while G connects u_hat to w_hat, verify the shortest sequence
+        Gamma; (a) all edges pass Reach: success; (b) remove the first failing
+        edge (kept as ``blocked``). Step 2: Solve(u_hat, w_hat) and augment G
+        with its abstraction. Step 3: remove w_hat's component and fail.
+        """
+        g = self.graph
+        with self.counter.charge("trace"):
+            self.ensure_u_hat()
+            while True:
+                gamma = g.shortest_path(self.u_hat, w_hat)
+                if gamma is None:
+                    break
+                broken = False
+                for a, b in itertools.pairwise(gamma):
+                    e = g.edge(a, b)
+                    if e is not None and e.status == FREE and e.gen == self.gen:
+                        continue
+                    if self.reach(g.vertices[a].q, g.vertices[b].q):
+                        g.set_edge(a, b, FREE, self.gen)
+                    else:
+                        g.set_edge(a, b, BLOCKED, self.gen)
+                        broken = True
+                        break
+                if not broken:
+                    return gamma
+        self._emit("trace_solve")
+        with self.counter.charge("solve"):
+            path = self.solve(g.vertices[self.u_hat].q, g.vertices[w_hat].q)
+        chain = self.abstract(path) if path is not None else None
+        if chain is not None:
+            return self.augment(self.u_hat, chain[:-1], last=w_hat)
+        g.remove_component(w_hat)
+        return None
+
+    def cut_corners(self, gamma: list[int]) -> list[int]:
+        """Section 2.6: shortcut Gamma greedily (furthest vertex first), adding the new edges."""
+        g = self.graph
+        out = [gamma[0]]
+        i = 0
+        with self.counter.charge("cut"):
+            while i < len(gamma) - 1:
+                nxt = i + 1
+                for j in range(len(gamma) - 1, i + 1, -1):
+                    a, b = gamma[i], gamma[j]
+                    e = g.edge(a, b)
+                    if e is not None and e.gen == self.gen and e.status in (FREE, BLOCKED):
+                        if e.status == FREE:
+                            nxt = j
+                            break
+                        continue
+                    if self.reach(g.vertices[a].q, g.vertices[b].q):
+                        g.set_edge(a, b, FREE, self.gen)
+                        nxt = j
+                        break
+                    g.set_edge(a, b, BLOCKED, self.gen)
+                out.append(gamma[nxt])
+                i = nxt
+        return out
+
+    # --- one task --------------------------------------------------------------------------
+
+    def task(self, goal: str, w: FloatArray) -> TaskResult:
+        """One pass of the loop of Figure 1 for goal ``w`` (Repair is the caller's: repair.py)."""
+        t0 = time.perf_counter()
+        before = self.counter.snapshot()
+        calls0 = self._solve_calls
+        w = np.asarray(w, dtype=float)
+        res = TaskResult(goal, False)
+        w_hat = self.plan_r(w, goal)
+        if w_hat is None:
+            w_hat = self.plan_s(w)
+            if w_hat is None:
+                res.note = "Solve failed"
+        if w_hat is not None:
+            gamma = self.trace(w_hat)
+            if gamma is None:
+                res.note = "T failed"
+            else:
+                if self.settings.corner_cutting and len(gamma) > 2:
+                    gamma = self.cut_corners(gamma)
+                res.path = self.execute(gamma, w)
+                res.path_ok = path_is_free(self.space, res.path, refine=4)
+                res.success = True
+                self.u = w.copy()
+                self.u_hat = w_hat
+                self.link_gen = self.gen
+                self.current_goal = goal
+                self._emit("executed")
+        after = self.counter.snapshot()
+        res.costs = {k: after[k] - before[k] for k in after}
+        res.solve_calls = self._solve_calls - calls0
+        res.seconds = time.perf_counter() - t0
+        res.vertices = len(self.graph)
+        res.edges = len(self.graph.usable_edges())
+        return res
+
+    def execute(self, gamma: list[int], w: FloatArray) -> FloatArray:
+        """R[u, w]: the polyline u, Gamma..., w through Reach's local paths."""
+        points = [self.u] + [self.graph.vertices[v].q for v in gamma] + [w]
+        pieces = [points[0][None, :]]
+        for a, b in itertools.pairwise(points):
+            if float(np.linalg.norm(b - a)) <= 0.0:
+                continue
+            pieces.append(self.local_path(a, b)[1:])
+        return np.concatenate(pieces)
+
+    # --- environment changes ---------------------------------------------------------------
+
+    def follow_objects(self, moved: set[str]) -> int:
+        """Move the subgoals attached to moved objects (Section 2.3); drop those without IK or free.
+
+        Returns the number of dropped vertices. Vertices attached to objects that
+        no longer exist stay where they are, attached to the world.
+        """
+        dropped = 0
+        with self.counter.charge("repair"):
+            for vid in list(self.graph.vertices):
+                v = self.graph.vertices[vid]
+                if v.obj is not None and v.obj not in self.world.objects:
+                    v.rel, v.obj = self.world.tool(v.q), None
+                    continue
+                if v.obj not in moved:
+                    continue
+                q = self.world.config_of(Tag(v.obj, v.rel, v.branch))
+                if q is None or not self.space.free(q[None, :])[0]:
+                    self.graph.remove_vertex(vid)
+                    dropped += 1
+                    continue
+                self.graph.set_q(vid, q)
+        return dropped
+
+    def stats(self) -> dict[str, float]:
+        """Plain-number summary for PlanResult."""
+        return {
+            "vertices": float(len(self.graph)),
+            "edges": float(len(self.graph.usable_edges())),
+            "checks": float(self.counter.total),
+            "solve_calls": float(self._solve_calls),
+            "generation": float(self.gen),
+        }

@@ -1,0 +1,82 @@
+"""The modern peers on the same task sequence (Section 4 comparison).
+
+* ``prm``: OMPL PRM whose roadmap is kept across queries (multi-query); after
+  an environment change the roadmap is rebuilt from scratch, since OMPL's PRM
+  cannot tell which of its edges a change invalidated.
+* ``rrtconnect``: RRTConnect from scratch on every task (this is "Solve only",
+  the denominator of Figure 5's ratio).
+
+Both count collision checks through the same :class:`~.space.PlanSpace`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellplan.adaptive.adapt import derive_seed
+from cellplan.adaptive.counters import CheckCounter
+from cellplan.adaptive.runner import choose_goal, settings_for, task_count
+from cellplan.adaptive.solve import PRMSession, solve_rrtconnect
+from cellplan.adaptive.space import PlanSpace
+from cellplan.adaptive.world import World, preflight
+from cellplan.scenario import Scenario
+
+PEERS = ("prm", "rrtconnect")
+
+
+def run_peer(
+    scenario: Scenario, peer: str, tasks: int | None = None, seed: int | None = None
+) -> list[dict[str, float]]:
+    """Per-task checks of a peer planner over the scenario's task sequence."""
+    if peer not in PEERS:
+        raise ValueError(f"unknown peer {peer!r}; known: {PEERS}")
+    assert scenario.adaptive is not None
+    sec = scenario.adaptive
+    settings = settings_for(scenario, None, seed)
+    n = task_count(scenario, tasks)
+    preflight(scenario, settings.resolution)
+    world = World(scenario, settings.resolution)
+    counter = CheckCounter()
+    space = PlanSpace(
+        world.is_free, world.robot.lower, world.robot.upper, settings.resolution, counter
+    )
+    changes = sec.ordered_changes()
+    u = np.asarray(world.robot.start, float)
+    current: str | None = None
+    prm: PRMSession | None = None
+    rows = []
+    try:
+        for t in range(n):
+            changed = False
+            for _, change in changes:
+                if change.after_task == t:
+                    world.apply(change)
+                    changed = True
+            if changed and prm is not None:
+                prm.close()
+                prm = None
+            goal = choose_goal(sec, list(world.goals), t, current, settings.seed)
+            w = world.goal_config(goal)
+            assert w is not None
+            before = counter.total
+            if peer == "prm":
+                if prm is None:
+                    prm = PRMSession(space, derive_seed(settings.seed, t, 77))
+                path = prm.query(u, w)
+            else:
+                path = solve_rrtconnect(
+                    space, u, w, derive_seed(settings.seed, t, 1_000_003), settings.max_solve_checks
+                )
+            if path is not None:
+                u, current = w, goal
+            rows.append(
+                {
+                    "task": t + 1,
+                    "checks": float(counter.total - before),
+                    "success": float(path is not None),
+                }
+            )
+    finally:
+        if prm is not None:
+            prm.close()
+    return rows

@@ -1,0 +1,136 @@
+"""Pictures of the adaptive package: G over the workcell, snapshots, the ratio curve (Figure 5).
+
+matplotlib is imported lazily through :mod:`cellplan.plots`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cellplan import plots as shared
+from cellplan.adaptive.graph import FREE, UNKNOWN, ExperienceGraph
+from cellplan.adaptive.runner import Snapshot
+from cellplan.workcell import Workcell
+
+STRATEGY_COLORS = {
+    "A0": "#7f7f7f",
+    "A1": "#1f77b4",
+    "A2": "#ff7f0e",
+    "A3": "#d62728",
+    "rrtconnect": "#2ca02c",
+    "prm": "#9467bd",
+}
+
+
+def _tool_trace(cell: Workcell, qa: np.ndarray, qb: np.ndarray, samples: int = 16) -> np.ndarray:
+    t = np.linspace(0.0, 1.0, samples)[:, None]
+    return cell.robot.tool_pose(qa + t * (qb - qa))[:, :2]
+
+
+def draw_graph(ax: Any, snap: Snapshot, title: str = "") -> None:
+    """G over the workcell: vertices at the tool point, edges as the tool's trace along them."""
+    cell = snap.cell
+    shared.draw_workcell(ax, cell)
+    g: ExperienceGraph = snap.graph
+    for (a, b), e in g.edges.items():
+        if e.status not in (FREE, UNKNOWN):
+            continue
+        xy = _tool_trace(cell, g.vertices[a].q, g.vertices[b].q)
+        ax.plot(
+            xy[:, 0],
+            xy[:, 1],
+            "-" if e.status == FREE else "--",
+            color="#1f4e9c",
+            lw=1.0,
+            alpha=0.8,
+        )
+    if len(g):
+        ids, Q = g.arrays()
+        xy = cell.robot.tool_pose(Q)[:, :2]
+        attached = np.array([g.vertices[i].obj is not None for i in ids])
+        ax.plot(
+            xy[attached, 0], xy[attached, 1], "o", color="#1f4e9c", ms=4, label="subgoal (attached)"
+        )
+        ax.plot(
+            xy[~attached, 0],
+            xy[~attached, 1],
+            "s",
+            color="#1f4e9c",
+            mfc="white",
+            ms=4,
+            label="subgoal (world)",
+        )
+    for name, (x, y) in snap.goals.items():
+        ax.plot(x, y, "*", color="#c0392b", ms=9)
+        ax.annotate(
+            name, (x, y), xytext=(3, 3), textcoords="offset points", fontsize=7, color="#c0392b"
+        )
+    if snap.path is not None and len(snap.path) > 1:
+        dense = np.concatenate(
+            [_tool_trace(cell, a, b, 8) for a, b in zip(snap.path[:-1], snap.path[1:], strict=True)]
+        )
+        ax.plot(dense[:, 0], dense[:, 1], color="#c0392b", lw=0.8, alpha=0.6)
+    if cell.robot.kind == "arm":
+        shared.draw_robot(ax, cell, snap.u, alpha=0.35)
+    ax.set_title(
+        title or f"after task {snap.task}: |V|={len(g)}, |E|={len(g.usable_edges())}", fontsize=9
+    )
+
+
+def save_snapshots(snaps: Sequence[Snapshot], path: str | Path, ncols: int = 4) -> Path:
+    """A grid of G snapshots (Figure 3 style)."""
+    n = max(1, len(snaps))
+    ncols = min(ncols, n)
+    nrows = (n + ncols - 1) // ncols
+    fig, axes = shared.new_figure(ncols=ncols, nrows=nrows, size=3.6)
+    for k, ax in enumerate(axes.flat):
+        if k < len(snaps):
+            draw_graph(ax, snaps[k])
+        else:
+            ax.axis("off")
+    return shared.save_figure(fig, path)
+
+
+def save_ratio_curves(
+    curves: Mapping[str, np.ndarray],
+    path: str | Path,
+    change_after: Sequence[int] = (),
+    title: str = "cumulative cost, Adapt / Solve only",
+) -> Path:
+    """Figure 5: cumulative-cost ratio against task number, one curve per strategy."""
+    fig, axes = shared.new_figure(size=5.0)
+    ax = axes[0, 0]
+    for name, ratio in curves.items():
+        tasks = np.arange(1, len(ratio) + 1)
+        ax.plot(tasks, ratio, label=name, color=STRATEGY_COLORS.get(name), lw=1.6)
+    for t in change_after:
+        ax.axvline(t + 0.5, color="black", ls=":", lw=1)
+    ax.axhline(1.0, color="gray", lw=0.8)
+    ax.set_xlabel("task number")
+    ax.set_ylabel("ratio of cumulative planning cost")
+    ax.set_yscale("log")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    return shared.save_figure(fig, path)
+
+
+def save_cost_split(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
+    """Per-task cost split (R, T, S, Abstract, cut, repair) as stacked bars, with Solve only."""
+    fig, axes = shared.new_figure(size=5.0)
+    ax = axes[0, 0]
+    tasks = np.array([int(r["task"]) for r in rows])
+    bottom = np.zeros(len(rows))
+    for key in ("reach", "trace", "solve", "abstract", "cut", "repair"):
+        vals = np.array([float(r[key]) for r in rows])
+        ax.bar(tasks, vals, bottom=bottom, label=key, width=0.9)
+        bottom += vals
+    ax.plot(tasks, [float(r["baseline"]) for r in rows], "k.", ms=3, label="Solve only")
+    ax.set_yscale("symlog", linthresh=10)
+    ax.set_xlabel("task number")
+    ax.set_ylabel("collision checks")
+    ax.legend(fontsize=7, ncols=2)
+    return shared.save_figure(fig, path)

@@ -1,0 +1,205 @@
+"""The ``adaptive:`` scenario section: goals, tasks, environment changes, planner settings.
+
+Goals are tool-point positions written in world coordinates of the initial
+workcell, optionally attached to an object (then they move and turn with it,
+Section 2.3). Tasks are an explicit list of goal names or a random sequence
+from the goal set with a seed. Changes happen after a given task number and
+add, remove, move or rotate an object, or add or remove a goal. Angles are in
+degrees; ``resolution`` is in degrees for arm joints and in workcell units for
+a point robot.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Annotated, Literal
+
+from pydantic import Field
+
+from cellplan.errors import Problem
+from cellplan.schema import Name, PositiveFloat, Shape, StrictModel, Vec2
+
+if TYPE_CHECKING:
+    from cellplan.scenario import Scenario
+
+TaskIndex = Annotated[int, Field(ge=0, le=1_000_000)]
+REPAIR_STRATEGIES = ("A0", "A1", "A2", "A3")
+
+
+class GoalSpec(StrictModel):
+    """A named goal: where the tool point must go."""
+
+    at: Vec2 = Field(description="tool point in world coordinates of the initial workcell")
+    object: Name | None = Field(None, description="object the goal is attached to (moves with it)")
+    elbow: Literal[1, -1] = Field(1, description="arm IK branch: sign of joint 2")
+    orientation: float | None = Field(None, description="tool orientation, degrees (3-link arms)")
+
+
+class RandomTasks(StrictModel):
+    """``count`` goals drawn uniformly from the goal set, never the robot's current goal."""
+
+    count: Annotated[int, Field(ge=1, le=1_000_000)]
+    seed: int = 0
+
+
+class _Change(StrictModel):
+    after_task: TaskIndex = Field(description="applied after this many tasks (0: before the first)")
+
+
+class AddObject(_Change):
+    type: Literal["add_object"]
+    object: Name
+    shape: Shape
+
+
+class RemoveObject(_Change):
+    type: Literal["remove_object"]
+    object: Name
+
+
+class MoveObject(_Change):
+    type: Literal["move_object"]
+    object: Name
+    by: Vec2
+
+
+class RotateObject(_Change):
+    type: Literal["rotate_object"]
+    object: Name
+    degrees: float
+    about: Vec2 | None = Field(
+        None, description="centre of rotation (default: the object's centroid)"
+    )
+
+
+class AddGoal(_Change):
+    type: Literal["add_goal"]
+    goal: Name
+    at: Vec2
+    object: Name | None = None
+    elbow: Literal[1, -1] = 1
+    orientation: float | None = None
+
+    def spec(self) -> GoalSpec:
+        return GoalSpec(
+            at=self.at, object=self.object, elbow=self.elbow, orientation=self.orientation
+        )
+
+
+class RemoveGoal(_Change):
+    type: Literal["remove_goal"]
+    goal: Name
+
+
+Change = Annotated[
+    AddObject | RemoveObject | MoveObject | RotateObject | AddGoal | RemoveGoal,
+    Field(discriminator="type"),
+]
+
+
+class AdaptiveSection(StrictModel):
+    """Settings of the ``adaptive:`` section (Chen 1994)."""
+
+    goals: dict[Name, GoalSpec] = Field(min_length=1)
+    tasks: list[Name] | RandomTasks = Field(description="explicit goal names, or random")
+    changes: list[Change] = Field(default_factory=list)
+    repair: Literal["A0", "A1", "A2", "A3"] = "A3"
+    solve: Literal["rrtconnect", "two_segment"] = "rrtconnect"
+    reach: Literal["straight", "potential"] = "straight"
+    resolution: PositiveFloat = Field(1.0, description="Reach step: degrees (arm) or units (point)")
+    attach_radius: PositiveFloat | None = Field(
+        None,
+        description="attach a subgoal to the nearest object within this distance (None: always)",
+    )
+    corner_cutting: bool = True
+    max_chain: Annotated[int, Field(ge=1)] | None = None
+    max_solve_checks: Annotated[int, Field(ge=100)] = 200_000
+
+    def ordered_changes(self) -> list[tuple[int, Change]]:
+        """Changes with their index in the file, by task number (stable)."""
+        return sorted(enumerate(self.changes), key=lambda ic: ic[1].after_task)
+
+    def check(self, scenario: Scenario) -> list[Problem]:
+        """Cross-references: objects and goals named by goals, tasks and changes exist then."""
+        problems: list[Problem] = []
+        robot = scenario.robot
+        if robot is None:
+            problems.append(Problem("robot", "the adaptive section needs a robot (point or arm)"))
+        elif robot.type not in ("point", "arm"):
+            problems.append(
+                Problem("robot.type", "the adaptive planner supports point robots and arms")
+            )
+        elif robot.type == "arm" and len(robot.links) not in (2, 3):
+            problems.append(Problem("robot.links", "object-attached IK needs a 2- or 3-link arm"))
+        objects = set(scenario.workcell.obstacles)
+        for name, goal in self.goals.items():
+            if goal.object is not None and goal.object not in objects:
+                problems.append(
+                    Problem(f"adaptive.goals.{name}.object", f"unknown object {goal.object!r}")
+                )
+        goals = set(self.goals)
+        if isinstance(self.tasks, list):
+            self._check_task_list(problems)
+        for i, change in self.ordered_changes():
+            where = f"adaptive.changes[{i}]"
+            if isinstance(change, AddObject):
+                if change.object in objects:
+                    problems.append(
+                        Problem(f"{where}.object", f"object {change.object!r} already exists")
+                    )
+                objects.add(change.object)
+            elif isinstance(change, RemoveObject | MoveObject | RotateObject):
+                if change.object not in objects:
+                    problems.append(Problem(f"{where}.object", f"unknown object {change.object!r}"))
+                elif isinstance(change, RemoveObject):
+                    objects.discard(change.object)
+                    for g in sorted(goals):
+                        if self._goal_object(g) == change.object:
+                            problems.append(
+                                Problem(
+                                    f"{where}.object",
+                                    f"goal {g!r} is still attached to {change.object!r}",
+                                )
+                            )
+            elif isinstance(change, AddGoal):
+                if change.goal in goals:
+                    problems.append(
+                        Problem(f"{where}.goal", f"goal {change.goal!r} already exists")
+                    )
+                if change.object is not None and change.object not in objects:
+                    problems.append(Problem(f"{where}.object", f"unknown object {change.object!r}"))
+                goals.add(change.goal)
+            elif isinstance(change, RemoveGoal):
+                if change.goal not in goals:
+                    problems.append(Problem(f"{where}.goal", f"unknown goal {change.goal!r}"))
+                goals.discard(change.goal)
+                if not goals:
+                    problems.append(Problem(f"{where}.goal", "removes the last goal"))
+        return problems
+
+    def _goal_object(self, goal: str) -> str | None:
+        if goal in self.goals:
+            return self.goals[goal].object
+        for c in self.changes:
+            if isinstance(c, AddGoal) and c.goal == goal:
+                return c.object
+        return None
+
+    def _check_task_list(self, problems: list[Problem]) -> None:
+        assert isinstance(self.tasks, list)
+        if not self.tasks:
+            problems.append(Problem("adaptive.tasks", "the task list is empty"))
+        changes = self.ordered_changes()
+        goals = set(self.goals)
+        k = 0
+        for t, name in enumerate(self.tasks):
+            while k < len(changes) and changes[k][1].after_task <= t:
+                c = changes[k][1]
+                if isinstance(c, AddGoal):
+                    goals.add(c.goal)
+                elif isinstance(c, RemoveGoal):
+                    goals.discard(c.goal)
+                k += 1
+            if name not in goals:
+                problems.append(
+                    Problem(f"adaptive.tasks[{t}]", f"goal {name!r} does not exist at task {t + 1}")
+                )

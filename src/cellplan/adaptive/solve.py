@@ -1,0 +1,190 @@
+"""Solve, the global planner (Section 2), and the point-robot toy Solve of Section 3.
+
+:func:`solve_rrtconnect` runs OMPL's RRTConnect on a ``RealVectorStateSpace``
+with the bounds of the :class:`~.space.PlanSpace`. Its validity checker is the
+counted ``space.free``, and OMPL's discrete motion validator is set to the same
+resolution as Reach (``longest valid segment = resolution``), so every segment
+of a returned path passes Reach. Seeding goes through ``ompl.util.RNG.setSeed``
+immediately before the planner is built, so a call repeats exactly for a given
+seed. The planner stops after ``max_checks`` checks (a deterministic budget).
+
+:func:`solve_two_segment` is the paper's toy Solve: success iff the two points
+are joined by at most two straight segments; it returns the shortest such path
+among bend points on a lattice of the resolution.
+
+:class:`PRMSession` keeps one OMPL PRM roadmap across queries (the modern peer
+of the experiments).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from cellplan.adaptive.reach import reach
+from cellplan.adaptive.space import FloatArray, PlanSpace
+
+DEFAULT_MAX_CHECKS = 200_000
+BEND_LATTICE = 40
+
+
+def _ompl() -> tuple[Any, Any, Any]:
+    from ompl import base as ob
+    from ompl import geometric as og
+    from ompl import util as ou
+
+    ou.setLogLevel(ou.LOG_NONE)
+    return ob, og, ou
+
+
+def _space_information(space: PlanSpace) -> tuple[Any, Any]:
+    """OMPL space information over ``space`` with a counted validity checker."""
+    ob, _, _ = _ompl()
+    dim = space.dim
+    state_space = ob.RealVectorStateSpace(dim)
+    bounds = ob.RealVectorBounds(dim)
+    for i in range(dim):
+        bounds.setLow(i, float(space.lower[i]))
+        bounds.setHigh(i, float(space.upper[i]))
+    state_space.setBounds(bounds)
+    si = ob.SpaceInformation(state_space)
+
+    def valid(state: Any) -> bool:
+        # Copy the floats out at once: the state object is OMPL's and may be reused.
+        q = np.array([state[i] for i in range(dim)], dtype=float)
+        return bool(space.free(q[None, :])[0])
+
+    si.setStateValidityChecker(valid)
+    si.setStateValidityCheckingResolution(space.resolution / state_space.getMaximumExtent())
+    si.setup()
+    return si, state_space
+
+
+def _state(state_space: Any, q: FloatArray) -> Any:
+    st = state_space.allocState()
+    for i, v in enumerate(q):
+        st[i] = float(v)
+    return st
+
+
+def _path_array(path: Any, dim: int) -> FloatArray:
+    n = path.getStateCount()
+    return np.array([[path.getState(k)[i] for i in range(dim)] for k in range(n)], dtype=float)
+
+
+def solve_rrtconnect(
+    space: PlanSpace,
+    a: FloatArray,
+    b: FloatArray,
+    seed: int,
+    max_checks: int = DEFAULT_MAX_CHECKS,
+    max_seconds: float = 30.0,
+    planner_range: float | None = None,
+) -> FloatArray | None:
+    """Solve(a, b) with OMPL RRTConnect: waypoints ``(m, dim)`` from ``a`` to ``b``, or ``None``.
+
+    The endpoints are checked first (counted); a colliding endpoint fails at once.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if not np.all(space.free(np.stack([a, b]))):
+        return None
+    ob, og, ou = _ompl()
+    ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)
+    si, state_space = _space_information(space)
+    pdef = ob.ProblemDefinition(si)
+    pdef.setStartAndGoalStates(_state(state_space, a), _state(state_space, b))
+    planner = og.RRTConnect(si)
+    if planner_range is not None:
+        planner.setRange(planner_range)
+    planner.setProblemDefinition(pdef)
+    planner.setup()
+    start_count = space.counter.total + space.counter.counts["baseline"]
+    deadline = time.perf_counter() + max_seconds
+
+    def stop() -> bool:
+        used = space.counter.total + space.counter.counts["baseline"] - start_count
+        return used >= max_checks or time.perf_counter() > deadline
+
+    status = planner.solve(ob.PlannerTerminationCondition(stop))
+    if not pdef.hasExactSolution() or "Exact" not in str(status):
+        return None
+    path = _path_array(pdef.getSolutionPath(), space.dim)
+    path[0], path[-1] = a, b
+    return path
+
+
+def solve_two_segment(space: PlanSpace, a: FloatArray, b: FloatArray) -> FloatArray | None:
+    """The toy Solve of Section 3: the shortest path of at most two straight segments.
+
+    Bend points are a lattice over the bounds (``BEND_LATTICE`` points along the
+    longest side, never finer than the resolution), tried
+    in order of path length, so the first success is the shortest on the lattice.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if reach(space, a, b):
+        return np.stack([a, b])
+    spacing = max(space.resolution, float(np.max(space.upper - space.lower)) / BEND_LATTICE)
+    axes = [
+        np.linspace(lo, hi, max(2, int(math.floor((hi - lo) / spacing)) + 1))
+        for lo, hi in zip(space.lower, space.upper, strict=True)
+    ]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, space.dim)
+    length = np.linalg.norm(grid - a, axis=1) + np.linalg.norm(grid - b, axis=1)
+    for k in np.argsort(length, kind="stable"):
+        p = grid[k]
+        if reach(space, a, p) and reach(space, p, b):
+            return np.stack([a, p, b])
+    return None
+
+
+class PRMSession:
+    """An OMPL PRM whose roadmap is kept across queries (the multi-query peer).
+
+    Checks are counted in ``space.counter`` like every other planner, but PRM
+    grows its roadmap in one thread while another looks for a solution, so the
+    number of checks (not the answer) varies from run to run. Call
+    :meth:`close` (or let it go out of scope) before the interpreter exits.
+    """
+
+    def __init__(self, space: PlanSpace, seed: int) -> None:
+        _, og, ou = _ompl()
+        ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)
+        self.space = space
+        self._si, self._state_space = _space_information(space)
+        self._planner = og.PRM(self._si)
+        self._pdef: Any = None
+
+    def query(self, a: FloatArray, b: FloatArray, max_seconds: float = 10.0) -> FloatArray | None:
+        """Plan from ``a`` to ``b`` reusing (and growing) the roadmap."""
+        ob, _, _ = _ompl()
+        a = np.asarray(a, dtype=float)
+        b = np.asarray(b, dtype=float)
+        if not np.all(self.space.free(np.stack([a, b]))):
+            return None
+        pdef = ob.ProblemDefinition(self._si)
+        pdef.setStartAndGoalStates(_state(self._state_space, a), _state(self._state_space, b))
+        self._pdef = pdef
+        self._planner.clearQuery()
+        self._planner.setProblemDefinition(pdef)
+        self._planner.setup()
+        # PRM checks for a solution in a second thread that evaluates the termination
+        # condition; a Python condition there deadlocks on the GIL, so this peer stops
+        # on OMPL's own timer. Its check counts therefore depend on thread timing.
+        self._planner.solve(ob.timedPlannerTerminationCondition(max_seconds))
+        if not pdef.hasExactSolution():
+            return None
+        path = _path_array(pdef.getSolutionPath(), self.space.dim)
+        path[0], path[-1] = a, b
+        return path
+
+    def close(self) -> None:
+        """Drop the OMPL objects."""
+        self._planner = None
+        self._pdef = None
+        self._si = None
+        self._state_space = None

@@ -1,0 +1,263 @@
+"""The changing workcell: objects with poses, named goals, and the environment generation.
+
+Objects keep their scenario shape and a pose ``(x, y, theta)`` that maps the
+shape's original coordinates to the world; moving or rotating an object only
+changes its pose. Goals and subgoals are object-attached tags (Section 2.3): a
+tool-point pose relative to an object's frame (or the world) plus the IK branch;
+:meth:`World.config_of` turns a tag back into a configuration by inverse
+kinematics on the same branch. Every object change increments ``gen``, the
+environment generation that edge verification is stamped with.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+from cellplan.adaptive.section import (
+    AdaptiveSection,
+    AddGoal,
+    AddObject,
+    Change,
+    GoalSpec,
+    MoveObject,
+    RemoveGoal,
+    RemoveObject,
+    RotateObject,
+)
+from cellplan.adaptive.space import FloatArray
+from cellplan.errors import Problem, ScenarioError
+from cellplan.geometry import ShapeSet
+from cellplan.robots import PlanarArm, Robot
+from cellplan.scenario import Scenario
+from cellplan.schema import Shape
+from cellplan.workcell import Workcell
+
+Pose = tuple[float, float, float]
+
+
+def compose(a: Pose, b: Pose) -> Pose:
+    """Pose ``a`` applied after ``b`` (``a * b``)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2])
+
+
+def inverse(a: Pose) -> Pose:
+    """Inverse of a pose."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (-(c * a[0] + s * a[1]), s * a[0] - c * a[1], -a[2])
+
+
+@dataclass(frozen=True)
+class Tag:
+    """An object-attached subgoal: tool pose in the frame of ``obj`` (``None``: the world)."""
+
+    obj: str | None
+    rel: Pose
+    branch: int | None
+
+
+@dataclass
+class ObjectState:
+    shape: Shape
+    pose: Pose = (0.0, 0.0, 0.0)
+
+
+def certified_margin(robot: Robot, resolution: float) -> float:
+    """Clearance that makes Reach's sampled check certify the whole segment.
+
+    Between two samples of a segment checked at ``resolution`` no joint is more
+    than ``resolution / 2`` from the nearer sample, so no point of the robot is
+    farther than this bound from where it was checked (the foundation's
+    displacement bounds). Configurations are checked with this clearance, so a
+    segment that passes Reach is free everywhere, not only at its samples.
+    """
+    delta = np.full(robot.dim, resolution / 2.0)
+    return float(np.max(robot.body_displacement_bounds(delta)))
+
+
+class World:
+    """Objects, goals and robot of one adaptive scenario, changing over the tasks.
+
+    With ``resolution`` (the Reach step, radians or units), configurations are
+    tested with the :func:`certified_margin` clearance.
+    """
+
+    def __init__(self, scenario: Scenario, resolution: float | None = None) -> None:
+        if scenario.adaptive is None:
+            raise ScenarioError([Problem("adaptive", "the scenario has no adaptive section")])
+        self.scenario = scenario
+        self.section: AdaptiveSection = scenario.adaptive
+        self.base_cell = Workcell.from_scenario(scenario)
+        self.robot: Robot = self.base_cell.robot
+        self.margin = 0.0 if resolution is None else certified_margin(self.robot, resolution)
+        self.objects = {n: ObjectState(s) for n, s in scenario.workcell.obstacles.items()}
+        self.goals: dict[str, Tag] = {}
+        self.gen = 0
+        self._cell: Workcell | None = None
+        self._geoms: dict[str, BaseGeometry] | None = None
+        for name, goal in self.section.goals.items():
+            self.goals[name] = self._goal_tag(goal)
+
+    # --- geometry -------------------------------------------------------------------------
+
+    def world_shape(self, name: str) -> ShapeSet:
+        """An object's shape set in the world."""
+        st = self.objects[name]
+        return ShapeSet.from_spec(st.shape).transformed(st.pose)
+
+    def geometries(self) -> dict[str, BaseGeometry]:
+        """Shapely geometry of every object in the world (for distances and drawing)."""
+        if self._geoms is None:
+            self._geoms = {n: self.world_shape(n).to_shapely() for n in sorted(self.objects)}
+        return self._geoms
+
+    def workcell(self) -> Workcell:
+        """The foundation's workcell model of the current environment."""
+        if self._cell is None:
+            obstacles = {n: self.world_shape(n) for n in sorted(self.objects)}
+            self._cell = self.base_cell.with_obstacles(obstacles)
+        return self._cell
+
+    def is_free(self, Q: FloatArray) -> np.ndarray:
+        """Validity of configurations in the current environment (with the clearance margin)."""
+        return ~self.workcell().collides(Q, avoid_sources="none", margin=self.margin)
+
+    # --- tags and inverse kinematics ------------------------------------------------------
+
+    def tool(self, q: FloatArray) -> Pose:
+        """Tool-point pose of one configuration."""
+        x, y, phi = self.robot.tool_pose(np.asarray(q, float)[None, :])[0]
+        return (float(x), float(y), float(phi))
+
+    def branch(self, q: FloatArray) -> int | None:
+        """Elbow branch of an arm configuration (sign of joint 2), ``None`` for a point robot."""
+        if isinstance(self.robot, PlanarArm):
+            return int(self.robot.elbow_branch(np.asarray(q, float)[None, :])[0])
+        return None
+
+    def nearest_object(self, x: float, y: float) -> tuple[str | None, float]:
+        """The object nearest to a workspace point and its distance."""
+        geoms = self.geometries()
+        if not geoms:
+            return None, math.inf
+        pt = shapely.Point(x, y)
+        names = list(geoms)
+        d = [geoms[n].distance(pt) for n in names]
+        k = int(np.argmin(d))
+        return names[k], float(d[k])
+
+    def tag_of(self, q: FloatArray) -> Tag:
+        """Attach a configuration to the nearest object (within ``attach_radius``), Section 2.3."""
+        pose = self.tool(q)
+        obj, dist = self.nearest_object(pose[0], pose[1])
+        radius = self.section.attach_radius
+        if obj is None or (radius is not None and dist > radius):
+            return Tag(None, pose, self.branch(q))
+        return Tag(obj, compose(inverse(self.objects[obj].pose), pose), self.branch(q))
+
+    def tool_pose_of(self, tag: Tag) -> Pose:
+        """World tool pose of a tag in the current environment."""
+        if tag.obj is None or tag.obj not in self.objects:
+            return tag.rel
+        return compose(self.objects[tag.obj].pose, tag.rel)
+
+    def config_of(self, tag: Tag) -> FloatArray | None:
+        """Configuration for a tag by IK on the tag's branch; ``None`` if unreachable."""
+        x, y, phi = self.tool_pose_of(tag)
+        robot = self.robot
+        if isinstance(robot, PlanarArm):
+            sols, valid = robot.ik(
+                np.array([x]), np.array([y]), np.array([phi]) if robot.n_links == 3 else None
+            )
+            k = 0 if (tag.branch or 1) > 0 else 1
+            if not valid[0, k]:
+                return None
+            return np.asarray(sols[0, k], dtype=float)
+        q = np.array([x, y], dtype=float)
+        return q if bool(robot.within_limits(q[None, :])[0]) else None
+
+    def _goal_tag(self, goal: GoalSpec) -> Tag:
+        phi = math.radians(goal.orientation) if goal.orientation is not None else 0.0
+        pose: Pose = (float(goal.at[0]), float(goal.at[1]), phi)
+        if goal.object is None:
+            return Tag(None, pose, goal.elbow)
+        return Tag(goal.object, compose(inverse(self.objects[goal.object].pose), pose), goal.elbow)
+
+    def goal_config(self, name: str) -> FloatArray | None:
+        """Configuration of a goal in the current environment (``None``: no IK solution)."""
+        return self.config_of(self.goals[name])
+
+    def goal_problems(self, where: str) -> list[Problem]:
+        """Goals without IK solution or in collision now (named after ``where``)."""
+        problems = []
+        for name in sorted(self.goals):
+            q = self.goal_config(name)
+            if q is None:
+                problems.append(
+                    Problem(f"{where}.{name}", "no inverse-kinematics solution on its elbow branch")
+                )
+            elif not (self.robot.within_limits(q[None, :])[0] and self.is_free(q[None, :])[0]):
+                problems.append(
+                    Problem(f"{where}.{name}", "the goal configuration is in collision")
+                )
+        return problems
+
+    # --- changes --------------------------------------------------------------------------
+
+    def apply(self, change: Change) -> set[str]:
+        """Apply one change; the names of objects whose pose changed (their tags move)."""
+        moved: set[str] = set()
+        if isinstance(change, AddObject):
+            self.objects[change.object] = ObjectState(change.shape)
+        elif isinstance(change, RemoveObject):
+            del self.objects[change.object]
+        elif isinstance(change, MoveObject):
+            st = self.objects[change.object]
+            st.pose = (st.pose[0] + change.by[0], st.pose[1] + change.by[1], st.pose[2])
+            moved.add(change.object)
+        elif isinstance(change, RotateObject):
+            st = self.objects[change.object]
+            if change.about is None:
+                c = self.geometries()[change.object].centroid
+                cx, cy = float(c.x), float(c.y)
+            else:
+                cx, cy = change.about
+            turn: Pose = (0.0, 0.0, math.radians(change.degrees))
+            st.pose = compose((cx, cy, 0.0), compose(turn, compose((-cx, -cy, 0.0), st.pose)))
+            moved.add(change.object)
+        elif isinstance(change, AddGoal):
+            self.goals[change.goal] = self._goal_tag(change.spec())
+        elif isinstance(change, RemoveGoal):
+            del self.goals[change.goal]
+        if isinstance(change, AddObject | RemoveObject | MoveObject | RotateObject):
+            self.gen += 1
+            self._collider = None
+            self._cell = None
+            self._geoms = None
+        return moved
+
+
+def preflight(scenario: Scenario, resolution: float | None = None) -> None:
+    """Check every goal at every stage of the change schedule before any work is done.
+
+    Raises
+    ------
+    ScenarioError
+        One problem per goal that is unreachable or in collision at some stage.
+    """
+    world = World(scenario, resolution)
+    problems = world.goal_problems("adaptive.goals")
+    for i, change in world.section.ordered_changes():
+        world.apply(change)
+        for p in world.goal_problems(
+            f"adaptive.changes[{i}] (after task {change.after_task}): goal"
+        ):
+            if p not in problems:
+                problems.append(p)
+    if problems:
+        raise ScenarioError(problems)
