@@ -136,7 +136,7 @@ def cspace(
 
 @app.command()
 def demo(output: OutputOpt = Path("cellplan-out")) -> None:
-    """Run the main job: validate and draw every bundled workcell into OUTPUT."""
+    """Run quick versions of every experiment and write OUTPUT/index.html (about 1 minute)."""
     from cellplan.demo import run_demo
 
     index = run_demo(output, console=console)
@@ -165,11 +165,12 @@ def check_image_path(path: Path) -> None:
 
 
 def _register_package_commands() -> None:
+    from cellplan import reproduce_cli
     from cellplan.adaptive import commands as adaptive_commands
     from cellplan.assembly import commands as assembly_commands
     from cellplan.strategies import commands as strategy_commands
 
-    for module in (strategy_commands, adaptive_commands, assembly_commands):
+    for module in (strategy_commands, adaptive_commands, assembly_commands, reproduce_cli):
         module.register(app)
 
 

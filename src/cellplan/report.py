@@ -1,0 +1,516 @@
+"""The self-contained HTML report: ``DIR/index.html``, one section per paper.
+
+The report is a single file a browser opens with no network: styles are inline
+and every figure (PNG, GIF animation, JPEG, SVG) is embedded as a base64
+``data:`` URI. Per experiment it shows what was run (runs, parameter values,
+failures, compute time), the experiment's own text, the paper's claim beside
+ours with a plain verdict line (reproduced, or differs and how), the figures,
+the tables, the runs that failed, the tidy CSV, and the command that
+regenerates the piece. The file is written atomically.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+import shlex
+import traceback
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from cellplan.core import Claim, Experiment, ReportPiece, Scalar
+from cellplan.experiments import PAPERS, ExperimentRun, PaperExperiments, SweepResult
+from cellplan.fileio import write_text
+
+MIME = {
+    ".png": "image/png",
+    ".gif": "image/gif",
+    ".jpg": "image/jpeg",
+    ".jpeg": "image/jpeg",
+    ".svg": "image/svg+xml",
+}
+
+
+@dataclass(frozen=True)
+class PaperInfo:
+    """How the report introduces a paper."""
+
+    title: str
+    citation: str
+    summary: str
+
+
+PAPER_INFO: dict[str, PaperInfo] = {
+    "strategies": PaperInfo(
+        "Optimal motion strategies under a stochastic assembly process",
+        "R. Sharma, S. M. LaValle, S. Hutchinson, “Optimizing Robot Motion Strategies for "
+        "Assembly with Stochastic Models of the Assembly Process”, IEEE Transactions on "
+        "Robotics and Automation, 1996.",
+        "Section V solves six workcells (translating, rotating and 3-link robots) for the "
+        "state-feedback strategy that minimises the expected time parts wait. The paper "
+        "reports behaviours rather than numbers: while no request is pending the robot waits "
+        "near the sources (P1, P3); it passes a narrow opening when empty and detours when "
+        "carrying (P1); it delivers to the nearer component of a split destination (P2); it "
+        "turns at once toward a changed destination (P4); it picks the source component that "
+        "suits the destination (P6); and anticipation saves about as many stages as the robot "
+        "spent idle (Section V-C).",
+    ),
+    "adaptive": PaperInfo(
+        "Adaptive experience-graph planning in changing workcells",
+        "P. C. Chen, “Adaptive Path Planning for Flexible Manufacturing”, Sandia National "
+        "Laboratories, 1994.",
+        "Section 4 runs Adapt on a planar 2-link (SCARA-like) workcell with 5 obstacles and 9 "
+        "goals, adding an obstacle and a goal after task 40, and plots the ratio of cumulative "
+        "planning cost (distance evaluations) of Adapt to Solve alone, averaged over 100 runs "
+        "(Fig. 5): 2.5 at task 1, 1.0 at task 16, 0.67 by task 40; after the change the "
+        "on-demand repair A3 is best, then A1, then A0, while A2 jumps and then approaches A3.",
+    ),
+    "assembly": PaperInfo(
+        "Navigation-function assembly planning for disc assemblies",
+        "L. L. Whitcomb, D. E. Koditschek, “Automatic assembly planning and control via "
+        "potential functions”, Proc. IEEE/RSJ IROS Workshop, 1991, pp. 17-23.",
+        "Section 5 measures the path-length ratio (path length over straight-line distance) "
+        "over 25 random starts per point: it falls with k to about 1.25 for 7 discs and under "
+        "1.25 for 10 discs (Figs. 3-4); it is nearly independent of the goal's packing "
+        "β(d) from 1e-2 to 1e-44 (Figs. 6-7); permuted starts on packed goals about double "
+        "it; the sequential (switched) algorithm is about 10% longer, with about three "
+        "switches per disc, more for harder assemblies (Figs. 8-9).",
+    ),
+}
+
+
+@dataclass
+class ExtraSection:
+    """A section that is not a paper's (the demo's bundled workcells, for instance)."""
+
+    title: str
+    text: str = ""
+    figures: list[Path] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    anchor: str = "extra"
+
+
+@dataclass
+class ExperimentReport:
+    """One experiment's sweep with the piece its ``report`` produced (or why it did not)."""
+
+    run: ExperimentRun
+    piece: ReportPiece | None
+    error: str
+    command: str
+
+
+def make_pieces(
+    sweep: SweepResult, command_for: Callable[[Experiment], str]
+) -> list[ExperimentReport]:
+    """Call each experiment's ``report(rows, figdir)`` on its successful rows.
+
+    A ``report`` that raises does not stop the others: its error (with the line
+    that raised) goes into the HTML instead of its piece.
+    """
+    out = []
+    for run in sweep.runs:
+        exp = run.experiment
+        piece: ReportPiece | None = None
+        error = run.error
+        if not error and not run.ok_rows:
+            error = (
+                "no run succeeded, nothing to report" if run.rows else "make_runs listed no runs"
+            )
+        if not error:
+            figdir = sweep.outdir / "figures" / exp.name
+            figdir.mkdir(parents=True, exist_ok=True)
+            try:
+                piece = exp.report(run.ok_rows, figdir)
+                if not isinstance(piece, ReportPiece):
+                    raise TypeError(f"report returned a {type(piece).__name__}, not a ReportPiece")
+            except Exception as exc:
+                frames = traceback.extract_tb(exc.__traceback__)
+                where = (
+                    f" (at {Path(frames[-1].filename).name}:{frames[-1].lineno})" if frames else ""
+                )
+                error = f"report failed: {type(exc).__name__}: {exc}{where}"
+                piece = None
+        out.append(ExperimentReport(run, piece, error, command_for(exp)))
+    return out
+
+
+def reproduce_command(
+    exp: Experiment, runs: int, quick: bool, outdir: Path | str, scheduler: str | None = None
+) -> str:
+    """The ``cellplan reproduce`` command that regenerates one experiment's piece."""
+    args = ["cellplan", "reproduce", exp.paper, "--only", exp.name, "--runs", str(runs)]
+    if quick:
+        args.append("--quick")
+    if scheduler:
+        args += ["--scheduler", scheduler]
+    args += ["-o", str(outdir)]
+    return shlex.join(args)
+
+
+def write_report(
+    outdir: Path,
+    found: Sequence[PaperExperiments],
+    pieces: Sequence[ExperimentReport],
+    sweep: SweepResult | None,
+    title: str = "cellplan: the three papers, reproduced",
+    intro: str = "",
+    extra: Sequence[ExtraSection] = (),
+) -> Path:
+    """Write ``outdir/index.html`` atomically and return its path.
+
+    Parameters
+    ----------
+    outdir
+        The report folder (CSV files are linked relative to it).
+    found
+        What :func:`cellplan.experiments.discover` found per paper, so that a
+        package without experiments still gets its section saying so.
+    pieces
+        The experiments' pieces from :func:`make_pieces`.
+    sweep
+        The sweep (for its command line, scheduler and versions).
+    title, intro
+        Page heading and a first paragraph.
+    extra
+        Further sections, placed after the papers.
+    """
+    outdir = Path(outdir)
+    page = _Page()
+    page.add("<!DOCTYPE html>")
+    page.add('<html lang="en"><head><meta charset="utf-8">')
+    page.add('<meta name="viewport" content="width=device-width, initial-scale=1">')
+    page.add(f"<title>{_e(title)}</title><style>{CSS}</style></head><body>")
+    page.add(f"<header><h1>{_e(title)}</h1>")
+    if intro:
+        page.add(_paragraphs(intro))
+    generated = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    page.add(f'<p class="meta">Generated {generated}')
+    if sweep is not None:
+        page.add(
+            f" by <code>{_e(sweep.command)}</code> on {_e(sweep.scheduler)}, "
+            f"in {sweep.wall_s:.1f} s"
+        )
+    page.add(".</p>")
+    page.add(_summary_table(found, pieces))
+    page.add(_toc(found, extra))
+    page.add("</header><main>")
+    by_paper: dict[str, list[ExperimentReport]] = {}
+    for item in pieces:
+        by_paper.setdefault(item.run.experiment.paper, []).append(item)
+    papers = [f.paper for f in found] + [p for p in by_paper if p not in {f.paper for f in found}]
+    notes = {f.paper: f.note for f in found}
+    for paper in papers:
+        page.add(_paper_section(paper, notes.get(paper, ""), by_paper.get(paper, []), outdir))
+    for section in extra:
+        page.add(_extra_section(section))
+    if sweep is not None:
+        page.add(_machine_section(sweep.metadata))
+    page.add("</main></body></html>")
+    return write_text(outdir / "index.html", page.text())
+
+
+# --- sections -----------------------------------------------------------------------------------
+
+
+def _summary_table(found: Sequence[PaperExperiments], pieces: Sequence[ExperimentReport]) -> str:
+    rows = []
+    papers = [f.paper for f in found] or list(PAPERS)
+    for paper in papers:
+        items = [p for p in pieces if p.run.experiment.paper == paper]
+        claims = [c for p in items if p.piece for c in p.piece.claims]
+        good = sum(1 for c in claims if c.reproduced)
+        runs = sum(len(p.run.rows) for p in items)
+        failed = sum(p.run.n_failed for p in items)
+        name = PAPER_INFO[paper].title if paper in PAPER_INFO else paper
+        rows.append(
+            f'<tr><td><a href="#paper-{_e(paper)}">{_e(name)}</a></td><td>{len(items)}</td>'
+            f"<td>{runs}</td><td>{failed}</td>"
+            f'<td class="ok">{good}</td><td class="{"bad" if len(claims) - good else ""}">'
+            f"{len(claims) - good}</td></tr>"
+        )
+    return (
+        '<table class="summary"><thead><tr><th>paper</th><th>experiments</th><th>runs</th>'
+        "<th>failed runs</th><th>claims reproduced</th><th>claims that differ</th></tr></thead>"
+        f"<tbody>{''.join(rows)}</tbody></table>"
+    )
+
+
+def _toc(found: Sequence[PaperExperiments], extra: Sequence[ExtraSection]) -> str:
+    links = [
+        f'<li><a href="#paper-{_e(f.paper)}">'
+        f"{_e(PAPER_INFO[f.paper].title if f.paper in PAPER_INFO else f.paper)}</a></li>"
+        for f in found
+    ]
+    links += [f'<li><a href="#{_e(s.anchor)}">{_e(s.title)}</a></li>' for s in extra]
+    links.append('<li><a href="#machine">Machine and versions</a></li>')
+    return f"<nav><ul>{''.join(links)}</ul></nav>"
+
+
+def _paper_section(paper: str, note: str, items: Sequence[ExperimentReport], outdir: Path) -> str:
+    info = PAPER_INFO.get(paper, PaperInfo(paper, "", ""))
+    parts = [f'<section id="paper-{_e(paper)}"><h2>{_e(info.title)}</h2>']
+    if info.citation:
+        parts.append(f'<p class="cite">{_e(info.citation)}</p>')
+    if info.summary:
+        parts.append(f'<p class="paper-claims"><b>What the paper shows.</b> {_e(info.summary)}</p>')
+    if note:
+        parts.append(f'<p class="note">{_e(note)}.</p>')
+    elif not items:
+        parts.append('<p class="note">no experiments selected for this paper.</p>')
+    parts.append(_verdict_list(items))
+    parts += [_experiment_article(item, outdir) for item in items]
+    parts.append("</section>")
+    return "\n".join(parts)
+
+
+def _experiment_article(item: ExperimentReport, outdir: Path) -> str:
+    run, piece = item.run, item.piece
+    exp = run.experiment
+    title = piece.title if piece and piece.title else exp.title
+    parts = [f'<article id="exp-{_e(exp.name)}"><h3>{_e(title)}</h3>']
+    parts.append(f'<p class="what"><b>What was run.</b> {_e(_what_was_run(run))}</p>')
+    if item.error:
+        parts.append(f'<p class="error">{_e(item.error)}</p>')
+    if piece is not None:
+        if piece.text:
+            parts.append(_paragraphs(piece.text))
+        if piece.claims:
+            parts.append(_claims_table(piece.claims))
+        for figure in piece.figures:
+            parts.append(_figure(Path(figure), outdir / "figures" / exp.name))
+        for caption, rows in piece.tables:
+            parts.append(_table(caption, rows))
+    if run.n_failed:
+        parts.append(_failures_table(run))
+    links = []
+    for path in (run.csv_path, run.meta_path):
+        try:
+            href = path.relative_to(outdir).as_posix()
+        except ValueError:
+            href = path.as_posix()
+        links.append(f'<a href="{_e(href)}">{_e(href)}</a>')
+    parts.append(f'<p class="data">Data: {" and ".join(links)} (one row per run).</p>')
+    parts.append(_command("Regenerate this piece:", item.command))
+    if piece is not None and piece.command and piece.command != item.command:
+        parts.append(_command("The package's own command:", piece.command))
+    parts.append("</article>")
+    return "\n".join(parts)
+
+
+def _command(label: str, command: str) -> str:
+    return f'<p class="cmd-label">{_e(label)}</p><pre class="cmd">{_e(command)}</pre>'
+
+
+def _what_was_run(run: ExperimentRun) -> str:
+    n = len(run.rows)
+    text = f"{n} run{'s' if n != 1 else ''}"
+    values = []
+    for name in run.param_names:
+        distinct = sorted({row[name] for row in run.rows if name in row}, key=_sort_key)
+        shown = ", ".join(_fmt_value(v) for v in distinct[:8])
+        shown += ", …" if len(distinct) > 8 else ""
+        values.append(f"{name} ∈ {{{shown}}}")
+    seeds = sorted({int(row["seed"]) for row in run.rows})
+    if seeds:
+        values.append(f"{len(seeds)} seed{'s' if len(seeds) != 1 else ''} ({_ranges(seeds)})")
+    if values:
+        text += " over " + "; ".join(values)
+    text += f". {run.n_failed} failed, {run.n_cached} from the cache"
+    text += f", {run.compute_s:.1f} s of compute."
+    return text
+
+
+def verdict(claim: Claim) -> str:
+    """The plain verdict line: ``✔ reproduced`` or ``✘ differs: how``."""
+    if claim.reproduced:
+        return "✔ reproduced" + (f": {claim.detail}" if claim.detail else "")
+    return "✘ differs: " + (claim.detail or f"the paper has {claim.paper}, we get {claim.ours}")
+
+
+def _verdict_list(items: Sequence[ExperimentReport]) -> str:
+    """Every claim of a paper on one line each, linking to its experiment."""
+    lines = [
+        f'<li class="{"ok" if c.reproduced else "bad"}">{_e(c.claim)} — {_e(verdict(c))} '
+        f'(<a href="#exp-{_e(item.run.experiment.name)}">{_e(item.run.experiment.name)}</a>)</li>'
+        for item in items
+        if item.piece is not None
+        for c in item.piece.claims
+    ]
+    if not lines:
+        return ""
+    return f'<div class="verdicts"><b>Verdicts.</b><ul>{"".join(lines)}</ul></div>'
+
+
+def _claims_table(claims: Sequence[Claim]) -> str:
+    rows = []
+    for claim in claims:
+        cls = "ok" if claim.reproduced else "bad"
+        rows.append(
+            f"<tr><td>{_e(claim.claim)}</td><td>{_e(claim.paper)}</td><td>{_e(claim.ours)}</td>"
+            f'<td class="verdict {cls}">{_e(verdict(claim))}</td></tr>'
+        )
+    return (
+        '<table class="claims"><caption>The paper beside cellplan</caption><thead><tr>'
+        "<th>claim</th><th>paper</th><th>cellplan</th><th>verdict</th></tr></thead>"
+        f"<tbody>{''.join(rows)}</tbody></table>"
+    )
+
+
+def _figure(path: Path, figdir: Path) -> str:
+    candidates = [path] if path.is_absolute() else [path, figdir / path]
+    found = next((p for p in candidates if p.is_file()), None)
+    if found is None:
+        return f'<p class="error">missing figure {_e(str(path))}</p>'
+    mime = MIME.get(found.suffix.lower())
+    if mime is None:
+        return f'<p class="error">figure {_e(found.name)}: unsupported type {_e(found.suffix)}</p>'
+    data = found.read_bytes()
+    if not data:
+        return f'<p class="error">figure {_e(found.name)} is empty</p>'
+    uri = f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
+    kind = "animation" if found.suffix.lower() == ".gif" else "figure"
+    return (
+        f'<figure class="{kind}"><img src="{uri}" alt="{_e(found.stem)}">'
+        f"<figcaption>{_e(found.name)}</figcaption></figure>"
+    )
+
+
+def _table(caption: str, rows: Sequence[Mapping[str, Scalar]]) -> str:
+    columns: dict[str, None] = {}
+    for row in rows:
+        columns.update(dict.fromkeys(row))
+    head = "".join(f"<th>{_e(c)}</th>" for c in columns)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{_e(_fmt(row.get(c, '')))}</td>" for c in columns) + "</tr>"
+        for row in rows
+    )
+    return (
+        '<table class="data">'
+        + (f"<caption>{_e(caption)}</caption>" if caption else "")
+        + f"<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    )
+
+
+def _failures_table(run: ExperimentRun) -> str:
+    failed = [row for row in run.rows if row["run_status"] != "ok"]
+    shown = [
+        {
+            **{name: row.get(name, "") for name in run.param_names},
+            "seed": row["seed"],
+            "error": row["run_error"],
+        }
+        for row in failed[:20]
+    ]
+    skipped = any(row["run_status"] == "skipped" for row in failed)
+    caption = "Failed and skipped runs" if skipped else "Failed runs"
+    caption += f" ({len(failed)}" + (", first 20 shown)" if len(failed) > 20 else ")")
+    return _table(caption, shown)
+
+
+def _extra_section(section: ExtraSection) -> str:
+    parts = [f'<section id="{_e(section.anchor)}"><h2>{_e(section.title)}</h2>']
+    if section.text:
+        parts.append(_paragraphs(section.text))
+    parts += [f'<p class="error">{_e(note)}</p>' for note in section.notes]
+    parts.append('<div class="gallery">')
+    parts += [_figure(Path(f), Path(f).parent) for f in section.figures]
+    parts.append("</div></section>")
+    return "\n".join(parts)
+
+
+def _machine_section(metadata: Mapping[str, Any]) -> str:
+    rows: list[dict[str, Scalar]] = []
+    for key in ("command", "scheduler", "quick", "runs_per_point", "started", "finished", "wall_s"):
+        if key in metadata:
+            rows.append({"item": key, "value": str(metadata[key])})
+    for group in ("machine", "versions"):
+        for key, value in metadata.get(group, {}).items():
+            rows.append({"item": f"{group}.{key}", "value": str(value)})
+    return f'<section id="machine"><h2>Machine and versions</h2>{_table("", rows)}</section>'
+
+
+# --- small helpers ------------------------------------------------------------------------------
+
+
+class _Page:
+    def __init__(self) -> None:
+        self.parts: list[str] = []
+
+    def add(self, text: str) -> None:
+        self.parts.append(text)
+
+    def text(self) -> str:
+        return "\n".join(self.parts) + "\n"
+
+
+def _e(text: Any) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def _paragraphs(text: str) -> str:
+    blocks = [b.strip() for b in text.split("\n\n") if b.strip()]
+    return "".join(f"<p>{_e(' '.join(b.split()))}</p>" for b in blocks)
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float) and not isinstance(value, bool):
+        if math.isnan(value) or math.isinf(value):
+            return str(value)
+        return f"{value:.4g}"
+    return str(value)
+
+
+def _fmt_value(value: Any) -> str:
+    """A parameter value in a set: strings with commas or spaces are quoted."""
+    if isinstance(value, str) and ("," in value or " " in value or not value):
+        return f"“{value}”"
+    return _fmt(value)
+
+
+def _sort_key(value: Any) -> tuple[int, Any]:
+    return (
+        (0, value)
+        if isinstance(value, int | float) and not isinstance(value, bool)
+        else (1, str(value))
+    )
+
+
+def _ranges(values: Sequence[int]) -> str:
+    """``0-24`` for consecutive integers, a short list otherwise."""
+    if len(values) > 1 and values[-1] - values[0] == len(values) - 1:
+        return f"{values[0]}–{values[-1]}"
+    shown = ", ".join(str(v) for v in values[:8])
+    return shown + (", …" if len(values) > 8 else "")
+
+
+CSS = """
+body{font:16px/1.5 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0 auto;
+max-width:1100px;padding:1rem 1.5rem;color:#1d2329;background:#fff}
+h1{margin-bottom:.2rem}h2{border-bottom:2px solid #d0d7de;padding-bottom:.2rem;margin-top:2.5rem}
+h3{margin-top:2rem}
+.meta,.cite{color:#57606a;font-size:.9rem}
+.paper-claims{background:#f6f8fa;border-left:4px solid #8c959f;padding:.5rem .8rem}
+.note{color:#9a6700;background:#fff8c5;padding:.4rem .8rem;border-radius:4px}
+.error{color:#82071e;background:#ffebe9;padding:.4rem .8rem;border-radius:4px}
+table{border-collapse:collapse;margin:.8rem 0;font-size:.9rem}
+caption{text-align:left;font-weight:600;padding:.2rem 0}
+th,td{border:1px solid #d0d7de;padding:.25rem .5rem;vertical-align:top;text-align:left}
+th{background:#f6f8fa}
+td.ok,li.ok{color:#116329}td.bad,li.bad{color:#82071e}
+.verdicts{border:1px solid #d0d7de;border-radius:4px;padding:.4rem .8rem;margin:.8rem 0}
+.verdicts ul{margin:.3rem 0;padding-left:1.2rem}
+td.verdict{font-weight:600}
+figure{display:inline-block;margin:.5rem 1rem .5rem 0;max-width:100%}
+figure img{max-width:100%;height:auto;border:1px solid #d0d7de}
+figcaption{font-size:.8rem;color:#57606a}
+.gallery figure{max-width:48%}
+pre.cmd{background:#1d2329;color:#e6edf3;padding:.5rem .8rem;border-radius:4px;overflow-x:auto}
+.cmd-label{margin-bottom:0;font-size:.9rem}
+nav ul{columns:2}
+@media print{pre.cmd{background:#fff;color:#000;border:1px solid #000}}
+"""
