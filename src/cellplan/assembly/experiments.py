@@ -1,0 +1,287 @@
+"""Experiments of the assembly package (Whitcomb & Koditschek 1991, Section 5), for the runner.
+
+``assembly.ratio_vs_k``
+    Figs. 3-4: gradient algorithm, path-length ratio (R^2n norm, Section 5.1) against k
+    for 7 and 10 discs, random legal starts, one hexagonal goal cluster.
+``assembly.ratio_vs_beta``
+    Figs. 5-7: five 7-disc goal patterns with pairwise beta(d) = 1e-2 ... 1e-44, five k.
+``assembly.sequential``
+    Figs. 8-9: the same grid for the sequential algorithm (ratio over summed disc
+    distances, footnote 6) with switch counts; the paper's rule and ours (``place``).
+``assembly.permutation``
+    Section 5.2.2: starts that permute the packed goals (the paper: ratios about double).
+
+Every run is a pure function of its spec: the problem is generated from the seed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
+
+PAPER = "assembly"
+BETAS = (-2.0, -9.0, -16.0, -28.0, -44.0)
+K_BETA = (32.0, 48.0, 64.0, 96.0, 128.0)
+K_BY_N = {7: (16.0, 32.0, 64.0, 128.0, 256.0), 10: (32.0, 64.0, 128.0, 256.0, 512.0)}
+GAP = 0.1  # goal gap of the Figs. 3-4 cluster (unit discs)
+
+
+def run(spec: RunSpec) -> dict[str, Scalar]:
+    """One planning run; parameters: algorithm, n, k, log10_beta (or gap), starts, rule."""
+    from cellplan.assembly.planners import run_gradient, run_sequential
+    from cellplan.assembly.problems import default_workspace, generate_problem, log10_beta_pairs
+    from cellplan.assembly.section import GeneratorSpec
+
+    prm = spec.params
+    n = int(prm["n"])
+    k = float(prm["k"])
+    lb = float(prm.get("log10_beta", 0.0))
+    gen = GeneratorSpec(n=n, seed=spec.seed, gap=GAP, starts=str(prm.get("starts", "random")),  # type: ignore[arg-type]
+                        log10_beta_goal=lb if "log10_beta" in prm else None)
+    problem = generate_problem(gen, default_workspace(n))
+    algorithm = str(prm["algorithm"])
+    if algorithm == "gradient":
+        res = run_gradient(problem, k)
+    else:
+        res = run_sequential(problem, k, str(prm["rule"]))
+    row: dict[str, Scalar] = {
+        "status": res.status.value,
+        "solved": res.status.ok,
+        "beta_d_log10": log10_beta_pairs(problem.goal, problem.radii),
+    }
+    row.update({key: float(value) for key, value in res.stats.items()})
+    return row
+
+
+# --- run lists -------------------------------------------------------------------------------
+
+
+def _runs_ratio_vs_k(runs: int, quick: bool) -> list[RunSpec]:
+    grid = {5: (16.0, 64.0)} if quick else K_BY_N
+    seeds = range(2 if quick else runs)
+    return [RunSpec("assembly.ratio_vs_k", {"algorithm": "gradient", "n": n, "k": k}, s)
+            for n, ks in grid.items() for k in ks for s in seeds]
+
+
+def _runs_ratio_vs_beta(runs: int, quick: bool) -> list[RunSpec]:
+    betas, ks, n = ((-2.0, -16.0), (48.0,), 5) if quick else (BETAS, K_BETA, 7)
+    seeds = range(2 if quick else runs)
+    return [RunSpec("assembly.ratio_vs_beta",
+                    {"algorithm": "gradient", "n": n, "k": k, "log10_beta": b}, s)
+            for b in betas for k in ks for s in seeds]
+
+
+def _runs_sequential(runs: int, quick: bool) -> list[RunSpec]:
+    betas, ks, n = ((-2.0, -16.0), (32.0,), 3) if quick else (BETAS, K_BETA, 7)
+    seeds = range(2 if quick else runs)
+    return [RunSpec("assembly.sequential", {"algorithm": "sequential", "rule": rule, "n": n,
+                                            "k": k, "log10_beta": b}, s)
+            for rule in ("paper", "place") for b in betas for k in ks for s in seeds]
+
+
+def _runs_permutation(runs: int, quick: bool) -> list[RunSpec]:
+    n, betas, k = (3, (-9.0,), 32.0) if quick else (7, (-16.0, -44.0), 64.0)
+    seeds = range(2 if quick else runs)
+    specs: list[RunSpec] = []
+    for b in betas:
+        for starts in ("random", "permutation"):
+            for algorithm, rule in (("gradient", ""), ("sequential", "paper"),
+                                    ("sequential", "place")):
+                prm: dict[str, Scalar] = {"algorithm": algorithm, "n": n, "k": k,
+                                          "log10_beta": b, "starts": starts}
+                if rule:
+                    prm["rule"] = rule
+                specs.extend(RunSpec("assembly.permutation", prm, s) for s in seeds)
+    return specs
+
+
+# --- reports ---------------------------------------------------------------------------------
+
+
+def _group(rows: list[dict[str, Scalar]], keys: tuple[str, ...], value: str
+           ) -> dict[tuple[Any, ...], dict[str, float]]:
+    """Mean, std, successes, runs of ``value`` (solved runs only) per key tuple."""
+    out: dict[tuple[Any, ...], dict[str, float]] = {}
+    groups: dict[tuple[Any, ...], list[dict[str, Scalar]]] = {}
+    for r in rows:
+        if r.get("run_status") not in (None, "ok"):
+            continue
+        groups.setdefault(tuple(r.get(k, "") for k in keys), []).append(r)
+    for key, rs in sorted(groups.items(), key=lambda kv: tuple(str(x) for x in kv[0])):
+        ok = [r for r in rs if r.get("solved")]
+        vals = np.array([float(r[value]) for r in ok if value in r])
+        clear = np.array([float(r["min_clearance"]) for r in rs if "min_clearance" in r])
+        out[key] = {"mean": float(vals.mean()) if len(vals) else float("nan"),
+                    "std": float(vals.std()) if len(vals) else float("nan"),
+                    "solved": float(len(ok)), "runs": float(len(rs)),
+                    "min_clearance": float(clear.min()) if len(clear) else float("nan"),
+                    "wall_s": float(np.mean([float(r.get("wall_s", 0.0)) for r in rs]))}
+    return out
+
+
+def _table(stats: dict[tuple[Any, ...], dict[str, float]], keys: tuple[str, ...]
+           ) -> list[dict[str, Scalar]]:
+    return [{**{k: v for k, v in zip(keys, key, strict=True)},
+             "mean": round(s["mean"], 4), "std": round(s["std"], 4),
+             "solved": f"{int(s['solved'])}/{int(s['runs'])}",
+             "min clearance": float(f"{s['min_clearance']:.3g}"), "s/run": round(s["wall_s"], 3)}
+            for key, s in stats.items()]
+
+
+def _report_ratio_vs_k(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
+    from cellplan.assembly.plots import save_errorbars
+
+    outdir = Path(outdir)
+    stats = _group(rows, ("n", "k"), "ratio")
+    piece = ReportPiece("Path-length ratio vs k (Figs. 3-4)",
+                        "Gradient algorithm, random legal starts, hexagonal goal cluster "
+                        "(gap 0.1 radius); mean and standard deviation over solved runs.",
+                        tables=[("ratio vs k", _table(stats, ("n", "k")))])
+    for n in sorted({key[0] for key in stats}):
+        pts = sorted((key[1], s) for key, s in stats.items() if key[0] == n)
+        ks = np.array([float(k) for k, _ in pts])
+        series = [(f"{n} discs", ks, np.array([s["mean"] for _, s in pts]),
+                   np.array([s["std"] for _, s in pts]))]
+        piece.figures.append(save_errorbars(series, outdir / f"assembly_ratio_vs_k_{n}.png",
+                                            "k", "path-length ratio",
+                                            f"Fig. {3 if n == 7 else 4}: {n} discs", logx=True,
+                                            reference=1.25, plain_ticks=True))
+        full = [(k, s) for k, s in pts if s["solved"] == s["runs"]]
+        best = min(full, key=lambda ks_: ks_[1]["mean"]) if full else None
+        target = 1.25 if n <= 7 else 1.3
+        ours = (f"best k={best[0]:g}: {best[1]['mean']:.3f} ± {best[1]['std']:.3f}, "
+                f"{int(best[1]['solved'])}/{int(best[1]['runs'])} solved" if best else
+                "no k with every run solved")
+        piece.claims.append(Claim(
+            claim=f"{n} discs: mean ratio at the best k is at most {target} with every run solved",
+            paper="Fig. 3: 1.25 at the highest k (7 discs); Fig. 4: under 1.25 (10 discs)",
+            ours=ours, reproduced=bool(best and best[1]["mean"] <= target)))
+        means = [s["mean"] for _, s in pts if np.isfinite(s["mean"])]
+        piece.claims.append(Claim(
+            claim=f"{n} discs: higher k gives shorter paths",
+            paper="Sec. 5.2.1: higher k clearly yields smaller mean ratios",
+            ours=" → ".join(f"{m:.2f}" for m in means),
+            reproduced=bool(len(means) > 1 and means[-1] < means[0])))
+    clear = min((s["min_clearance"] for s in stats.values()), default=float("nan"))
+    piece.claims.append(Claim(claim="minimum clearance along every path is positive",
+                              paper="paths are guaranteed collision-free (Sec. 5.2.1)",
+                              ours=f"smallest clearance {clear:.3g}",
+                              reproduced=bool(clear > 0)))
+    return piece
+
+
+def _beta_series(stats: dict[tuple[Any, ...], dict[str, float]], label_fmt: str
+                 ) -> list[tuple[str, Any, Any, Any]]:
+    series = []
+    for k in sorted({key[-2] for key in stats}):
+        pts = sorted((float(key[-1]), s) for key, s in stats.items() if key[-2] == k)
+        series.append((label_fmt.format(k=float(k)),
+                       np.array([10.0 ** b for b, _ in pts]),
+                       np.array([s["mean"] for _, s in pts]), np.array([s["std"] for _, s in pts])))
+    return series
+
+
+def _report_ratio_vs_beta(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
+    from cellplan.assembly.plots import save_errorbars
+
+    outdir = Path(outdir)
+    stats = _group(rows, ("k", "log10_beta"), "ratio")
+    piece = ReportPiece("Path-length ratio vs goal difficulty beta(d) (Figs. 5-7)",
+                        "Gradient algorithm, 7 discs, hexagonal goals whose gaps are set so "
+                        "that the pairwise beta(d) of equation (4) is 1e-2 ... 1e-44.",
+                        tables=[("ratio vs beta(d)", _table(stats, ("k", "log10_beta")))])
+    piece.figures.append(save_errorbars(_beta_series(stats, "k={k:g}"),
+                                        outdir / "assembly_ratio_vs_beta.png", "beta(d)",
+                                        "path-length ratio", "Figs. 6-7: gradient algorithm",
+                                        logx=True))
+    for k in sorted({key[0] for key in stats}):
+        means = [s["mean"] for key, s in stats.items() if key[0] == k]
+        spread = max(means) / min(means) if means and min(means) > 0 else float("nan")
+        piece.claims.append(Claim(
+            claim=f"k={k:g}: ratio nearly independent of beta(d)",
+            paper="Sec. 5.2.2: harder goals only marginally longer",
+            ours=f"means {min(means):.3f}-{max(means):.3f} (max/min {spread:.2f})",
+            reproduced=bool(spread <= 1.15)))
+    return piece
+
+
+def _report_sequential(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
+    from cellplan.assembly.plots import save_errorbars
+
+    outdir = Path(outdir)
+    piece = ReportPiece("Sequential algorithm: ratio and switches vs beta(d) (Figs. 8-9)",
+                        "Ratio over summed disc distances (footnote 6); switches = grasps "
+                        "(pick, move, release). Rules: paper (equations (13)-(16)) and ours "
+                        "(place).")
+    for rule in ("paper", "place"):
+        rs = [r for r in rows if r.get("rule") == rule]
+        if not rs:
+            continue
+        ratio = _group(rs, ("k", "log10_beta"), "ratio")
+        sw = _group(rs, ("k", "log10_beta"), "switches_per_disc")
+        piece.tables.append((f"{rule}: ratio", _table(ratio, ("k", "log10_beta"))))
+        piece.tables.append((f"{rule}: switches per disc", _table(sw, ("k", "log10_beta"))))
+        piece.figures.append(save_errorbars(_beta_series(ratio, "k={k:g}"),
+                                            outdir / f"assembly_seq_ratio_{rule}.png", "beta(d)",
+                                            "path-length ratio", f"Fig. 8 ({rule} rule)",
+                                            logx=True))
+        piece.figures.append(save_errorbars(_beta_series(sw, "k={k:g}"),
+                                            outdir / f"assembly_seq_switches_{rule}.png",
+                                            "beta(d)", "switches per disc",
+                                            f"Fig. 9 ({rule} rule)", logx=True))
+        per_disc = np.array([s["mean"] for s in sw.values()])
+        solved = sum(s["solved"] for s in sw.values())
+        total = sum(s["runs"] for s in sw.values())
+        if rule == "paper":
+            piece.claims.append(Claim(
+                claim="paper rule: about three switches per disc on easy goals, more on hard",
+                paper="Fig. 9: about 3 per disc (easy), higher mean and variance (hard)",
+                ours=f"{per_disc.min():.1f}-{per_disc.max():.1f} per disc; "
+                     f"{int(solved)}/{int(total)} solved",
+                reproduced=bool(per_disc.min() >= 1.5 and per_disc.max() <= 12)))
+        else:
+            piece.claims.append(Claim(
+                claim="our place rule: at most two switches per disc, every run solved",
+                paper="Sec. 5.3: a person needs one or two switches per disc",
+                ours=f"{per_disc.min():.2f}-{per_disc.max():.2f} per disc; "
+                     f"{int(solved)}/{int(total)} solved",
+                reproduced=bool(per_disc.max() <= 2.0 and solved == total)))
+    return piece
+
+
+def _report_permutation(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
+    keys = ("log10_beta", "starts", "algorithm", "rule")
+    ratio = _group(rows, keys, "ratio")
+    piece = ReportPiece("Permutation starts on packed goals (Section 5.2.2)",
+                        "Starts are random permutations of the packed goals.",
+                        tables=[("ratio", _table(ratio, keys))])
+    for b in sorted({key[0] for key in ratio}):
+        for alg, rule in (("gradient", ""), ("sequential", "paper"), ("sequential", "place")):
+            rnd = ratio.get((b, "random", alg, rule))
+            per = ratio.get((b, "permutation", alg, rule))
+            if not rnd or not per:
+                continue
+            factor = per["mean"] / rnd["mean"]
+            piece.claims.append(Claim(
+                claim=f"beta(d)=1e{b:g}, {alg} {rule}: permutation starts lengthen paths",
+                paper="Sec. 5.2.2: ratios nearly double those of random starts",
+                ours=f"{per['mean']:.2f} vs {rnd['mean']:.2f} (x{factor:.2f}); "
+                     f"solved {int(per['solved'])}/{int(per['runs'])}",
+                reproduced=bool(1.3 <= factor <= 3.0)))
+    return piece
+
+
+EXPERIMENTS: list[Experiment] = [
+    Experiment("assembly.ratio_vs_k", PAPER, "Gradient assembly: path-length ratio vs k",
+               _runs_ratio_vs_k, run, _report_ratio_vs_k),
+    Experiment("assembly.ratio_vs_beta", PAPER, "Gradient assembly: ratio vs beta(d)",
+               _runs_ratio_vs_beta, run, _report_ratio_vs_beta),
+    Experiment("assembly.sequential", PAPER, "Sequential assembly: ratio and switches",
+               _runs_sequential, run, _report_sequential),
+    Experiment("assembly.permutation", PAPER, "Permutation starts on packed goals",
+               _runs_permutation, run, _report_permutation),
+]

@@ -1,0 +1,305 @@
+"""Integrating the gradient flows of the navigation function (Sections 3.3, 4.1, 4.2.1).
+
+The paper integrates the normalised system ``b' = -lambda grad phi``,
+``lambda = (epsilon + ||grad phi||)^-1`` (Section 3.3). Its trajectories are the
+trajectories of ``b' = -v`` for any positive rescaling ``v`` of ``grad phi``; we integrate
+``b' = -v`` with ``v = exp(-s) grad phi`` from :func:`navigation.evaluate` (well scaled:
+``v ~ b - d`` near the goal, free of ``beta`` and ``gamma^k``), so the path and hence every
+path-length figure is the paper's, and we recover the normalised system's own time
+``T = int ds / ||lambda grad phi||`` in log space (``epsilon`` only enters there).
+
+Steps (classical Runge-Kutta 4) are bounded by the current clearance: with per-disc
+displacements ``delta_i``, the centre distance of discs i, j changes by at most
+``||delta_i|| + ||delta_j||`` along the straight step, so requiring that sum to stay below a
+fraction of their gap (and ``||delta_i||`` below the boundary gap) means no step can jump
+into or through a collision. A step that violates the bound is halved and retried.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellplan.assembly.navigation import NavEval, clearances, evaluate
+from cellplan.assembly.problems import DiscProblem
+from cellplan.core import Status
+
+Array = NDArray[np.float64]
+
+#: fraction of a gap one step may use (checked exactly after each step)
+STEP_FRACTION = 0.5
+
+
+@dataclass(frozen=True)
+class FlowSettings:
+    """Integration settings shared by the gradient and the low-level flows.
+
+    Attributes
+    ----------
+    dt_max
+        Largest step of ``b' = -v`` (``v ~ b - d`` near the goal: the rate there is 1).
+    euler_fraction
+        Fraction of the gap the Euler estimate of a step may use when choosing ``dt``.
+    max_steps
+        Step budget; exceeding it ends the run with ``budget_exhausted``.
+    stall_ratio
+        ``||v|| < stall_ratio ||b - d||`` away from the goal means a critical point
+        other than the goal (spurious minimum or saddle): the run is ``stuck``.
+    window
+        Steps over which progress is measured: the decrease of ``log alpha^(1/k) =
+        log gamma - log(beta) / k``, a monotone function of ``phi`` (equation (6)).
+    min_progress
+        Decrease over ``window`` steps below which the run is ``stuck``.
+    stiff_bound
+        Bound ``dt`` by the repulsion stiffness (accurate paths; the gradient flow).
+        Without it (the low-level flows of the sequential algorithm, where only the
+        limit point matters) ``dt`` follows the net speed and a step is accepted only
+        if it decreases ``log alpha^(1/k)`` (the flow is a descent flow), which stops
+        the stiff overshoot at a fraction of the steps.
+    normalize
+        ``eta``: integrate ``b' = -v / (eta + ||v||)`` instead of ``b' = -v``: the
+        normalisation of Section 3.3 applied to ``v`` (same trajectories). Speed is
+        about 1 wherever ``||v|| >> eta`` (also near saddles, where ``b' = -v`` crawls)
+        and about ``||v|| / eta`` near the goal. ``None``: no normalisation.
+    """
+
+    dt_max: float = 0.25
+    euler_fraction: float = 0.3
+    max_steps: int = 50000
+    stall_ratio: float = 1e-4
+    window: int = 200
+    min_progress: float = 1e-7
+    stiff_bound: bool = True
+    normalize: float | None = None
+
+
+@dataclass
+class FlowResult:
+    """A path of a flow and how it ended."""
+
+    status: Status
+    path: Array  # (m, n, 2) accepted configurations, the start first
+    steps: int
+    evaluations: int
+    min_clearance: float
+    log_time: float  # log of the normalised system's time (Section 3.3)
+    reason: str = ""
+    log_w: list[float] = field(default_factory=list)
+
+    @property
+    def end(self) -> Array:
+        return self.path[-1]
+
+    def length(self) -> float:
+        """Path length in R^2n (Section 5.1)."""
+        seg = np.diff(self.path, axis=0).reshape(len(self.path) - 1, -1)
+        return float(np.sum(np.linalg.norm(seg, axis=1)))
+
+    def disc_lengths(self) -> Array:
+        """Distance travelled by each disc (n,)."""
+        seg = np.diff(self.path, axis=0)
+        return np.sum(np.linalg.norm(seg, axis=2), axis=0)
+
+
+def max_dt(w: Array, ev: NavEval, moving: Array, gaps: Array, bgap: Array,
+           stiff: bool = True) -> float:
+    """Largest ``dt`` for which the Euler step stays within every gap.
+
+    Per pair, ``dt (||w_i|| + ||w_j|| + 2 rep_ij) <= gap_ij`` (and per disc the same with
+    the boundary): the speeds bound the motion, the repulsion magnitudes ``rep`` of
+    :class:`NavEval` bound the stiffness, ``|d v / d gap| ~ rep / gap``, so that the
+    stiff repulsion near a contact is resolved rather than overshot. ``moving`` (n,)
+    is the field's scale factor (``lambda``) for the discs that move, 0 for the others.
+    """
+    speed = np.sqrt(np.sum(w * w, axis=1))
+    # ``moving`` carries the field's scale factor, so the stiffness is scaled with it
+    pair_moves = np.maximum(moving[:, None], moving[None, :]) * (1.0 if stiff else 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pair = gaps / (speed[:, None] + speed[None, :] + 2.0 * ev.rep * pair_moves)
+        bnd = bgap / (speed + ev.rep_bnd * moving * (1.0 if stiff else 0.0))
+    return float(min(np.min(pair), np.min(bnd)))
+
+
+def step_is_safe(delta: Array, gaps: Array, bgap: Array, fraction: float) -> bool:
+    """True when no disc pair or disc and boundary can meet along the straight step."""
+    m = np.sqrt(np.sum(delta * delta, axis=1))
+    return bool(np.all(m[:, None] + m[None, :] <= fraction * gaps)
+                and np.all(m <= fraction * bgap))
+
+
+Field = Callable[[Array], tuple[Array, NavEval]]
+
+
+def integrate(
+    problem: DiscProblem,
+    b0: Array,
+    k: float,
+    epsilon: float,
+    *,
+    moving: int | None = None,
+    stop: Callable[[Array, NavEval], Status | None],
+    settings: FlowSettings = FlowSettings(),
+    direction: Callable[[Array], Array] | None = None,
+) -> FlowResult:
+    """Integrate ``b' = -v`` (all discs, or disc ``moving`` alone: equations (10)-(12)).
+
+    Parameters
+    ----------
+    problem, b0, k, epsilon
+        The problem, the initial configuration (legal), the exponent k (eq. (2)) and
+        the normalisation epsilon (Section 3.3; only the reported time depends on it).
+    moving
+        ``None`` for the gradient flow (9); a disc index for the low-level flow f_i.
+    stop
+        Called after every accepted step with the configuration and its evaluation;
+        returns a final :class:`Status` or ``None`` to go on.
+    settings
+        Step size and stopping parameters.
+    direction
+        Baselines only: a replacement for the direction of ``-v`` (its speed is kept),
+        e.g. ``-grad phi`` formed in linear space. A zero or non-finite direction ends
+        the run as ``stuck``.
+    """
+    radii, ws = problem.radii, problem.workspace
+    mask = np.zeros((problem.n, 1))
+    if moving is None:
+        mask[:] = 1.0
+    else:
+        mask[moving] = 1.0
+    evals = 0
+
+    def fld(b: Array) -> tuple[Array, NavEval]:
+        nonlocal evals
+        evals += 1
+        ev = evaluate(b, problem, k)
+        vm = ev.v * mask
+        norm = float(np.sqrt(np.sum(vm * vm)))
+        lam = 1.0 if settings.normalize is None else 1.0 / (settings.normalize + norm)
+        if direction is None:
+            return -vm * lam, ev
+        u = direction(b)
+        with np.errstate(all="ignore"):
+            scale = norm * lam / float(np.sqrt(np.sum(u * u)))
+            return u * scale * mask, ev
+
+    def lam_of(ev: NavEval) -> float:
+        if settings.normalize is None:
+            return 1.0
+        vm = ev.v * mask
+        return 1.0 / (settings.normalize + float(np.sqrt(np.sum(vm * vm))))
+
+    # near the goal the normalised field has rate 1/eta: keep dt * rate <= 1
+    dt_cap = settings.dt_max if settings.normalize is None else min(settings.dt_max,
+                                                                     settings.normalize)
+    b = np.array(b0, dtype=float)
+    w, ev = fld(b)
+    path = [b.copy()]
+    log_ws = [_log_w(ev, k)]
+    gaps, bgap = clearances(b, radii, ws)
+    min_clear = float(min(np.min(gaps), np.min(bgap)))
+    log_time = -math.inf
+    log_eps = math.log(epsilon)
+    status = stop(b, ev)
+    steps = 0
+    reason = ""
+    while status is None:
+        if steps >= settings.max_steps:
+            status, reason = Status.BUDGET_EXHAUSTED, f"{settings.max_steps} steps"
+            break
+        if not np.all(np.isfinite(w)):
+            status, reason = Status.STUCK, "non-finite field"
+            break
+        dt = min(dt_cap, settings.euler_fraction * max_dt(
+            w, ev, mask[:, 0] * lam_of(ev), gaps, bgap, settings.stiff_bound))
+        for _ in range(60):
+            new = _rk4(fld, b, w, dt, gaps, bgap)
+            if new is not None and (settings.stiff_bound
+                                    or _log_w(new[2], k) <= _log_w(ev, k) + 1e-13):
+                break
+            dt *= 0.5
+        else:
+            status, reason = Status.STUCK, "step size collapsed"
+            break
+        b_new, w_new, ev_new = new
+        delta = b_new - b
+        ds = float(np.sqrt(np.sum(delta * delta)))
+        # time of the normalised system: ds / (||grad phi|| / (eps + ||grad phi||)),
+        # in logs: log ds + log(1 + eps / ||grad phi||); grad phi of the moving block.
+        log_g = _log_field_norm(ev, moving)
+        if ds > 0:
+            log_dt = math.log(ds) + float(np.logaddexp(0.0, log_eps - log_g))
+            log_time = float(np.logaddexp(log_time, log_dt))
+        b, w, ev = b_new, w_new, ev_new
+        steps += 1
+        gaps, bgap = ev.gaps, ev.bgap
+        min_clear = min(min_clear, float(min(np.min(gaps), np.min(bgap))))
+        path.append(b.copy())
+        log_ws.append(_log_w(ev, k))
+        status = stop(b, ev)
+        if status is None and len(log_ws) > settings.window:
+            if log_ws[-settings.window - 1] - log_ws[-1] < settings.min_progress:
+                status, reason = Status.STUCK, "no progress"
+    return FlowResult(status, np.array(path), steps, evals, min_clear, log_time, reason, log_ws)
+
+
+def _log_w(ev: NavEval, k: float) -> float:
+    # log(alpha^(1/k)) = log gamma - log(beta) / k: a monotone function of phi that,
+    # unlike log phi (~0 far from the goal at large k), is well scaled everywhere.
+    return ev.log_gamma - ev.log_beta / k
+
+
+def _log_field_norm(ev: NavEval, moving: int | None) -> float:
+    v = ev.v if moving is None else ev.v[moving]
+    norm = float(np.sqrt(np.sum(v * v)))
+    return ev.log_scale + math.log(norm) if norm > 0 else -math.inf
+
+
+def _rk4(fld: Field, b: Array, w1: Array, dt: float, gaps: Array, bgap: Array
+         ) -> tuple[Array, Array, NavEval] | None:
+    # Each stage point is itself a straight step from b; all must pass the gap test.
+    stages = [w1]
+    for c in (0.5, 0.5, 1.0):
+        delta = c * dt * stages[-1]
+        if not step_is_safe(delta, gaps, bgap, STEP_FRACTION):
+            return None
+        w, _ = fld(b + delta)
+        if not np.all(np.isfinite(w)):
+            return None
+        stages.append(w)
+    delta = dt / 6.0 * (stages[0] + 2.0 * stages[1] + 2.0 * stages[2] + stages[3])
+    if not step_is_safe(delta, gaps, bgap, STEP_FRACTION):
+        return None
+    b_new = b + delta
+    w_new, ev_new = fld(b_new)
+    if not (np.isfinite(ev_new.log_beta) and np.all(np.isfinite(w_new))):
+        return None
+    return b_new, w_new, ev_new
+
+
+# --- the gradient assembly algorithm (Section 4.1) -------------------------------------------
+
+
+def gradient_flow(problem: DiscProblem, k: float, epsilon: float = 1e-3, tol: float = 1e-3,
+                  settings: FlowSettings = FlowSettings(),
+                  direction: Callable[[Array], Array] | None = None) -> FlowResult:
+    """All discs move together along ``-grad phi`` (equation (9)) until ``||b - d|| < tol``.
+
+    Ends ``solved`` at the goal, ``stuck`` at another critical point or without
+    progress, ``budget_exhausted`` after ``settings.max_steps`` steps.
+    """
+    goal = problem.goal
+
+    def stop(b: Array, ev: NavEval) -> Status | None:
+        err = float(np.sqrt(np.sum((b - goal) ** 2)))
+        if err < tol:
+            return Status.SOLVED
+        if float(np.sqrt(np.sum(ev.v * ev.v))) < settings.stall_ratio * err:
+            return Status.STUCK
+        return None
+
+    return integrate(problem, problem.start, k, epsilon, stop=stop, settings=settings,
+                     direction=direction)

@@ -1,0 +1,264 @@
+"""The navigation function of Whitcomb & Koditschek (1991), Section 3, in log space.
+
+For n discs with centres ``b`` (shape ``(n, 2)``), radii ``rho`` and goals ``d``:
+
+* ``gamma = sum_i 1/2 ||b_i - d_i||^2``                         (equation (3))
+* ``beta  = prod_{i<j} beta_ij * prod_i beta_0i``                (equations (4), (5))
+  with ``beta_ij = 1/2 (||b_i - b_j||^2 - (rho_i + rho_j)^2)`` and a boundary term
+  ``beta_0i`` (our addition, see below) that vanishes when disc i touches the boundary;
+* ``phi = gamma / (gamma^k + beta)^(1/k)`` = ``sigma(alpha)``, ``alpha = gamma^k / beta``
+  (equations (2), (6), (7));
+* ``grad phi = (1/k) (beta + gamma^k)^(-(1+k)/k) [k beta Dgamma - gamma Dbeta]``  (eq. (8))
+  ``= exp(s) * v`` with ``v = (b - d) - (gamma / k) grad(log beta)`` and
+  ``s = log beta - ((1+k)/k) log(beta + gamma^k)``.
+
+``beta`` itself reaches 1e-44 in the paper's Fig. 5 and overflows or underflows for a
+few dozen discs, and ``gamma^k`` overflows at large k; here only ``log beta`` (a sum of
+logs), ``log gamma`` and the direction ``v`` (free of both) are formed, and the scalar
+factor ``exp(s)`` stays a logarithm. Everything is O(n^2) numpy per evaluation.
+
+Boundary term. The paper leaves the workspace boundary out of ``beta``. We add one
+factor per disc, so that ``beta`` vanishes when a disc touches the boundary:
+``beta_0i = 1/2 ((R - rho_i)^2 - ||b_i - c||^2)`` for a circular workspace (the
+Koditschek-Rimon obstacle-0 term) and the product of the four wall distances
+``(x_i - xmin - rho_i)(xmax - rho_i - x_i)(y_i - ymin - rho_i)(ymax - rho_i - y_i)`` for
+the workcell rectangle. Reports quote the paper's pairwise ``beta(d)`` separately.
+
+The plain linear-space evaluation of the same formulas (:func:`phi_linear`,
+:func:`grad_linear`) is kept as the baseline for tests and benchmarks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellplan.assembly.problems import BoxWorkspace, CircleWorkspace, DiscProblem, Workspace
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class NavEval:
+    """One evaluation of the navigation function at a configuration.
+
+    Attributes
+    ----------
+    log_gamma, log_beta
+        ``log gamma`` (``-inf`` at the goal) and ``log beta`` (``-inf`` in contact).
+    v
+        ``(n, 2)``: ``grad phi = exp(log_scale) * v`` (equation (8) factored).
+    log_scale
+        ``s = log beta - ((1+k)/k) log(beta + gamma^k)``.
+    log_phi
+        ``log phi`` (equation (6)).
+    rep, rep_bnd
+        ``(n, n)``: ``(gamma/k) ||b_i - b_j|| / beta_ij``, the magnitude of the repulsion
+        of pair ij within ``v``, and ``(n,)`` the same for the boundary term. Near a
+        contact the repulsion nearly cancels the attraction while both are large, so
+        the net speed says nothing about the stiffness; step sizes use these.
+    gaps, bgap
+        The clearances of :func:`clearances` at ``b``.
+    """
+
+    log_gamma: float
+    log_beta: float
+    v: Array
+    log_scale: float
+    log_phi: float
+    rep: Array
+    rep_bnd: Array
+    gaps: Array
+    bgap: Array
+
+    @property
+    def log_grad_norm(self) -> float:
+        """``log ||grad phi||`` in R^2n."""
+        norm = float(np.sqrt(np.sum(self.v * self.v)))
+        return self.log_scale + np.log(norm) if norm > 0 else -np.inf
+
+    def log_block_norms(self) -> Array:
+        """``log ||f_i||`` for the low-level flows f_i = S_i grad phi (equation (11))."""
+        with np.errstate(divide="ignore"):
+            return self.log_scale + np.log(np.sqrt(np.sum(self.v * self.v, axis=1)))
+
+
+def pair_terms(b: Array, radii: Array) -> tuple[Array, Array, Array]:
+    """Pairwise differences, ``beta_ij`` (equation (5)) and centre distances.
+
+    Returns ``D`` (n, n, 2) with ``D[i, j] = b_i - b_j``, ``B`` (n, n) with ``B[i, j] =
+    beta_ij`` and the diagonal set to 1 (so ``log`` and ``1/B`` ignore it), and the
+    distance matrix ``dist`` (n, n).
+    """
+    diff = b[:, None, :] - b[None, :, :]
+    sq = np.einsum("ijk,ijk->ij", diff, diff)
+    rsum = radii[:, None] + radii[None, :]
+    B = 0.5 * (sq - rsum * rsum)
+    np.fill_diagonal(B, 1.0)
+    return diff, B, np.sqrt(sq)
+
+
+def boundary_terms(b: Array, radii: Array, ws: Workspace) -> tuple[Array, Array]:
+    """``log beta_0i`` summed per disc (n,) and ``grad_{b_i} log beta_0i`` (n, 2).
+
+    Non-positive terms (a disc touching or outside the boundary) give ``nan``/``-inf``.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if isinstance(ws, CircleWorkspace):
+            rel = b - ws.center
+            w = 0.5 * ((ws.radius - radii) ** 2 - np.sum(rel * rel, axis=1))
+            return np.log(w), -rel / w[:, None]
+        lo, hi = ws.lo, ws.hi
+        t = np.stack(
+            [b[:, 0] - lo[0] - radii, hi[0] - radii - b[:, 0], b[:, 1] - lo[1] - radii,
+             hi[1] - radii - b[:, 1]],
+            axis=1,
+        )
+        inv = 1.0 / t
+        grad = np.stack([inv[:, 0] - inv[:, 1], inv[:, 2] - inv[:, 3]], axis=1)
+        return np.sum(np.log(t), axis=1), grad
+
+
+def log_beta_parts(b: Array, radii: Array, ws: Workspace | None) -> tuple[float, float]:
+    """``(log prod_{i<j} beta_ij, log prod_i beta_0i)``; ``-inf``/``nan`` in contact."""
+    _, B, _ = pair_terms(b, radii)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pairs = 0.5 * float(np.sum(np.log(B)))
+    if ws is None:
+        return pairs, 0.0
+    logs, _ = boundary_terms(b, radii, ws)
+    return pairs, float(np.sum(logs))
+
+
+def evaluate(b: Array, problem: DiscProblem, k: float) -> NavEval:
+    """Evaluate ``phi`` and its gradient (equations (2)-(8)) in log space (numba kernel).
+
+    Same result as :func:`evaluate_numpy`; see :mod:`cellplan.assembly.kernels`.
+    """
+    from cellplan.assembly.kernels import nav_kernel
+
+    ws = problem.workspace
+    if isinstance(ws, CircleWorkspace):
+        w0, w1, circle = ws.center, np.array([ws.radius, 0.0]), True
+    else:
+        w0, w1, circle = ws.lo, ws.hi, False
+    log_gamma, log_beta, v, rep, rep_bnd, gaps, bgap = nav_kernel(
+        np.ascontiguousarray(b, dtype=np.float64), problem.goal, problem.radii, circle,
+        w0, w1, float(k))
+    with np.errstate(invalid="ignore"):
+        log_sum = float(np.logaddexp(k * log_gamma, log_beta))
+    return NavEval(log_gamma, log_beta, v, log_beta - (1.0 + k) / k * log_sum,
+                   log_gamma - log_sum / k, rep, rep_bnd, gaps, bgap)
+
+
+def evaluate_numpy(b: Array, problem: DiscProblem, k: float) -> NavEval:
+    """Evaluate ``phi`` and its gradient (equations (2)-(8)) in log space (numpy reference).
+
+    Parameters
+    ----------
+    b
+        ``(n, 2)`` disc centres; must be a legal configuration (otherwise ``log_beta``
+        is ``-inf`` or ``nan`` and ``v`` is meaningless).
+    problem
+        Radii, goals and workspace.
+    k
+        The exponent of equations (2) and (6), ``k > 0``.
+    """
+    d = problem.goal
+    diff, B, dist = pair_terms(b, problem.radii)
+    e = b - d
+    gamma = 0.5 * float(np.sum(e * e))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_pairs = 0.5 * float(np.sum(np.log(B)))
+        # grad_{b_i} log beta = sum_j (b_i - b_j) / beta_ij (+ the boundary term)
+        inv_b = 1.0 / B
+        np.fill_diagonal(inv_b, 0.0)
+        g = np.einsum("ijk,ij->ik", diff, inv_b)
+        log_bnd, g_bnd = boundary_terms(b, problem.radii, problem.workspace)
+        log_beta = log_pairs + float(np.sum(log_bnd))
+        g = g + g_bnd
+        log_gamma = float(np.log(gamma)) if gamma > 0 else -np.inf
+        v = e - (gamma / k) * g
+        log_sum = float(np.logaddexp(k * log_gamma, log_beta))
+        log_scale = log_beta - (1.0 + k) / k * log_sum
+        log_phi = log_gamma - log_sum / k
+        rep = (gamma / k) * dist * np.abs(inv_b)
+        rep_bnd = (gamma / k) * np.sqrt(np.sum(g_bnd * g_bnd, axis=1))
+    gaps, bgap = clearances(b, problem.radii, problem.workspace)
+    return NavEval(log_gamma, log_beta, v, log_scale, log_phi, rep, rep_bnd, gaps, bgap)
+
+
+def direction(b: Array, problem: DiscProblem, k: float) -> Array:
+    """``v`` of :class:`NavEval` only: a positive multiple of ``grad phi`` (n, 2)."""
+    return evaluate(b, problem, k).v
+
+
+def grad_log_phi(b: Array, problem: DiscProblem, k: float) -> Array:
+    """``grad log phi = exp(s - log phi) v`` (n, 2); finite wherever ``b`` is legal."""
+    ev = evaluate(b, problem, k)
+    return np.exp(ev.log_scale - ev.log_phi) * ev.v
+
+
+# --- the plain linear-space baseline ---------------------------------------------------------
+
+
+def phi_linear(b: Array, problem: DiscProblem, k: float) -> float:
+    """``phi`` by equations (2)-(6) in plain floating point (baseline; under/overflows)."""
+    _, B, _ = pair_terms(b, problem.radii)
+    iu = np.triu_indices(problem.n, 1)
+    with np.errstate(all="ignore"):
+        beta = np.prod(B[iu]) * np.prod(np.exp(
+            boundary_terms(b, problem.radii, problem.workspace)[0]))
+        # numpy scalars, so that overflow gives inf as it would in C, not an exception
+        gamma = np.float64(0.5 * np.sum((b - problem.goal) ** 2))
+        alpha = gamma**k / beta if beta != 0 else np.inf
+        return float((alpha / (1.0 + alpha)) ** (1.0 / k)) if np.isfinite(alpha) else 1.0
+
+
+def grad_linear(b: Array, problem: DiscProblem, k: float) -> Array:
+    """``grad phi`` by equation (8) in plain floating point (baseline; under/overflows).
+
+    ``Dbeta`` is formed by the product rule, ``beta * sum_ij grad beta_ij / beta_ij``,
+    in linear space; when ``beta`` underflows to 0 the gradient is exactly 0 and when
+    it (or ``gamma^k``) overflows the result is ``nan``.
+    """
+    diff, B, _ = pair_terms(b, problem.radii)
+    iu = np.triu_indices(problem.n, 1)
+    with np.errstate(all="ignore"):
+        log_bnd, g_bnd = boundary_terms(b, problem.radii, problem.workspace)
+        beta = np.prod(B[iu]) * np.prod(np.exp(log_bnd))
+        inv_b = 1.0 / B
+        np.fill_diagonal(inv_b, 0.0)
+        dbeta = beta * (np.einsum("ijk,ij->ik", diff, inv_b) + g_bnd)
+        e = b - problem.goal
+        gamma = np.float64(0.5 * np.sum(e * e))
+        pre = (1.0 / k) * (beta + gamma**k) ** (-(1.0 + k) / k)
+        return pre * (k * beta * e - gamma * dbeta)
+
+
+def clearances(b: Array, radii: Array, ws: Workspace) -> tuple[Array, Array]:
+    """Gaps between discs (n, n; diagonal ``inf``) and to the boundary (n,).
+
+    Negative values mean overlap. The boundary gap of a box is the smallest wall gap.
+    """
+    _, _, dist = pair_terms(b, radii)
+    gaps = dist - (radii[:, None] + radii[None, :])
+    np.fill_diagonal(gaps, np.inf)
+    if isinstance(ws, CircleWorkspace):
+        bgap = ws.radius - radii - np.sqrt(np.sum((b - ws.center) ** 2, axis=1))
+    else:
+        assert isinstance(ws, BoxWorkspace)
+        bgap = np.min(
+            np.stack([b[:, 0] - ws.lo[0], ws.hi[0] - b[:, 0], b[:, 1] - ws.lo[1],
+                      ws.hi[1] - b[:, 1]], axis=1),
+            axis=1,
+        ) - radii
+    return gaps, bgap
+
+
+def min_clearance(b: Array, radii: Array, ws: Workspace) -> float:
+    """Smallest gap between two discs or a disc and the boundary."""
+    gaps, bgap = clearances(b, radii, ws)
+    return float(min(np.min(gaps), np.min(bgap)))
