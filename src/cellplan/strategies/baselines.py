@@ -1,0 +1,79 @@
+"""Baseline strategies for the anticipation claim of Section V-C.
+
+* *reactive*: stay still while no request waits; serve each request as fast as possible
+  (minimum waiting time of that request alone, ignoring where the delivery leaves the
+  robot);
+* *return-home*: the same per request, but while no request waits move to a fixed home
+  configuration (by the shortest path in the NR layer) and wait there.
+
+Both use the value layers computed here with the same kernels as the optimal strategy,
+so the three run in the same simulator on the same discretisation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from cellplan.strategies import kernels
+from cellplan.strategies.model import LayeredMDP
+
+
+def per_request_values(mdp: LayeredMDP, tol: float = 1e-9, max_sweeps: int = 10000) -> np.ndarray:
+    """``(M, N)`` time-to-finish of the current request alone (g = 0, nothing after delivery).
+
+    Layer NR is 0 (a delivery ends the cost); each C layer is the expected time to deliver
+    (stages plus t_f), each W layer the time to pick up and then deliver.
+    """
+    h = np.where(mdp.live, 0.0, np.nan)
+    D = np.zeros(h.shape)
+    work = np.where(mdp.live, 0.0, 0.0)
+    args = mdp.kernel_args()
+    d = len(mdp.shape)
+    R = mdp.n_requests
+    for m in [mdp.c_layer(r) for r in range(R)] + [mdp.w_layer(r) for r in range(R)]:
+        work[m][mdp.live[m]] = np.inf
+        for s in range(max_sweeps):
+            if kernels.sweep_layer(m, s % (1 << d), work, D, 0.0, False, False, *args) < tol:
+                break
+        h[m] = np.where(mdp.live[m], work[m], np.nan)
+    return h
+
+
+def home_values(
+    mdp: LayeredMDP, home_cell: int, tol: float = 1e-9, max_sweeps: int = 10000
+) -> np.ndarray:
+    """``(N,)`` stages to reach the home cell from each NR state (NaN where it cannot).
+
+    Solved as a one-request shortest path on the NR layer's move class: FMP (cost 0) is
+    allowed only at the home cell and leads to a layer of zeros.
+    """
+    N = mdp.n_cells
+    live_nr = mdp.live[0]
+    live = np.stack([live_nr, np.zeros(N, np.bool_)])
+    live[1, home_cell] = True
+    tf = np.full((2, N), np.inf)
+    tf[0, home_cell] = 0.0
+    aux = replace(
+        mdp,
+        modes=mdp.modes[:2],
+        cost=np.array([1.0, 1.0]),
+        vcls=np.array([mdp.vcls[0], mdp.vcls[0]], np.int64),
+        fmp_next=np.array([1, -1], np.int64),
+        tf=tf,
+        branch_ptr=np.array([0, 1, 2], np.int64),
+        branch_layer=np.array([0, 1], np.int64),
+        branch_prob=np.array([1.0, 1.0]),
+        live=live,
+    )
+    h = np.zeros((2, N))
+    h[0][live_nr] = np.inf
+    D = np.zeros((2, N))
+    d = len(mdp.shape)
+    args = aux.kernel_args()
+    for s in range(max_sweeps):
+        if kernels.sweep_layer(0, s % (1 << d), h, D, 0.0, False, False, *args) < tol:
+            break
+    out = np.where(live_nr & np.isfinite(h[0]), h[0], np.nan)
+    return out

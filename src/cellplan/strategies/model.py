@@ -1,0 +1,593 @@
+"""The layered MDP of the strategies paper (Sections III-IV) on a C-space grid.
+
+State space ``X = C x M`` (Section III-A): the modes are NR plus ``<p,s,d,W>`` and
+``<p,s,d,C>`` for every requestable (part, source, destination), ``2R + 1`` in all.
+Each mode is a *layer*: a copy of the grid restricted to that mode's free space,
+equations (1)-(3) (:func:`cellplan.cspace.free_bitmap` with ``avoid_sources``):
+
+* NR: the robot alone, every source an obstacle (3);
+* ``<p,s,d,W>``: the robot alone, the sources other than ``s`` obstacles (1);
+* ``<p,s,d,C>``: robot plus part ``p``, the sources other than ``s`` obstacles (2).
+
+Transitions (Section III-B): from NR a request arrives with probability ``P`` per stage
+and is ``(p,s,d)`` with probability ``pi_r`` (type 1); in ``<p,s,d,C>`` the destination
+changes to another of the same part and source (type 2); in ``<p,s,d,W>`` the source
+changes to another of the same part and destination (type 3). FMP moves
+``<p,s,d,W> -> <p,s,d,C>`` inside source ``s`` and ``<p,s,d,C> -> NR`` inside destination
+``d`` with probability one. The loss is equation (7).
+
+A layer's *live* states are the free cells from which its request can be finished
+(computed by :func:`cellplan.strategies.kernels.live_pass`); the MDP is defined on live
+states only, which keeps it unichain-friendly and lets the input checks name a request
+that can never be served.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cellplan.errors import Problem, ScenarioError
+from cellplan.strategies import kernels
+from cellplan.strategies.actions import ActionSet, action_set
+
+NR = "NR"
+
+
+@dataclass(frozen=True)
+class Mode:
+    """An assembly mode: ``NR``, or ``<part, source, destination, W|C>`` (Section II-C)."""
+
+    kind: str  # "NR", "W" or "C"
+    part: str = ""
+    source: str = ""
+    destination: str = ""
+
+    @property
+    def label(self) -> str:
+        if self.kind == NR:
+            return NR
+        return f"<{self.part},{self.source},{self.destination},{self.kind}>"
+
+
+@dataclass
+class LayeredMDP:
+    """Arrays of the discretised MDP, in the layout the kernels take (see kernels.py)."""
+
+    shape: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    spacing: np.ndarray
+    periodic: np.ndarray
+    modes: list[Mode]
+    cost: np.ndarray  # (M,)
+    vcls: np.ndarray  # (M,) move class per layer
+    fmp_next: np.ndarray  # (M,) -1 for none
+    tf: np.ndarray  # (M, N) inf where FMP is not allowed
+    branch_ptr: np.ndarray
+    branch_layer: np.ndarray
+    branch_prob: np.ndarray
+    free: np.ndarray  # (K, N) bitmap of each move class
+    disp: np.ndarray  # (K, A, dim)
+    nact: np.ndarray  # (K,)
+    heading_axis: int
+    valid: np.ndarray  # (K, N) int64 bitmask of collision-free moves
+    offs: np.ndarray  # (K, A, T, dim) integer part of each move in cell units (per heading slice)
+    fr: np.ndarray  # (K, A, T, dim) fractional part
+    coff: np.ndarray  # (K, A, T, 2^dim) flat offsets of the stencil corners (interior cells)
+    cw: np.ndarray  # (K, A, T, 2^dim) their multilinear weights
+    interior: np.ndarray  # (K, N) cells whose every move stencil stays inside the grid
+    live: np.ndarray  # (M, N)
+    stage_time: float
+    arrival: float
+    request_prob: np.ndarray  # (R,)
+    labels: list[tuple[str, ...]] = field(default_factory=list)
+
+    @property
+    def n_cells(self) -> int:
+        return int(np.prod(self.shape))
+
+    @property
+    def n_modes(self) -> int:
+        return len(self.modes)
+
+    @property
+    def n_requests(self) -> int:
+        return (len(self.modes) - 1) // 2
+
+    def w_layer(self, r: int) -> int:
+        return 1 + r
+
+    def c_layer(self, r: int) -> int:
+        return 1 + self.n_requests + r
+
+    def kernel_args(self) -> tuple:
+        """Model arrays in the order the kernels take them (after the layer-specific ones)."""
+        return (
+            self.live,
+            self.valid,
+            self.offs,
+            self.fr,
+            self.coff,
+            self.cw,
+            self.interior,
+            self.nact,
+            self.heading_axis,
+            self.vcls,
+            self.cost,
+            self.fmp_next,
+            self.tf,
+            self.branch_ptr,
+            self.branch_layer,
+            self.branch_prob,
+            self.shape,
+            self.periodic,
+        )
+
+    def has_changes(self) -> bool:
+        """Whether destination or source changes couple the W/C layers (Section III-B)."""
+        for m in range(1, self.n_modes):
+            for b in range(self.branch_ptr[m], self.branch_ptr[m + 1]):
+                if self.branch_layer[b] != m and self.branch_prob[b] > 0:
+                    return True
+        return False
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Bitmaps of one problem on a grid (flattened, C order)."""
+
+    free_nr: np.ndarray
+    free_w: Mapping[str, np.ndarray]  # by source
+    free_c: Mapping[tuple[str, str], np.ndarray]  # by (part, source)
+    pick: Mapping[tuple[str, str], np.ndarray]  # cells where FMP picks part p at source s
+    drop: Mapping[tuple[str, str], np.ndarray]  # cells where FMP drops part p at destination d
+    tf_pick: Mapping[tuple[str, str], np.ndarray]  # fine-motion time field (per cell)
+    tf_drop: Mapping[tuple[str, str], np.ndarray]
+
+
+def assemble(
+    *,
+    shape: Sequence[int],
+    lower: Sequence[float] | np.ndarray,
+    upper: Sequence[float] | np.ndarray,
+    periodic: Sequence[bool],
+    requests: Sequence[tuple[str, str, str, float]],
+    geometry: Geometry,
+    actions_empty: ActionSet,
+    actions_carrying: Mapping[str, ActionSet],
+    stage_time: float,
+    arrival: float,
+    destination_change: float = 0.0,
+    source_change: float = 0.0,
+) -> LayeredMDP:
+    """Build the layered MDP from bitmaps (the part that does not need a workcell).
+
+    Layer order: NR, then ``W`` of each request, then ``C`` of each request.
+    """
+    shape_a = np.asarray(shape, np.int64)
+    lower_a = np.asarray(lower, float)
+    upper_a = np.asarray(upper, float)
+    spacing = (upper_a - lower_a) / shape_a
+    periodic_a = np.asarray(periodic, np.bool_)
+    ncell = int(np.prod(shape_a))
+    R = len(requests)
+    modes = [Mode(NR)]
+    modes += [Mode("W", p, s, d) for p, s, d, _ in requests]
+    modes += [Mode("C", p, s, d) for p, s, d, _ in requests]
+    M = len(modes)
+
+    # Move classes: (bitmap, action set), deduplicated by content.
+    class_keys: dict[bytes, int] = {}
+    cls_free: list[np.ndarray] = []
+    cls_actions: list[ActionSet] = []
+
+    def move_class(free: np.ndarray, acts: ActionSet) -> int:
+        key = hashlib.sha1(free.tobytes() + acts.disp.tobytes()).digest()
+        if key not in class_keys:
+            class_keys[key] = len(cls_free)
+            cls_free.append(free)
+            cls_actions.append(acts)
+        return class_keys[key]
+
+    vcls = np.zeros(M, np.int64)
+    cost = np.full(M, stage_time)
+    cost[0] = 0.0  # equation (7): no loss while no request waits
+    fmp_next = np.full(M, -1, np.int64)
+    tf = np.full((M, ncell), np.inf)
+    vcls[0] = move_class(geometry.free_nr.ravel(), actions_empty)
+    for r, (p, s, d, _) in enumerate(requests):
+        w, c = 1 + r, 1 + R + r
+        vcls[w] = move_class(geometry.free_w[s].ravel(), actions_empty)
+        vcls[c] = move_class(geometry.free_c[(p, s)].ravel(), actions_carrying[p])
+        fmp_next[w] = c
+        fmp_next[c] = 0
+        pick = (
+            geometry.pick[(p, s)].ravel()
+            & geometry.free_w[s].ravel()
+            & geometry.free_c[(p, s)].ravel()
+        )
+        tf[w, pick] = geometry.tf_pick[(p, s)].ravel()[pick]
+        drop = (
+            geometry.drop[(p, d)].ravel()
+            & geometry.free_c[(p, s)].ravel()
+            & geometry.free_nr.ravel()
+        )
+        tf[c, drop] = geometry.tf_drop[(p, d)].ravel()[drop]
+
+    # Branches (Section III-B).
+    probs = np.array([q for *_, q in requests], float)
+    ptr = [0]
+    layers: list[int] = []
+    bprob: list[float] = []
+    layers.append(0)
+    bprob.append(1.0 - arrival)
+    for r in range(R):
+        if arrival * probs[r] > 0.0:
+            layers.append(1 + r)
+            bprob.append(arrival * probs[r])
+    ptr.append(len(layers))
+    for kind, change in (("W", source_change), ("C", destination_change)):
+        for r, (p, s, d, _) in enumerate(requests):
+            m = (1 if kind == "W" else 1 + R) + r
+            if kind == "W":
+                others = [
+                    i
+                    for i, (p2, s2, d2, _) in enumerate(requests)
+                    if p2 == p and d2 == d and s2 != s
+                ]
+            else:
+                others = [
+                    i
+                    for i, (p2, s2, d2, _) in enumerate(requests)
+                    if p2 == p and s2 == s and d2 != d
+                ]
+            if change <= 0.0:
+                others = []
+            stay = 1.0 - (change if others else 0.0)
+            layers.append(m)
+            bprob.append(stay)
+            for i in others:
+                layers.append((1 if kind == "W" else 1 + R) + i)
+                bprob.append(change / len(others))
+            ptr.append(len(layers))
+    K = len(cls_free)
+    A = max(a.disp.shape[0] for a in cls_actions)
+    dim = len(shape_a)
+    disp = np.zeros((K, A, dim))
+    nact = np.zeros(K, np.int64)
+    for k, acts in enumerate(cls_actions):
+        disp[k, : acts.disp.shape[0]] = acts.disp
+        nact[k] = acts.disp.shape[0]
+    heading_axis = actions_empty.heading_axis
+    free = np.stack(cls_free).astype(np.bool_)
+    valid = np.zeros((K, ncell), np.int64)
+    for k in range(K):
+        valid[k] = kernels.valid_moves(
+            free[k],
+            disp[k, : nact[k]],
+            heading_axis,
+            shape_a,
+            lower_a,
+            upper_a,
+            spacing,
+            periodic_a,
+        )
+    offs, fr = stencil_tables(disp, heading_axis, shape_a, lower_a, spacing)
+    coff, cw, interior = corner_tables(offs, fr, nact, shape_a)
+    live = np.zeros((M, ncell), np.bool_)
+    for m in range(M):
+        live[m] = free[vcls[m]]
+    mdp = LayeredMDP(
+        shape=shape_a,
+        lower=lower_a,
+        upper=upper_a,
+        spacing=spacing,
+        periodic=periodic_a,
+        modes=modes,
+        cost=cost,
+        vcls=vcls,
+        fmp_next=fmp_next,
+        tf=tf,
+        branch_ptr=np.asarray(ptr, np.int64),
+        branch_layer=np.asarray(layers, np.int64),
+        branch_prob=np.asarray(bprob, float),
+        free=free,
+        disp=disp,
+        nact=nact,
+        heading_axis=heading_axis,
+        valid=valid,
+        offs=offs,
+        fr=fr,
+        coff=coff,
+        cw=cw,
+        interior=interior,
+        live=live,
+        stage_time=stage_time,
+        arrival=arrival,
+        request_prob=probs,
+        labels=[a.labels for a in cls_actions],
+    )
+    compute_live(mdp)
+    return mdp
+
+
+def stencil_tables(
+    disp: np.ndarray, heading_axis: int, shape: np.ndarray, lower: np.ndarray, spacing: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each move from a cell centre in cell units, split into integer and fractional parts.
+
+    Robot-frame moves (``heading_axis >= 0``) get one entry per orientation slice.
+    """
+    K, A, dim = disp.shape
+    if heading_axis >= 0:
+        n_t = int(shape[heading_axis])
+        theta = lower[heading_axis] + (np.arange(n_t) + 0.5) * spacing[heading_axis]
+        ct, st = np.cos(theta), np.sin(theta)
+        steps = np.broadcast_to(disp[:, :, None, :], (K, A, n_t, dim)).copy()
+        steps[..., 0] = disp[:, :, None, 0] * ct - disp[:, :, None, 1] * st
+        steps[..., 1] = disp[:, :, None, 0] * st + disp[:, :, None, 1] * ct
+    else:
+        steps = disp[:, :, None, :].copy()
+    cells = steps / spacing
+    offs = np.floor(cells)
+    fr = cells - offs
+    # Moves of a whole number of cells land on a centre; keep them exact.
+    up = fr > 1.0 - 1e-9
+    offs[up] += 1.0
+    fr[up | (fr < 1e-9)] = 0.0
+    return offs.astype(np.int64), np.ascontiguousarray(fr)
+
+
+def corner_tables(
+    offs: np.ndarray, fr: np.ndarray, nact: np.ndarray, shape: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flat corner offsets and weights of every move stencil, and the cells where they apply.
+
+    A cell is *interior* for a move class when every move's stencil, taken without
+    clamping or wrapping, stays inside the grid; the kernels then skip the per-axis
+    stencil arithmetic (the fast path of the sweeps).
+    """
+    K, A, T, dim = offs.shape
+    strides = np.array([int(np.prod(shape[j + 1 :])) for j in range(dim)], np.int64)
+    ncorner = 1 << dim
+    coff = np.zeros((K, A, T, ncorner), np.int64)
+    cw = np.ones((K, A, T, ncorner))
+    for kk in range(ncorner):
+        for j in range(dim):
+            bit = (kk >> (dim - 1 - j)) & 1
+            coff[..., kk] += (offs[..., j] + bit) * strides[j]
+            cw[..., kk] *= fr[..., j] if bit else 1.0 - fr[..., j]
+    ncell = int(np.prod(shape))
+    idx = np.indices(tuple(int(n) for n in shape)).reshape(dim, ncell)
+    interior = np.zeros((K, ncell), np.bool_)
+    for k in range(K):
+        used = offs[k, : nact[k]]
+        lo = used.min(axis=(0, 1))
+        hi = used.max(axis=(0, 1)) + 1
+        ok = np.ones(ncell, bool)
+        for j in range(dim):
+            ok &= (idx[j] + lo[j] >= 0) & (idx[j] + hi[j] <= shape[j] - 1)
+        interior[k] = ok
+    return coff, cw, interior
+
+
+def compute_live(mdp: LayeredMDP) -> None:
+    """Restrict ``mdp.live`` to the states that can finish their request (in place)."""
+    fmp_ok = mdp.tf < np.inf
+    for _ in range(100):
+        changed = kernels.live_pass(
+            mdp.live,
+            fmp_ok,
+            mdp.valid,
+            mdp.offs,
+            mdp.fr,
+            mdp.coff,
+            mdp.cw,
+            mdp.interior,
+            mdp.nact,
+            mdp.heading_axis,
+            mdp.vcls,
+            mdp.fmp_next,
+            mdp.branch_ptr,
+            mdp.branch_layer,
+            mdp.branch_prob,
+            mdp.shape,
+            mdp.periodic,
+        )
+        if not changed:
+            return
+    raise RuntimeError("live-state computation did not settle")  # pragma: no cover
+
+
+def live_problems(mdp: LayeredMDP) -> list[Problem]:
+    """One problem per request that can never be served (checked before solving)."""
+    problems = []
+    R = mdp.n_requests
+    if not mdp.live[0].any():
+        problems.append(Problem("strategy", "no configuration in NR can serve every request"))
+        problems.extend(_split_problems(mdp))
+    for r in range(R):
+        mode = mdp.modes[1 + r]
+        where = f"strategy.requests <{mode.part},{mode.source},{mode.destination}>"
+        if not (mdp.tf[mdp.c_layer(r)] < np.inf).any():
+            problems.append(
+                Problem(
+                    where,
+                    f"part {mode.part!r} cannot be delivered anywhere in destination "
+                    f"{mode.destination!r} (no free configuration in the region)",
+                )
+            )
+        elif not (mdp.tf[mdp.w_layer(r)] < np.inf).any():
+            problems.append(
+                Problem(
+                    where,
+                    f"part {mode.part!r} cannot be picked up anywhere in source "
+                    f"{mode.source!r} (no free configuration in the region)",
+                )
+            )
+        elif not mdp.live[mdp.c_layer(r)].any():
+            problems.append(
+                Problem(
+                    where,
+                    f"destination {mode.destination!r} is unreachable while carrying {mode.part!r}",
+                )
+            )
+        elif not mdp.live[mdp.w_layer(r)].any():
+            problems.append(
+                Problem(
+                    where,
+                    f"source {mode.source!r} is unreachable, or its part cannot reach "
+                    f"destination {mode.destination!r} from there",
+                )
+            )
+    return problems
+
+
+def _split_problems(mdp: LayeredMDP) -> list[Problem]:
+    """Name the (destination, next source) pairs that a split free space separates.
+
+    Recomputes one round of the live states with NR unconstrained: a W state is then live
+    when the robot can go from it to its source and deliver. If no delivery configuration
+    of destination d is live for the W layer of source s, a request from s arriving just
+    after a delivery at d could never be served, which empties NR (not unichain).
+    """
+    live = np.stack([mdp.free[mdp.vcls[m]] for m in range(mdp.n_modes)])
+    kernels.live_pass(
+        live,
+        mdp.tf < np.inf,
+        mdp.valid,
+        mdp.offs,
+        mdp.fr,
+        mdp.coff,
+        mdp.cw,
+        mdp.interior,
+        mdp.nact,
+        mdp.heading_axis,
+        mdp.vcls,
+        mdp.fmp_next,
+        mdp.branch_ptr,
+        mdp.branch_layer,
+        mdp.branch_prob,
+        mdp.shape,
+        mdp.periodic,
+    )
+    seen = set()
+    out = []
+    R = mdp.n_requests
+    for r in range(R):
+        d = mdp.modes[mdp.c_layer(r)].destination
+        drop = mdp.tf[mdp.c_layer(r)] < np.inf
+        for r2 in range(R):
+            s2 = mdp.modes[mdp.w_layer(r2)].source
+            if (d, s2) in seen or not drop.any():
+                continue
+            if not (live[mdp.w_layer(r2)] & drop).any():
+                seen.add((d, s2))
+                out.append(
+                    Problem(
+                        f"destinations.{d}",
+                        f"after a delivery at {d} the robot cannot reach source {s2} (the free "
+                        "configuration space splits; check joint limits, obstacles, grid cells)",
+                    )
+                )
+    return out
+
+
+def fine_motion_field(spec: Any, tool_xy: np.ndarray) -> np.ndarray:
+    """``t_f`` per cell from a :class:`~cellplan.strategies.section.FineMotionSpec` (Fig. 5)."""
+    time = float(spec.time)
+    point = spec.point
+    rate = float(spec.rate)
+    out = np.full(len(tool_xy), time)
+    if point is not None and rate > 0:
+        out += rate * np.hypot(tool_xy[:, 0] - point[0], tool_xy[:, 1] - point[1])
+    return out
+
+
+def build_model(scenario: Any, cell: Any, cells: Sequence[int] | None = None) -> LayeredMDP:
+    """The layered MDP of a scenario with a ``strategy:`` section.
+
+    Raises
+    ------
+    ScenarioError
+        When a request can never be served (a region no configuration reaches, a part
+        that cannot be carried anywhere, an unreachable destination), one problem each.
+    """
+    from cellplan.cspace import Grid, free_bitmap, region_bitmap
+
+    sec = scenario.strategy
+    if sec is None:
+        raise ScenarioError([Problem("strategy", "the scenario has no strategy section")])
+    robot = cell.robot
+    shape = tuple(cells or sec.cells or scenario.cspace.cells or cell.default_cells)
+    if len(shape) != robot.dim:
+        raise ScenarioError([Problem("strategy.cells", f"needs {robot.dim} entries")])
+    grid = Grid.for_robot(robot, shape)
+    requests = sec.request_list(scenario)
+    parts = sorted({p for p, *_ in requests})
+    sources = sorted({s for _, s, *_ in requests})
+    others = cell.sources_except
+    free_nr = free_bitmap(cell, grid, None, "all")
+    free_w = {s: free_bitmap(cell, grid, None, others(s)) for s in sources}
+    free_c = {
+        (p, s): free_bitmap(cell, grid, p, others(s))
+        for p in parts
+        for s in sources
+        if any(r[0] == p and r[1] == s for r in requests)
+    }
+    pts = grid.points()
+    tool = robot.tool_pose(pts)[:, :2]
+
+    def tf_of(region: str) -> np.ndarray:
+        spec = sec.fine_motion_regions.get(region, sec.fine_motion)
+        return fine_motion_field(spec, tool)
+
+    pick = {}
+    tf_pick = {}
+    for p, s in free_c:
+        pick[(p, s)] = region_bitmap(cell, grid, s, sec.regions, None, None)
+        tf_pick[(p, s)] = tf_of(s)
+    drop = {}
+    tf_drop = {}
+    for p, _, d, _ in requests:
+        if (p, d) not in drop:
+            drop[(p, d)] = region_bitmap(cell, grid, d, sec.regions, None, p)
+            tf_drop[(p, d)] = tf_of(d)
+    geometry = Geometry(free_nr, free_w, free_c, pick, drop, tf_pick, tf_drop)
+    kind = robot.kind if robot.kind in ("point", "translating", "rotating") else "arm"
+    common = dict(
+        speed=sec.speed,
+        stage_time=sec.stage_time,
+        headings=sec.actions.headings,
+        turn_speed_deg=sec.turn_speed,
+    )
+    empty = action_set(kind, robot.dim, **common)
+    carrying = {
+        p: action_set(kind, robot.dim, factor=sec.carry_speed_factor.get(p, 1.0), **common)
+        for p in parts
+    }
+    dst = sec.destination_change.per_stage(sec.stage_time) if sec.destination_change else 0.0
+    src = sec.source_change.per_stage(sec.stage_time) if sec.source_change else 0.0
+    mdp = assemble(
+        shape=shape,
+        lower=grid.lower,
+        upper=grid.upper,
+        periodic=grid.periodic,
+        requests=requests,
+        geometry=geometry,
+        actions_empty=empty,
+        actions_carrying=carrying,
+        stage_time=sec.stage_time,
+        arrival=sec.arrival.per_stage(sec.stage_time),
+        destination_change=dst,
+        source_change=src,
+    )
+    problems = live_problems(mdp)
+    if problems:
+        raise ScenarioError(problems)
+    return mdp

@@ -1,0 +1,214 @@
+"""Pictures of the strategies paper: Fig. 8 (cost-to-go contours and the optimal actions as
+a vector field) and Figs. 9-15 (sample paths, one frame per mode change, and a GIF).
+
+matplotlib is imported lazily through :mod:`cellplan.plots`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cellplan import plots as base
+from cellplan.strategies.simulate import Simulation
+from cellplan.strategies.strategy import FMP, STAY, Strategy
+
+OTHER_AXIS = 99  # marker code: the optimal move changes only the axes not shown
+
+
+def _slice(
+    strategy: Strategy, values: np.ndarray, fixed: np.ndarray | None
+) -> tuple[np.ndarray, tuple[int, ...]]:
+    """A 2-D view of a layer: the first two C-space axes, other axes at ``fixed``'s cell."""
+    mdp = strategy.mdp
+    grid = values.reshape(tuple(mdp.shape))
+    if len(mdp.shape) == 2:
+        return grid, ()
+    q = fixed if fixed is not None else mdp.lower + 0.5 * (mdp.upper - mdp.lower)
+    rest = tuple(
+        int(np.clip(np.floor((q[j] - mdp.lower[j]) / mdp.spacing[j]), 0, mdp.shape[j] - 1))
+        for j in range(2, len(mdp.shape))
+    )
+    index: tuple[Any, ...] = (slice(None), slice(None), *rest)
+    view: Any = grid[index]
+    return view, rest
+
+
+def _axes_labels(strategy: Strategy, cell: Any) -> tuple[str, str, bool]:
+    names = getattr(cell.robot, "axis_names", ("q1", "q2"))
+    angular = cell.robot.kind == "arm"
+    return str(names[0]), str(names[1]), angular
+
+
+def plot_mode(
+    strategy: Strategy,
+    cell: Any,
+    mode: int,
+    path: str | Path,
+    fixed: np.ndarray | None = None,
+    arrows: int = 24,
+) -> Path:
+    """Fig. 8 for one mode: level sets of the cost-to-go and the optimal actions.
+
+    For 3-D C-spaces both panels show the slice through ``fixed`` (default: the middle) on
+    the remaining axes.
+    """
+    mdp = strategy.mdp
+    fig, axes = base.new_figure(ncols=2, size=5.0)
+    h2, rest = _slice(strategy, strategy.values[mode], fixed)
+    xs = mdp.lower[0] + (np.arange(mdp.shape[0]) + 0.5) * mdp.spacing[0]
+    ys = mdp.lower[1] + (np.arange(mdp.shape[1]) + 0.5) * mdp.spacing[1]
+    xl, yl, angular = _axes_labels(strategy, cell)
+    scale = np.degrees if angular else (lambda v: v)
+    X, Y = np.meshgrid(scale(xs), scale(ys), indexing="ij")
+    ax = axes[0, 0]
+    masked = np.ma.masked_invalid(h2)
+    ax.set_facecolor(base.COLORS["blocked"])
+    if masked.count() > 1:
+        cs = ax.contourf(X, Y, masked, levels=24, cmap="viridis")
+        ax.contour(X, Y, masked, levels=24, colors="white", linewidths=0.3)
+        fig.colorbar(cs, ax=ax, shrink=0.8, label="relative cost-to-go (stages)")
+    label = mdp.modes[mode].label
+    where = "" if not rest else f" (slice at cells {rest} of the other axes)"
+    ax.set_title(f"cost-to-go, mode {label}{where}", fontsize=9)
+    ax.set_xlabel(xl + (" (deg)" if angular else ""))
+    ax.set_ylabel(yl + (" (deg)" if angular else ""))
+    ax.set_aspect("equal" if not angular else "auto")
+    # Vector field of the optimal actions at a coarse subset of cell centres.
+    ax2 = axes[0, 1]
+    ax2.set_facecolor(base.COLORS["blocked"])
+    step = max(1, int(max(mdp.shape[0], mdp.shape[1]) // arrows))
+    pts, vec, marks = [], [], []
+    for i in range(0, mdp.shape[0], step):
+        for j in range(0, mdp.shape[1], step):
+            q = np.array(
+                [
+                    xs[i],
+                    ys[j],
+                    *[
+                        mdp.lower[k + 2] + (r + 0.5) * mdp.spacing[k + 2]
+                        for k, r in enumerate(rest)
+                    ],
+                ]
+            )
+            c = strategy.cell_of(q)
+            if not mdp.live[mode, c]:
+                continue
+            try:
+                u = strategy.action(q, mode)
+            except ValueError:
+                continue
+            if u == FMP or u == STAY:
+                marks.append((q[0], q[1], u))
+                continue
+            dq = strategy.move_vector(q, mode, u)
+            if np.linalg.norm(dq[:2]) <= 1e-12:
+                marks.append((q[0], q[1], OTHER_AXIS))  # a turn or a move of joint 3
+                continue
+            pts.append(q[:2])
+            vec.append(dq[:2])
+    ax2.imshow(
+        np.isfinite(h2).T,
+        origin="lower",
+        cmap="gray",
+        vmin=-1,
+        vmax=1.5,
+        aspect="auto",
+        extent=(scale(mdp.lower[0]), scale(mdp.upper[0]), scale(mdp.lower[1]), scale(mdp.upper[1])),
+    )
+    if pts:
+        P = np.array(pts)
+        V = np.array(vec)
+        n = np.linalg.norm(V, axis=1, keepdims=True)
+        V = V / np.where(n > 0, n, 1)
+        ax2.quiver(
+            scale(P[:, 0]),
+            scale(P[:, 1]),
+            V[:, 0],
+            V[:, 1],
+            color=base.COLORS["path"],
+            angles="xy",
+            pivot="mid",
+            scale=arrows * 1.4,
+            width=0.004,
+        )
+    symbols = {FMP: ("o", "#1f77b4"), STAY: ("x", "k"), OTHER_AXIS: ("+", "#7b2cbf")}
+    for x, y, u in marks:
+        sym, color = symbols[u]
+        ax2.plot(scale(x), scale(y), sym, color=color, ms=3)
+    legend = "o: FMP, x: stay" + (", +: move along another axis" if len(mdp.shape) > 2 else "")
+    ax2.set_title(f"optimal actions, mode {label} ({legend})", fontsize=9)
+    ax2.set_xlabel(xl + (" (deg)" if angular else ""))
+    ax2.set_ylabel(yl + (" (deg)" if angular else ""))
+    ax2.set_aspect("equal" if not angular else "auto")
+    return base.save_figure(fig, path)
+
+
+def _frame(
+    ax: Any, strategy: Strategy, cell: Any, sim: Simulation, first: int, last: int, title: str
+) -> None:
+    mode = strategy.mdp.modes[int(sim.modes[first])]
+    highlight = [] if mode.kind == "NR" else [mode.source, mode.destination]
+    base.draw_workcell(ax, cell, highlight=highlight, labels=False)
+    carrying = mode.part if mode.kind == "C" else None
+    tool = cell.robot.tool_pose(sim.q[first : last + 1])[:, :2]
+    ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.2)
+    base.draw_robot(ax, cell, sim.q[first], carrying, alpha=0.25)
+    base.draw_robot(ax, cell, sim.q[last], carrying)
+    ax.set_title(title, fontsize=8)
+    ax.set_xlabel("")
+    ax.set_ylabel("")
+
+
+def plot_frames(
+    strategy: Strategy, cell: Any, sim: Simulation, outdir: str | Path, max_frames: int = 12
+) -> list[Path]:
+    """Figs. 9-15: one frame per mode segment (regions of the request shaded, the carried
+    part drawn), saved one PNG each plus a grid of the first ``max_frames`` (three columns:
+    NR, waiting, carrying, as in the paper)."""
+    outdir = Path(outdir)
+    segs = sim.segments()
+    paths = []
+    for i, (a, b) in enumerate(segs):
+        fig, axes = base.new_figure(size=4.0)
+        label = strategy.mdp.modes[int(sim.modes[a])].label
+        _frame(axes[0, 0], strategy, cell, sim, a, b, f"({i + 1}) stages {a}-{b}: {label}")
+        paths.append(base.save_figure(fig, outdir / f"frame_{i + 1:03d}.png", dpi=80))
+    shown = segs[:max_frames]
+    rows = max(1, int(np.ceil(len(shown) / 3)))
+    fig, axes = base.new_figure(ncols=3, nrows=rows, size=3.2)
+    for ax in axes.ravel():
+        ax.set_axis_off()
+    for i, (a, b) in enumerate(shown):
+        ax = axes.ravel()[i]
+        ax.set_axis_on()
+        label = strategy.mdp.modes[int(sim.modes[a])].label
+        _frame(ax, strategy, cell, sim, a, b, f"({chr(97 + i)}) {label}, stages {a}-{b}")
+    paths.append(base.save_figure(fig, outdir / "frames.png", dpi=90))
+    return paths
+
+
+def save_animation(
+    strategy: Strategy, cell: Any, sim: Simulation, path: str | Path, max_frames: int = 40
+) -> Path:
+    """An animated GIF of the sample path (stages subsampled to at most ``max_frames``)."""
+    n = len(sim.modes)
+    ks = np.unique(np.linspace(0, n - 1, min(n, max_frames)).astype(int))
+    frames = []
+    for k in ks:
+        fig, axes = base.new_figure(size=3.6)
+        ax = axes[0, 0]
+        mode = strategy.mdp.modes[int(sim.modes[k])]
+        highlight = [] if mode.kind == "NR" else [mode.source, mode.destination]
+        base.draw_workcell(ax, cell, highlight=highlight, labels=False)
+        tool = cell.robot.tool_pose(sim.q[max(0, k - 30) : k + 1])[:, :2]
+        ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.0)
+        base.draw_robot(ax, cell, sim.q[k], mode.part if mode.kind == "C" else None)
+        ax.set_title(f"stage {k}: {mode.label}", fontsize=8)
+        frames.append(base.figure_to_rgb(fig, dpi=60))
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+    return base.save_gif(frames, path, fps=8.0)

@@ -1,0 +1,261 @@
+"""The ``strategy:`` scenario section: the stochastic assembly process and the solver settings.
+
+Everything the strategies paper (Sharma, LaValle and Hutchinson 1996) needs beyond the
+workcell itself: the stage time and speeds of Section III-B, the request distribution
+and the three transition types of Section III-B (with probabilities or Poisson rates
+converted by equation (4)), contact or enclosure regions and the expected fine-motion
+time of Section III-C (equation (7), Fig. 5), the grid and the action set of Section IV.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from cellplan.errors import Problem
+from cellplan.schema import Name, NonNegativeFloat, PositiveFloat, Probability, StrictModel, Vec2
+
+if TYPE_CHECKING:
+    from cellplan.scenario import Scenario
+
+_SUM_TOL = 1e-9
+
+
+class Rate(StrictModel):
+    """A per-stage probability, given directly or as a Poisson rate (equation (4)).
+
+    Exactly one of ``probability`` (per stage) and ``rate`` (events per unit time) is given;
+    a rate becomes ``1 - exp(-rate * stage_time)``.
+    """
+
+    probability: Probability | None = None
+    rate: PositiveFloat | None = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> Rate:
+        if (self.probability is None) == (self.rate is None):
+            raise ValueError("give exactly one of 'probability' and 'rate'")
+        return self
+
+    def per_stage(self, stage_time: float) -> float:
+        """The probability that the event happens within one stage (equation (4))."""
+        if self.probability is not None:
+            return float(self.probability)
+        assert self.rate is not None
+        return 1.0 - math.exp(-self.rate * stage_time)
+
+
+class RequestSpec(StrictModel):
+    """One requestable (part, source, destination) and, optionally, its probability."""
+
+    part: Name
+    source: Name
+    destination: Name
+    probability: Probability | None = None
+
+
+class FineMotionSpec(StrictModel):
+    """Expected fine-motion time t_f of Section III-C.
+
+    ``t_f(q) = time + rate * |tool(q) - point|``: a constant when ``rate`` is 0 (or no
+    ``point`` is given), otherwise growing with the gripper's workspace distance from a
+    preferred contact point (Fig. 5).
+    """
+
+    time: NonNegativeFloat = 1.0
+    point: Vec2 | None = None
+    rate: NonNegativeFloat = 0.0
+
+
+class ActionSpec(StrictModel):
+    """The action set (equation (5) and its variants of Section V).
+
+    ``headings`` is K, the number of evenly spaced directions of a translating robot
+    (plus stay and FMP). A rotating robot turns by ``turn_speed * stage_time`` either way
+    or moves along its axis, forward or backward. An arm moves one joint by
+    ``speed * stage_time`` degrees either way.
+    """
+
+    headings: Annotated[int, Field(ge=3, le=64)] = 16
+
+
+class SolverSpec(StrictModel):
+    """Stopping rule and method of the average-cost solver (Section IV)."""
+
+    method: Literal["auto", "structured", "general"] = "auto"
+    tolerance: PositiveFloat = 1e-6
+    max_sweeps: Annotated[int, Field(ge=1)] = 20000
+    damping: Annotated[float, Field(gt=0, le=1)] = 1.0
+
+
+class StrategySection(StrictModel):
+    """Settings of the ``strategy:`` section (the strategies paper)."""
+
+    stage_time: PositiveFloat = Field(1.0, description="Delta t, time units per stage")
+    speed: PositiveFloat = Field(
+        description="translation per unit time (workspace units); for arms, degrees per unit time"
+    )
+    turn_speed: PositiveFloat | None = Field(
+        None, description="rotating robot: degrees per unit time"
+    )
+    carry_speed_factor: dict[Name, PositiveFloat] = Field(
+        default_factory=dict, description="per part: speed multiplier while carrying it"
+    )
+    arrival: Rate = Field(description="request arrival while in NR (transition type 1)")
+    requests: Literal["all"] | list[RequestSpec] = Field(
+        "all", description="'all' (every part x source x destination, uniform) or a list"
+    )
+    destination_change: Rate | None = Field(None, description="transition type 2, per stage in C")
+    source_change: Rate | None = Field(None, description="transition type 3, per stage in W")
+    regions: Literal["contact", "enclosure"] = "contact"
+    fine_motion: FineMotionSpec = Field(default_factory=FineMotionSpec)
+    fine_motion_regions: dict[Name, FineMotionSpec] = Field(
+        default_factory=dict, description="per source/destination override of fine_motion"
+    )
+    cells: list[Annotated[int, Field(ge=4, le=1024)]] | None = Field(
+        None, description="grid cells per C-space axis (default: cspace.cells, else 64)"
+    )
+    actions: ActionSpec = Field(default_factory=ActionSpec)
+    home: list[float] | None = Field(
+        None, description="home configuration of the return-home baseline (default: robot.start)"
+    )
+    solver: SolverSpec = Field(default_factory=SolverSpec)
+
+    def request_list(self, scenario: Scenario) -> list[tuple[str, str, str, float]]:
+        """The requestable (part, source, destination, probability), in a fixed order."""
+        if self.requests == "all":
+            triples = [
+                (p, s, d)
+                for p in scenario.parts
+                for s in scenario.sources
+                for d in scenario.destinations
+            ]
+            n = len(triples)
+            return [(p, s, d, 1.0 / n) for p, s, d in triples]
+        given = [r.probability for r in self.requests]
+        if all(v is None for v in given):
+            n = len(self.requests)
+            return [(r.part, r.source, r.destination, 1.0 / n) for r in self.requests]
+        return [
+            (r.part, r.source, r.destination, float(r.probability or 0.0)) for r in self.requests
+        ]
+
+    def check(self, scenario: Scenario) -> list[Problem]:
+        """Cross-reference checks, one :class:`Problem` per mistake."""
+        problems: list[Problem] = []
+        robot = scenario.robot
+        if robot is None:
+            return [Problem("robot", "the strategy section needs a robot")]
+        if not scenario.parts:
+            problems.append(Problem("parts", "the strategy section needs at least one part"))
+        if not scenario.sources:
+            problems.append(Problem("sources", "the strategy section needs at least one source"))
+        if not scenario.destinations:
+            problems.append(
+                Problem("destinations", "the strategy section needs at least one destination")
+            )
+        if robot.type == "rotating" and self.turn_speed is None:
+            problems.append(Problem("strategy.turn_speed", "a rotating robot needs a turn speed"))
+        if robot.type != "rotating" and self.turn_speed is not None:
+            problems.append(
+                Problem("strategy.turn_speed", f"only used by a rotating robot, not {robot.type!r}")
+            )
+        for part in self.carry_speed_factor:
+            if part not in scenario.parts:
+                problems.append(Problem(f"strategy.carry_speed_factor.{part}", "unknown part"))
+        for region in self.fine_motion_regions:
+            if region not in scenario.sources and region not in scenario.destinations:
+                problems.append(
+                    Problem(
+                        f"strategy.fine_motion_regions.{region}", "unknown source or destination"
+                    )
+                )
+        if isinstance(self.requests, list):
+            problems.extend(self._check_requests(scenario, self.requests))
+        dim = _dimension(robot)
+        if self.cells is not None and len(self.cells) != dim:
+            problems.append(
+                Problem(
+                    "strategy.cells",
+                    f"has {len(self.cells)} entries; the C-space has dimension {dim}",
+                )
+            )
+        if self.home is not None and len(self.home) != dim:
+            problems.append(
+                Problem(
+                    "strategy.home",
+                    f"has {len(self.home)} entries; the C-space has dimension {dim}",
+                )
+            )
+        if self.destination_change is not None and not problems:
+            problems.extend(self._check_changes(scenario, "destination"))
+        if self.source_change is not None and not problems:
+            problems.extend(self._check_changes(scenario, "source"))
+        return problems
+
+    def _check_requests(self, scenario: Scenario, requests: list[RequestSpec]) -> list[Problem]:
+        problems: list[Problem] = []
+        if not requests:
+            return [Problem("strategy.requests", "the request list is empty")]
+        seen: set[tuple[str, str, str]] = set()
+        for i, r in enumerate(requests):
+            where = f"strategy.requests[{i}]"
+            if r.part not in scenario.parts:
+                problems.append(Problem(f"{where}.part", f"unknown part {r.part!r}"))
+            if r.source not in scenario.sources:
+                problems.append(Problem(f"{where}.source", f"unknown source {r.source!r}"))
+            if r.destination not in scenario.destinations:
+                problems.append(
+                    Problem(f"{where}.destination", f"unknown destination {r.destination!r}")
+                )
+            key = (r.part, r.source, r.destination)
+            if key in seen:
+                problems.append(Problem(where, f"request {key} is listed twice"))
+            seen.add(key)
+        given = [r.probability for r in requests]
+        if any(v is not None for v in given):
+            if any(v is None for v in given):
+                problems.append(
+                    Problem("strategy.requests", "give a probability for every request or for none")
+                )
+            else:
+                total = sum(float(v) for v in given if v is not None)
+                if abs(total - 1.0) > _SUM_TOL:
+                    problems.append(
+                        Problem(
+                            "strategy.requests", f"request probabilities sum to {total:g}, not 1"
+                        )
+                    )
+        return problems
+
+    def _check_changes(self, scenario: Scenario, kind: str) -> list[Problem]:
+        # A change needs somewhere to go: another requestable mode with the same part and
+        # the same source (destination change) or destination (source change).
+        reqs = {(p, s, d) for p, s, d, _ in self.request_list(scenario)}
+        lonely = []
+        for p, s, d in sorted(reqs):
+            if kind == "destination":
+                others = [r for r in reqs if r[0] == p and r[1] == s and r[2] != d]
+            else:
+                others = [r for r in reqs if r[0] == p and r[2] == d and r[1] != s]
+            if not others:
+                lonely.append(f"<{p},{s},{d}>")
+        if lonely:
+            return [
+                Problem(
+                    f"strategy.{kind}_change",
+                    f"no other {kind} to change to for request(s) {', '.join(lonely)}",
+                )
+            ]
+        return []
+
+
+def _dimension(robot: object) -> int:
+    kind = getattr(robot, "type", "")
+    if kind in ("point", "translating"):
+        return 2
+    if kind == "rotating":
+        return 3
+    return len(getattr(robot, "links", []))

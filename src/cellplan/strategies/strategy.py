@@ -1,0 +1,400 @@
+"""The solved motion strategy: optimal actions at any real-valued state, saved as .npz.
+
+Section IV-B of the strategies paper: "the optimal action can be obtained from any
+real-valued location x though the use of (9), linear interpolation, and the
+approximate representation of L*". :meth:`Strategy.action` does exactly that: one
+evaluation of the right-hand side of equation (9) at ``(q, m)``, each successor's
+cost-to-go interpolated multilinearly between grid cells, colliding motions excluded by
+the swept check of :func:`cellplan.strategies.kernels.motion_ok`.
+
+A strategy file is a NumPy ``.npz`` archive (no pickle): the MDP arrays, the cost-to-go,
+and a JSON metadata string (scenario digest, grid, gain, convergence). Loading it against a
+scenario whose digest differs raises :class:`~cellplan.errors.PersistenceError`.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cellplan.errors import PersistenceError, Problem
+from cellplan.fileio import atomic_path
+from cellplan.strategies import kernels
+from cellplan.strategies.model import LayeredMDP, Mode
+from cellplan.strategies.solver import SolveResult
+
+FORMAT = "cellplan-strategy"
+VERSION = 1
+FMP = -2
+STAY = -1
+
+_ARRAY_FIELDS = [
+    f.name
+    for f in fields(LayeredMDP)
+    if f.name not in ("modes", "labels", "heading_axis", "stage_time", "arrival")
+]
+
+
+@dataclass
+class Strategy:
+    """A stationary optimal strategy gamma* (Section III-B) with its cost-to-go.
+
+    Attributes
+    ----------
+    mdp
+        The discretised model it was computed on.
+    values
+        ``(M, N)`` relative cost-to-go (NaN outside the live states).
+    meta
+        Scenario digest and name, gain and its bounds, convergence figures.
+    """
+
+    mdp: LayeredMDP
+    values: np.ndarray
+    meta: dict[str, Any]
+
+    @staticmethod
+    def from_solution(mdp: LayeredMDP, result: SolveResult, scenario: Any = None) -> Strategy:
+        """Wrap a solve; ``scenario`` (a :class:`~cellplan.scenario.Scenario`) sets the digest."""
+        meta = {
+            "format": FORMAT,
+            "version": VERSION,
+            "scenario_digest": scenario.digest() if scenario is not None else "",
+            "scenario_name": getattr(scenario, "name", ""),
+            "gain": result.gain,
+            "gain_lower": result.gain_lower,
+            "gain_upper": result.gain_upper,
+            "span": result.span,
+            "sweeps": result.sweeps,
+            "full_sweeps": result.full_sweeps,
+            "outer_iterations": result.outer_iterations,
+            "status": str(result.status),
+            "stable": result.stable,
+            "policy_changes": result.policy_changes,
+            "method": result.method,
+            "seconds": result.seconds,
+        }
+        return Strategy(mdp, result.values, meta)
+
+    # --- queries ---------------------------------------------------------------------------
+
+    @property
+    def gain(self) -> float:
+        """Long-run expected loss (waiting time) per stage."""
+        return float(self.meta["gain"])
+
+    @property
+    def modes(self) -> list[Mode]:
+        return self.mdp.modes
+
+    @property
+    def live(self) -> np.ndarray:
+        return self.mdp.live
+
+    def mode_index(self, text: str) -> int:
+        """A mode from ``NR``, ``"1,1,1,W"`` (1-based indices, the paper's notation) or
+        ``"P1,S1,D1,W"`` (names)."""
+        text = text.strip()
+        if text.upper() == "NR":
+            return 0
+        items = [t.strip() for t in text.strip("<>").split(",")]
+        if len(items) != 4 or items[3].upper() not in ("W", "C"):
+            raise PersistenceError([Problem("--mode", f"expected NR or 'p,s,d,W|C', got {text!r}")])
+        parts = sorted({m.part for m in self.modes[1:]})
+        sources = sorted({m.source for m in self.modes[1:]})
+        dests = sorted({m.destination for m in self.modes[1:]})
+        names = []
+        for item, pool in zip(items[:3], (parts, sources, dests), strict=True):
+            if item.isdigit() and 1 <= int(item) <= len(pool):
+                names.append(pool[int(item) - 1])
+            else:
+                names.append(item)
+        for i, m in enumerate(self.modes):
+            if (m.part, m.source, m.destination, m.kind) == (*names, items[3].upper()):
+                return i
+        known = ", ".join(m.label for m in self.modes)
+        raise PersistenceError(
+            [Problem("--mode", f"no mode {text!r} in this strategy (modes: {known})")]
+        )
+
+    def cell_of(self, q: np.ndarray) -> int:
+        """Flat index of the grid cell containing ``q``."""
+        mdp = self.mdp
+        idx = np.floor((np.asarray(q, float) - mdp.lower) / mdp.spacing).astype(np.int64)
+        for j in range(len(idx)):
+            idx[j] = (
+                idx[j] % mdp.shape[j] if mdp.periodic[j] else min(max(idx[j], 0), mdp.shape[j] - 1)
+            )
+        return int(np.ravel_multi_index(tuple(idx), tuple(mdp.shape)))
+
+    def action_values(
+        self,
+        q: np.ndarray,
+        mode: int,
+        values: np.ndarray | None = None,
+        fmp_allowed: bool | None = None,
+    ) -> np.ndarray:
+        """Right-hand side of (9) per action: ``[FMP, stay, move 0, ...]`` (NaN: unavailable).
+
+        ``values`` replaces the cost-to-go (the baselines use this); ``fmp_allowed`` overrides
+        the region test (by default the cell containing ``q`` must allow FMP).
+        """
+        mdp = self.mdp
+        q = np.ascontiguousarray(q, dtype=float)
+        c = self.cell_of(q)
+        tf_here = float(mdp.tf[mode, c])
+        if fmp_allowed is None:
+            fmp_allowed = bool(np.isfinite(tf_here))
+        out = np.empty(2 + mdp.disp.shape[1])
+        if values is None:
+            h_clean, live = self._h0, mdp.live
+        else:
+            # Baseline value layers: prepared once per array (queries run every stage).
+            cache = self.__dict__.setdefault("_prepared", {})
+            key = id(values)
+            if key not in cache or cache[key][0] is not values:
+                cache[key] = (values, np.nan_to_num(values, nan=0.0), np.isfinite(values))
+            _, h_clean, live = cache[key]
+        kernels.action_values_at(
+            q,
+            mode,
+            h_clean,
+            live,
+            mdp.free,
+            mdp.disp,
+            mdp.nact,
+            mdp.heading_axis,
+            mdp.vcls,
+            mdp.cost,
+            mdp.fmp_next,
+            tf_here if np.isfinite(tf_here) else 0.0,
+            fmp_allowed,
+            mdp.branch_ptr,
+            mdp.branch_layer,
+            mdp.branch_prob,
+            mdp.shape,
+            mdp.lower,
+            mdp.upper,
+            mdp.spacing,
+            mdp.periodic,
+            out,
+        )
+        return out
+
+    @property
+    def _h0(self) -> np.ndarray:
+        cached = self.__dict__.get("_h0_cache")
+        if cached is None:
+            cached = np.nan_to_num(self.values, nan=0.0)
+            self.__dict__["_h0_cache"] = cached
+        return cached
+
+    def action(self, q: np.ndarray, mode: int, forbid_fmp: bool = False) -> int:
+        """The optimal action at ``(q, mode)``: ``FMP`` (-2), ``STAY`` (-1) or a move index.
+
+        One compiled evaluation of equation (9) (about ten microseconds). Raises
+        ``ValueError`` when no action is available (``q`` outside the live states).
+        """
+        mdp = self.mdp
+        out = self.__dict__.get("_out")
+        if out is None:
+            out = np.empty(2 + mdp.disp.shape[1])
+            self.__dict__["_out"] = out
+        u = kernels.query(
+            np.ascontiguousarray(q, dtype=float),
+            mode,
+            self._h0,
+            mdp.live,
+            mdp.free,
+            mdp.disp,
+            mdp.nact,
+            mdp.heading_axis,
+            mdp.vcls,
+            mdp.cost,
+            mdp.fmp_next,
+            mdp.tf,
+            forbid_fmp,
+            mdp.branch_ptr,
+            mdp.branch_layer,
+            mdp.branch_prob,
+            mdp.shape,
+            mdp.lower,
+            mdp.upper,
+            mdp.spacing,
+            mdp.periodic,
+            out,
+        )
+        if u == -9:
+            raise ValueError(
+                "no action is available here (the state is outside the strategy's domain)"
+            )
+        return int(u)
+
+    def cell_centre(self, q: np.ndarray) -> np.ndarray:
+        """Centre of the grid cell containing ``q``."""
+        mdp = self.mdp
+        idx = np.array(np.unravel_index(self.cell_of(q), tuple(mdp.shape)))
+        return np.asarray(mdp.lower + (idx + 0.5) * mdp.spacing)
+
+    def grid_action(self, q: np.ndarray, mode: int) -> int | None:
+        """The optimal action at the centre of the cell containing ``q`` (None if none)."""
+        centre = self.cell_centre(q)
+        if not self.mdp.live[mode, self.cell_of(centre)]:
+            return None
+        try:
+            return self.action(centre, mode)
+        except ValueError:
+            return None
+
+    def next_configuration(self, q: np.ndarray, mode: int, action: int) -> np.ndarray:
+        """Where a move (or stay/FMP) takes the robot, equation (5) and its variants."""
+        q = np.asarray(q, float).copy()
+        if action < 0:
+            return q
+        mdp = self.mdp
+        dq = np.empty(len(q))
+        kernels.displacement(q, mdp.disp[mdp.vcls[mode], action], mdp.heading_axis, dq)
+        q = q + dq
+        kernels.wrap(q, mdp.lower, mdp.upper, mdp.periodic)
+        return q
+
+    def move_vector(self, q: np.ndarray, mode: int, action: int) -> np.ndarray:
+        """The C-space displacement of an action (zero for stay and FMP)."""
+        return self.next_configuration(q, mode, action) - np.asarray(q, float)
+
+    # --- persistence -----------------------------------------------------------------------
+
+    def save(self, path: str | Path) -> Path:
+        """Write the strategy as a compressed .npz (atomically, no pickle)."""
+        mdp = self.mdp
+        arrays = {name: np.asarray(getattr(mdp, name)) for name in _ARRAY_FIELDS}
+        arrays["values"] = self.values
+        meta = dict(self.meta)
+        meta.update(
+            heading_axis=mdp.heading_axis,
+            stage_time=mdp.stage_time,
+            arrival=mdp.arrival,
+            modes=[[m.kind, m.part, m.source, m.destination] for m in mdp.modes],
+            labels=[list(lab) for lab in mdp.labels],
+            grid={
+                "shape": mdp.shape.tolist(),
+                "lower": mdp.lower.tolist(),
+                "upper": mdp.upper.tolist(),
+                "periodic": mdp.periodic.tolist(),
+            },
+        )
+        arrays["meta"] = np.array(json.dumps(meta))
+        path = Path(path)
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]
+        return path
+
+    @staticmethod
+    def load(path: str | Path, scenario: Any = None) -> Strategy:
+        """Read a strategy file; with ``scenario``, refuse one made for a different scenario."""
+        path = Path(path)
+        where = str(path)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except FileNotFoundError:
+            raise PersistenceError([Problem(where, "no such strategy file")]) from None
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            raise PersistenceError([Problem(where, f"not a strategy file ({exc})")]) from None
+        if "meta" not in arrays:
+            raise PersistenceError([Problem(where, "not a strategy file (no metadata)")])
+        try:
+            meta = json.loads(str(arrays.pop("meta")))
+        except json.JSONDecodeError:
+            raise PersistenceError([Problem(where, "corrupt strategy metadata")]) from None
+        if meta.get("format") != FORMAT or meta.get("version") != VERSION:
+            raise PersistenceError(
+                [
+                    Problem(
+                        where,
+                        f"not a cellplan strategy file (format {meta.get('format')!r} "
+                        f"version {meta.get('version')!r})",
+                    )
+                ]
+            )
+        missing = [n for n in [*_ARRAY_FIELDS, "values"] if n not in arrays]
+        if missing:
+            raise PersistenceError([Problem(where, f"strategy file lacks arrays {missing}")])
+        if scenario is not None and meta.get("scenario_digest") != scenario.digest():
+            raise PersistenceError(
+                [
+                    Problem(
+                        where,
+                        f"this strategy was computed for a different scenario "
+                        f"({meta.get('scenario_name') or 'unnamed'}, digest "
+                        f"{str(meta.get('scenario_digest'))[:12]}); solve this scenario again",
+                    )
+                ]
+            )
+        modes = [Mode(*m) for m in meta["modes"]]
+        kw = {name: arrays[name] for name in _ARRAY_FIELDS}
+        mdp = LayeredMDP(
+            modes=modes,
+            labels=[tuple(lab) for lab in meta["labels"]],
+            heading_axis=int(meta["heading_axis"]),
+            stage_time=float(meta["stage_time"]),
+            arrival=float(meta["arrival"]),
+            **kw,
+        )
+        M, N = mdp.n_modes, mdp.n_cells
+        if arrays["values"].shape != (M, N) or mdp.live.shape != (M, N):
+            raise PersistenceError([Problem(where, "strategy arrays have inconsistent shapes")])
+        return Strategy(mdp, arrays["values"], meta)
+
+
+def best_action(vals: np.ndarray) -> int:
+    """Index convention of :meth:`Strategy.action` from an ``action_values`` vector."""
+    if np.all(np.isnan(vals)):
+        raise ValueError("no action is available here (the state is outside the strategy's domain)")
+    i = int(np.nanargmin(vals))
+    return FMP if i == 0 else STAY if i == 1 else i - 2
+
+
+def solve_scenario(
+    scenario: Any,
+    cell: Any,
+    *,
+    cells: list[int] | None = None,
+    method: str | None = None,
+    progress: Any = None,
+) -> tuple[Strategy, SolveResult]:
+    """Build the model of a scenario's ``strategy:`` section, solve it, wrap the result.
+
+    The solver settings come from ``strategy.solver`` (``method`` overrides its method).
+    """
+    from cellplan.strategies.model import build_model
+    from cellplan.strategies.solver import solve
+
+    sec = scenario.strategy
+    mdp = build_model(scenario, cell, cells)
+    result = solve(
+        mdp,
+        method or sec.solver.method,
+        sec.solver.tolerance,
+        sec.solver.max_sweeps,
+        sec.solver.damping,
+        progress,
+    )
+    strategy = Strategy.from_solution(mdp, result, scenario)
+    strategy.meta["regions"] = sec.regions
+    home = sec.home if sec.home is not None else None
+    if home is None:
+        home = cell.robot.start.tolist()
+    elif scenario.robot.type in ("rotating", "arm"):
+        home = [
+            v if i < (2 if scenario.robot.type == "rotating" else 0) else float(np.radians(v))
+            for i, v in enumerate(home)
+        ]
+    strategy.meta["home"] = [float(v) for v in home]
+    strategy.meta["start"] = [float(v) for v in cell.robot.start]
+    return strategy, result

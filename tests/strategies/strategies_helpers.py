@@ -1,0 +1,68 @@
+"""Small scenarios for the strategies tests (fast to solve)."""
+
+from __future__ import annotations
+
+from cellplan.scenario import loads_scenario
+from cellplan.workcell import Workcell
+
+TINY = """
+cellplan: 1
+name: tiny
+workcell:
+  bounds: {xmin: 0, ymin: 0, xmax: 30, ymax: 30}
+  obstacles:
+    middle: {type: box, min: [12, 12], max: [18, 16]}
+robot:
+  type: translating
+  shape: {type: box, min: [-1, -1], max: [1, 1]}
+  start: [15, 8]
+parts:
+  P1: {shape: {type: box, min: [-2, -0.5], max: [2, 0.5]}}
+sources:
+  S1: {components: [{type: box, min: [2, 2], max: [6, 5]}]}
+  S2: {components: [{type: box, min: [24, 2], max: [28, 5]}]}
+destinations:
+  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}
+strategy:
+  speed: 2.5
+  arrival: {probability: 0.1}
+  fine_motion: {time: 1.5}
+  cells: [CELLS, CELLS]
+  actions: {headings: 8}
+"""
+
+
+def tiny(cells: int = 16, extra: str = "") -> tuple:
+    """The tiny scenario (left-right symmetric) and its workcell."""
+    sc = loads_scenario(TINY.replace("CELLS", str(cells)) + extra)
+    return sc, Workcell.from_scenario(sc)
+
+
+EMPTY = """
+cellplan: 1
+name: empty
+workcell:
+  bounds: {xmin: 0, ymin: 0, xmax: 40, ymax: 40}
+robot:
+  type: translating
+  shape: {type: box, min: [-0.5, -0.5], max: [0.5, 0.5]}
+  start: [20, 20]
+parts:
+  P1: {shape: {type: box, min: [-0.5, -0.5], max: [0.5, 0.5]}}
+sources:
+  S1: {components: [{type: box, min: [1, 1], max: [3, 3]}]}
+destinations:
+  D1: {components: [{type: box, min: [35, 35], max: [37, 37]}]}
+strategy:
+  speed: 2.0
+  arrival: {probability: 0.05}
+  regions: contact
+  fine_motion: {time: 3.0}
+  cells: [40, 40]
+  actions: {headings: 32}
+"""
+
+
+def empty() -> tuple:
+    sc = loads_scenario(EMPTY)
+    return sc, Workcell.from_scenario(sc)

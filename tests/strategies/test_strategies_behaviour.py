@@ -1,0 +1,87 @@
+"""The behaviours Section V reports, on the bundled problems (coarser grids where noted)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from cellplan.strategies.strategy import FMP, STAY, solve_scenario
+from cellplan.workcell import load_workcell
+
+
+def follow(strategy, q, mode, limit=400):
+    """Run the policy without random transitions until it stays or performs FMP."""
+    path = [np.asarray(q, float)]
+    for _ in range(limit):
+        u = strategy.action(path[-1], mode)
+        if u in (FMP, STAY):
+            return np.array(path), u
+        path.append(strategy.next_configuration(path[-1], mode, u))
+    return np.array(path), None
+
+
+def crossing_x(path, y_line):
+    """x where the path crosses the horizontal line y = y_line."""
+    for a, b in itertools.pairwise(path):
+        if (a[1] - y_line) * (b[1] - y_line) <= 0 and a[1] != b[1]:
+            t = (y_line - a[1]) / (b[1] - a[1])
+            return a[0] + t * (b[0] - a[0])
+    return None
+
+
+@pytest.fixture(scope="module")
+def p1():
+    sc, cell = load_workcell("strategies_p1")
+    strategy, result = solve_scenario(sc, cell)
+    assert result.converged
+    return cell, strategy
+
+
+def test_p1_waits_near_the_sources_while_idle(p1):
+    cell, strategy = p1
+    path, u = follow(strategy, cell.robot.start, 0)
+    assert u == STAY
+    # The start is above the wall (y = 48..54); the idle spot is below it, near the sources.
+    assert path[0][1] > 54 and path[-1][1] < 48
+    d_start = min(np.linalg.norm(path[0] - c) for c in ([16, 8.5], [62, 8.5]))
+    d_idle = min(np.linalg.norm(path[-1] - c) for c in ([16, 8.5], [62, 8.5]))
+    assert d_idle < d_start
+
+
+def test_p1_passes_the_opening_empty_but_detours_carrying(p1):
+    _, strategy = p1
+    w = strategy.mode_index("P1,S1,D1,W")
+    path, u = follow(strategy, np.array([20.0, 75.0]), w)
+    assert u == FMP
+    x = crossing_x(path, 51.0)
+    assert x is not None and 36.0 < x < 45.0  # through the narrow opening
+    c = strategy.mode_index("P1,S1,D1,C")
+    path_c, u_c = follow(strategy, path[-1], c)
+    assert u_c == FMP
+    x_c = crossing_x(path_c, 51.0)
+    assert x_c is not None and x_c > 80.0  # the wide passage on the right
+
+
+def test_p2_delivers_to_the_nearer_component_of_d1():
+    sc, cell = load_workcell("strategies_p2")
+    strategy, _ = solve_scenario(sc, cell, cells=[48, 48])
+    c = strategy.mode_index("P6,S3,D1,C")
+    path, u = follow(strategy, np.array([63.0, 14.0]), c)
+    assert u == FMP
+    lower = cell.in_region(path[-1][None], "D1", "contact", 1, "P6")[0]
+    upper = cell.in_region(path[-1][None], "D1", "contact", 0, "P6")[0]
+    assert lower and not upper
+
+
+def test_p4_turns_toward_a_changed_destination_at_once():
+    sc, cell = load_workcell("strategies_p4")
+    strategy, result = solve_scenario(sc, cell, cells=[48, 48])
+    assert result.converged
+    q = np.array([50.0, 50.0])
+    to_d1 = strategy.mode_index("P1,S1,D1,C")
+    to_d3 = strategy.mode_index("P1,S1,D3,C")
+    step1 = strategy.move_vector(q, to_d1, strategy.action(q, to_d1))
+    step3 = strategy.move_vector(q, to_d3, strategy.action(q, to_d3))
+    assert step1[0] < 0 < step3[0]  # D1 is top left, D3 top right

@@ -1,0 +1,103 @@
+"""The Strategy object: online queries (equation (9)), persistence, collision-free actions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from strategies_helpers import tiny
+
+from cellplan.errors import PersistenceError
+from cellplan.strategies.strategy import FMP, STAY, Strategy, solve_scenario
+
+
+@pytest.fixture(scope="module")
+def solved():
+    sc, cell = tiny(cells=16)
+    strategy, result = solve_scenario(sc, cell)
+    return sc, cell, strategy, result
+
+
+def test_query_at_cell_centres_matches_solver_policy(solved):
+    _, _, strategy, result = solved
+    mdp = strategy.mdp
+    rng = np.random.default_rng(0)
+    live = np.argwhere(mdp.live)
+    agree = 0
+    picks = live[rng.choice(len(live), 200, replace=False)]
+    for m, c in picks:
+        q = mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
+        vals = strategy.action_values(q, int(m))
+        u = strategy.action(q, int(m))
+        # The chosen action attains the minimum of (9); the solver's action does too.
+        pol = int(result.policy[m, c])
+        j = {FMP: 0, STAY: 1}.get(pol, pol + 2)
+        assert np.nanmin(vals) == pytest.approx(vals[{FMP: 0, STAY: 1}.get(u, u + 2)])
+        assert vals[j] == pytest.approx(np.nanmin(vals), abs=1e-9)
+        agree += u == pol
+    assert agree >= 190  # the rest are exact ties
+
+
+def test_save_load_roundtrip(solved, tmp_path):
+    sc, _, strategy, _ = solved
+    path = strategy.save(tmp_path / "s.npz")
+    back = Strategy.load(path, sc)
+    assert back.gain == strategy.gain
+    assert back.meta["scenario_digest"] == sc.digest()
+    np.testing.assert_array_equal(back.values, strategy.values)
+    q = np.array([15.0, 8.0])
+    assert back.action(q, 0) == strategy.action(q, 0)
+    assert [m.label for m in back.modes] == [m.label for m in strategy.modes]
+
+
+def test_load_refuses_another_scenario(solved, tmp_path):
+    _, _, strategy, _ = solved
+    path = strategy.save(tmp_path / "s.npz")
+    other, _ = tiny(cells=16, extra="")
+    other = other.model_copy(update={"name": "changed"})
+    with pytest.raises(PersistenceError, match="different scenario"):
+        Strategy.load(path, other)
+
+
+def test_load_rejects_garbage(tmp_path):
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip file")
+    with pytest.raises(PersistenceError, match="not a strategy file"):
+        Strategy.load(bad)
+    with pytest.raises(PersistenceError, match="no such"):
+        Strategy.load(tmp_path / "missing.npz")
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    with pytest.raises(PersistenceError, match="no metadata"):
+        Strategy.load(tmp_path / "other.npz")
+
+
+def test_mode_names(solved):
+    _, _, strategy, _ = solved
+    assert strategy.mode_index("NR") == 0
+    m = strategy.mode_index("1,2,1,W")
+    assert strategy.modes[m].label == "<P1,S2,D1,W>"
+    assert strategy.mode_index("P1,S2,D1,C") == strategy.mdp.c_layer(1)
+    with pytest.raises(PersistenceError):
+        strategy.mode_index("1,9,1,W")
+
+
+@settings(max_examples=80)
+@given(x=st.floats(1.0, 29.0), y=st.floats(1.0, 29.0), mode=st.integers(0, 4))
+def test_policy_never_commands_a_colliding_motion(solved, x, y, mode):
+    _, cell, strategy, _ = solved
+    q = np.array([x, y])
+    c = strategy.cell_of(q)
+    if not strategy.mdp.live[mode, c]:
+        return
+    try:
+        u = strategy.action(q, mode)
+    except ValueError:
+        return
+    if u < 0:
+        return
+    m = strategy.modes[mode]
+    carrying = m.part if m.kind == "C" else None
+    avoid = "all" if m.kind == "NR" else cell.sources_except(m.source)
+    q1 = strategy.next_configuration(q, mode, u)
+    assert not cell.motion_collides(q[None], q1[None], 0.05, carrying, avoid)[0]
