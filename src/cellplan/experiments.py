@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import functools
 import hashlib
 import importlib
 import io
@@ -608,7 +609,8 @@ def _progress_bar(
 
 
 def cache_key(spec: RunSpec) -> str:
-    """SHA-256 (hex) of the run's inputs: experiment, parameters, seed and cellplan version."""
+    """SHA-256 (hex) of the run's inputs: experiment, parameters, seed, and the code and
+    bundled scenarios that compute it (:func:`code_digest`)."""
     from cellplan import __version__
 
     text = _canonical(
@@ -617,9 +619,26 @@ def cache_key(spec: RunSpec) -> str:
             "params": dict(spec.params),
             "seed": spec.seed,
             "cellplan": __version__,
+            "code": code_digest(),
         }
     )
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+@functools.cache
+def code_digest() -> str:
+    """Digest of cellplan's source files and bundled scenarios.
+
+    Part of every cache key, so that changing an algorithm or a scenario never
+    serves a result computed by the old one.
+    """
+    root = Path(__file__).resolve().parent
+    files = sorted(root.rglob("*.py")) + sorted((root / "bundled_scenarios").glob("*.yaml"))
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
 
 
 def _canonical(data: Any) -> str:
