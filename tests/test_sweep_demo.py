@@ -39,7 +39,7 @@ def fake_papers(monkeypatch):
 def test_demo_writes_the_quick_report(tmp_path, fake_papers):
     from rich.console import Console
 
-    index = run_demo(tmp_path / "out", console=Console(quiet=True), serial=True)
+    index = run_demo(tmp_path / "out", console=Console(quiet=True), serial=True, showcase=False)
     assert index == tmp_path / "out" / "index.html"
     text = index.read_text(encoding="utf-8")
     HTMLParser().feed(text)
@@ -149,3 +149,21 @@ def test_real_demo_runs_every_package(tmp_path):
     for paper in ex.PAPERS:
         assert f'id="paper-{paper}"' in text
     assert "report failed" not in text and "failed to import" not in text
+
+
+def test_showcase_runs_commands_and_reports_failures(tmp_path, monkeypatch):
+    import cellplan.demo as demo
+
+    monkeypatch.setattr(
+        demo,
+        "SHOWCASE",
+        (
+            (("show", "strategies_p1", "-o", "{dir}/cell.png"), ("cell.png",)),
+            (("show", "no_such_scenario", "-o", "{dir}/x.png"), ("x.png",)),
+        ),
+    )
+    section = demo.run_showcase(tmp_path / "showcase")
+    assert section.figures == [tmp_path / "showcase" / "cell.png"]
+    assert section.figures[0].stat().st_size > 0
+    assert section.notes[0] == "cellplan show strategies_p1 -o showcase/cell.png"
+    assert section.notes[1].startswith("cellplan show no_such_scenario -o showcase/x.png: failed:")
