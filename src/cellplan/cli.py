@@ -190,13 +190,20 @@ def main() -> None:
     except (typer.Abort, KeyboardInterrupt):
         console.print("aborted")
         sys.exit(130)
-    except Exception as exc:  # click usage errors arrive here in non-standalone mode
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            sys.exit(2)
+    except Exception as exc:
+        # Usage errors (unknown option, missing argument) arrive here in non-standalone
+        # mode; recent typer versions raise their own copy of click's exceptions.
+        if isinstance(exc, _usage_error_types()):
+            exc.show()  # type: ignore[attr-defined]
+            sys.exit(getattr(exc, "exit_code", 2))
         raise
+
+
+def _usage_error_types() -> tuple[type[BaseException], ...]:
+    import click
+
+    found = [getattr(typer, "TyperException", None), getattr(click, "ClickException", None)]
+    return tuple(t for t in found if isinstance(t, type))
 
 
 if __name__ == "__main__":
