@@ -3,15 +3,17 @@
 Run: ``.venv/bin/python benchmarks/bench_assembly.py`` (add ``--quick`` for a short run).
 
 1. Where each formulation fails. For n discs (random legal starts; a hexagonal goal
-   cluster up to 15 discs, random legal goals beyond), the same gradient-flow
+   cluster up to 15 discs, random legal goals beyond), the same RK4 gradient-flow
    integrator runs twice in the same process: with the log-space direction
    (:func:`navigation.evaluate`) and with ``-grad phi`` evaluated by equation (8) in
    plain floating point (:func:`navigation.grad_linear`; only the speed is borrowed,
    so the path is the linear arithmetic's own). It prints whether ``beta`` and
    ``gamma^k`` are representable at the start, each run's status and time, and their
-   ratio.
+   ratio; then the default integrator (the linearly implicit arc-length step) on the
+   log-space function.
 2. Evaluation cost: microseconds per call of the log-space and linear-space gradient.
-3. Fifteen discs: time per run over several seeds (the paper: about 5 minutes).
+3. Fifteen discs: time per run over several seeds and k (the paper: about 5 minutes),
+   the default implicit step against the RK4 integrator (baseline) in the same run.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ LOG_MAX = math.log(np.finfo(float).max)
 LOG_TINY = math.log(np.finfo(float).tiny)
 
 
-K_BY_N = {3: 32.0, 5: 64.0, 7: 64.0, 10: 128.0, 15: 128.0, 20: 256.0, 30: 512.0, 50: 2000.0}
+K_BY_N = {3: 32.0, 5: 64.0, 7: 64.0, 10: 128.0, 15: 256.0, 20: 256.0, 30: 512.0, 50: 2000.0}
 
 
 def k_for(n: int) -> float:
@@ -60,19 +62,22 @@ def compare(n: int, seed: int, max_steps: int) -> None:
     k = k_for(n)
     pairs, bnd = log_beta_parts(p.start, p.radii, p.workspace)
     ev = evaluate(p.start, p, k)
-    settings = FlowSettings(max_steps=max_steps)
+    rk4 = FlowSettings(max_steps=max_steps, method="rk4")
     t0 = time.perf_counter()
-    log_res = gradient_flow(p, k, settings=settings)
+    log_res = gradient_flow(p, k, settings=rk4)
     t_log = time.perf_counter() - t0
     t0 = time.perf_counter()
-    lin_res = gradient_flow(p, k, settings=settings,
-                            direction=lambda b: -grad_linear(b, p, k))
+    lin_res = gradient_flow(p, k, settings=rk4, direction=lambda b: -grad_linear(b, p, k))
     t_lin = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    imp_res = gradient_flow(p, k, settings=FlowSettings(max_steps=max_steps))
+    t_imp = time.perf_counter() - t0
     straight = float(np.linalg.norm(p.start - p.goal))
     print(f"{n:>3} {k:>5g} {representable(pairs + bnd):>9} {representable(k * ev.log_gamma):>9}"
           f" {log_res.status.value:>16} {log_res.length() / straight:6.3f} {t_log:7.2f}"
           f" {lin_res.status.value:>16} {lin_res.reason[:18]:>18} {t_lin:7.2f}"
-          f" {t_lin / t_log:6.2f}")
+          f" {t_lin / t_log:6.2f} | {imp_res.status.value:>8} {imp_res.length() / straight:6.3f}"
+          f" {t_imp:6.2f}")
 
 
 def eval_cost(n: int, reps: int) -> None:
@@ -89,19 +94,36 @@ def eval_cost(n: int, reps: int) -> None:
     print(f"{n:>3} {t_log:9.1f} {t_lin:9.1f} {t_log / t_lin:6.2f}")
 
 
-def fifteen(seeds: int) -> None:
-    times, ratios, ok = [], [], 0
-    for seed in range(seeds):
-        p = problem_for(15, seed)
-        t0 = time.perf_counter()
-        res = gradient_flow(p, k_for(15), settings=FlowSettings(max_steps=20000))
-        times.append(time.perf_counter() - t0)
-        ok += res.status.ok
-        ratios.append(res.length() / float(np.linalg.norm(p.start - p.goal)))
-    print(f"15 discs, k={k_for(15):g}, 20,000-step budget: {ok}/{seeds} solved, time per run mean "
-          f"{np.mean(times):.2f} s, median {np.median(times):.2f} s, max {np.max(times):.2f} s; "
-          f"ratio {np.mean(ratios):.3f}; paper ~300 s per run -> speed-up "
-          f"~{300 / np.mean(times):.0f}x (different machine)")
+def fifteen(seeds: int, ks: tuple[float, ...], baseline_k: float) -> None:
+    """Time per 15-disc run; the RK4 integrator (20,000-step budget) as the baseline."""
+
+    def sweep(k: float, settings: FlowSettings) -> tuple[np.ndarray, list[float], int]:
+        times, ratios, ok = [], [], 0
+        for seed in range(seeds):
+            p = problem_for(15, seed)
+            t0 = time.perf_counter()
+            res = gradient_flow(p, k, settings=settings)
+            times.append(time.perf_counter() - t0)
+            if res.status.ok:
+                ok += 1
+                ratios.append(res.length() / float(np.linalg.norm(p.start - p.goal)))
+        return np.array(times), ratios, ok
+
+    results = {}
+    for k in ks:
+        t, r, ok = sweep(k, FlowSettings(max_steps=20000))
+        results[k] = t
+        print(f"15 discs, k={k:g}, implicit: {ok}/{seeds} solved, s/run mean {t.mean():.3f}, "
+              f"median {np.median(t):.3f}, max {t.max():.3f}; ratio (solved) "
+              f"{np.mean(r) if r else float('nan'):.3f}")
+    t, r, ok = sweep(baseline_k, FlowSettings(max_steps=20000, method="rk4"))
+    print(f"15 discs, k={baseline_k:g}, RK4 baseline: {ok}/{seeds} solved, s/run mean "
+          f"{t.mean():.3f}, median {np.median(t):.3f}, max {t.max():.3f}; ratio (solved) "
+          f"{np.mean(r) if r else float('nan'):.3f}")
+    if baseline_k in results:
+        print(f"   mean time RK4 / implicit at k={baseline_k:g}: "
+              f"{t.mean() / results[baseline_k].mean():.1f}x; paper ~300 s per run "
+              f"(SPARCstation-1, not comparable)")
 
 
 def main() -> None:
@@ -111,15 +133,18 @@ def main() -> None:
     sizes = (3, 7, 15) if args.quick else (3, 5, 7, 10, 15, 20, 30, 50)
     max_steps = 4000 if args.quick else 60000
     print("1. log-space vs linear-space phi along the same integrator (seed 0)")
-    print("  n     k  beta(b0)  gamma^k        log-space  ratio  time_s       linear-space"
-          "             reason  time_s lin/log")
+    print("  n     k  beta(b0)  gamma^k   log-space RK4  ratio  time_s   linear-space RK4"
+          "             reason  time_s lin/log | implicit  ratio time_s")
     for n in sizes:
         compare(n, 0, max_steps)
     print("\n2. one gradient evaluation, microseconds (log / linear)")
     for n in sizes:
         eval_cost(n, 200)
     print("\n3. fifteen discs")
-    fifteen(3 if args.quick else 10)
+    if args.quick:
+        fifteen(3, (256.0,), 256.0)
+    else:
+        fifteen(20, (128.0, 256.0, 512.0, 1024.0), 256.0)
 
 
 if __name__ == "__main__":

@@ -106,3 +106,24 @@ def test_numba_kernel_matches_numpy_reference(seed: int, n: int, k: float, box: 
         assert np.isclose(getattr(a, name), getattr(b, name), rtol=1e-11, atol=1e-11)
     for name in ("v", "rep", "rep_bnd", "gaps", "bgap"):
         assert np.allclose(getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-12)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 5), k=st.sampled_from([2.0, 12.0, 64.0]),
+       box=st.booleans())
+def test_hessian_matches_finite_differences(seed: int, n: int, k: float, box: bool) -> None:
+    from cellplan.assembly.navigation import hessian_log_w
+
+    p = _problem(seed, n, box)
+    b = p.start
+
+    def grad_l(x: np.ndarray) -> np.ndarray:  # grad L = v / gamma
+        ev = evaluate(x.reshape(n, 2), p, k)
+        return ev.v.reshape(-1) / np.exp(ev.log_gamma)
+
+    h = 1e-6
+    x = b.reshape(-1)
+    fd = np.array([(grad_l(x + h * e) - grad_l(x - h * e)) / (2 * h) for e in np.eye(2 * n)])
+    hess = hessian_log_w(b, p, k)
+    assert np.allclose(hess, hess.T)
+    assert np.allclose(hess, fd, rtol=1e-4, atol=1e-6 * max(1.0, float(np.abs(fd).max())))

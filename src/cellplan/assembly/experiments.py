@@ -26,7 +26,8 @@ from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
 PAPER = "assembly"
 BETAS = (-2.0, -9.0, -16.0, -28.0, -44.0)
 K_BETA = (32.0, 48.0, 64.0, 96.0, 128.0)
-K_BY_N = {7: (16.0, 32.0, 64.0, 128.0, 256.0), 10: (32.0, 64.0, 128.0, 256.0, 512.0)}
+K_BY_N = {7: (16.0, 32.0, 48.0, 64.0, 96.0, 128.0, 192.0, 256.0),
+          10: (32.0, 64.0, 96.0, 128.0, 192.0, 256.0, 384.0, 512.0)}
 GAP = 0.1  # goal gap of the Figs. 3-4 cluster (unit discs)
 
 

@@ -8,11 +8,23 @@ trajectories of ``b' = -v`` for any positive rescaling ``v`` of ``grad phi``; we
 path-length figure is the paper's, and we recover the normalised system's own time
 ``T = int ds / ||lambda grad phi||`` in log space (``epsilon`` only enters there).
 
-Steps (classical Runge-Kutta 4) are bounded by the current clearance: with per-disc
-displacements ``delta_i``, the centre distance of discs i, j changes by at most
-``||delta_i|| + ||delta_j||`` along the straight step, so requiring that sum to stay below a
-fraction of their gap (and ``||delta_i||`` below the boundary gap) means no step can jump
-into or through a collision. A step that violates the bound is halved and retried.
+Two integrators, both with steps bounded by the current clearance:
+
+* ``method="implicit"`` (default): the normalised flow by arc length, each step a
+  linearly implicit (Rosenbrock-Euler) step on ``L = log alpha^(1/k)`` with the analytic
+  Hessian (:func:`implicit_step`), which resolves the stiff repulsion near contacts
+  without creeping; a step is accepted only if along the straight segment no gap falls
+  below half its value (:func:`segment_is_safe`, exact) and ``L`` decreases, otherwise
+  the trust radius halves.
+* ``method="rk4"``: classical Runge-Kutta 4 on ``b' = -v``; with per-disc displacements
+  ``delta_i`` the centre distance of discs i, j changes by at most ``||delta_i|| +
+  ||delta_j||`` along the straight step, so requiring that sum to stay below a fraction
+  of their gap (and ``||delta_i||`` below the boundary gap) means no step can jump into
+  or through a collision. A step that violates the bound is halved and retried.
+
+Outcomes: ``solved`` (goal tolerance reached), ``stuck`` (a critical point other than
+the goal, classified ``spurious minimum`` or ``saddle`` by the Hessian, or no progress,
+or a collapsed step), ``budget_exhausted`` (step budget spent).
 """
 
 from __future__ import annotations
@@ -20,11 +32,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from cellplan.assembly.navigation import NavEval, clearances, evaluate
+from cellplan.assembly.kernels import sym_eigh
+from cellplan.assembly.navigation import NavEval, clearances, evaluate, hessian_log_w, log_w
 from cellplan.assembly.problems import DiscProblem
 from cellplan.core import Status
 
@@ -64,7 +78,17 @@ class FlowSettings:
         ``eta``: integrate ``b' = -v / (eta + ||v||)`` instead of ``b' = -v``: the
         normalisation of Section 3.3 applied to ``v`` (same trajectories). Speed is
         about 1 wherever ``||v|| >> eta`` (also near saddles, where ``b' = -v`` crawls)
-        and about ``||v|| / eta`` near the goal. ``None``: no normalisation.
+        and about ``||v|| / eta`` near the goal. ``None``: no normalisation (RK4 only).
+    method
+        ``"implicit"`` (default): the normalised flow stepped by arc length with a
+        linearly implicit (Rosenbrock-Euler) step on ``L = log alpha^(1/k)``, see
+        :func:`implicit_step`; ``"rk4"``: classical Runge-Kutta 4 on ``b' = -v`` with the
+        speed and stiffness step bounds (``dt_max``, ``euler_fraction``, ``stiff_bound``).
+    step_max
+        Implicit method: largest step length in R^2n (the trust radius never exceeds it).
+    goal_fraction
+        Implicit method: a step is at most this fraction of ``||b - d||``, so the run
+        approaches the goal geometrically (the flow is radial there).
     """
 
     dt_max: float = 0.25
@@ -75,6 +99,9 @@ class FlowSettings:
     min_progress: float = 1e-7
     stiff_bound: bool = True
     normalize: float | None = None
+    method: Literal["implicit", "rk4"] = "implicit"
+    step_max: float = 0.05
+    goal_fraction: float = 0.5
 
 
 @dataclass
@@ -164,6 +191,10 @@ def integrate(
         e.g. ``-grad phi`` formed in linear space. A zero or non-finite direction ends
         the run as ``stuck``.
     """
+    if settings.method == "implicit":
+        if direction is not None or settings.normalize is not None:
+            raise ValueError("direction and normalize need method='rk4'")
+        return _integrate_implicit(problem, b0, k, epsilon, moving, stop, settings)
     radii, ws = problem.radii, problem.workspace
     mask = np.zeros((problem.n, 1))
     if moving is None:
@@ -183,7 +214,8 @@ def integrate(
             return -vm * lam, ev
         u = direction(b)
         with np.errstate(all="ignore"):
-            scale = norm * lam / float(np.sqrt(np.sum(u * u)))
+            # numpy division: a zero (underflowed) direction gives inf, caught as non-finite
+            scale = norm * lam / np.sqrt(np.sum(u * u))
             return u * scale * mask, ev
 
     def lam_of(ev: NavEval) -> float:
@@ -249,7 +281,152 @@ def integrate(
 def _log_w(ev: NavEval, k: float) -> float:
     # log(alpha^(1/k)) = log gamma - log(beta) / k: a monotone function of phi that,
     # unlike log phi (~0 far from the goal at large k), is well scaled everywhere.
-    return ev.log_gamma - ev.log_beta / k
+    return log_w(ev, k)
+
+
+# --- the normalised flow with a linearly implicit, clearance-bounded step ---------------------
+
+
+def segment_is_safe(b: Array, delta: Array, radii: Array, gaps: Array, bgap: Array,
+                    bgap_new: Array, fraction: float) -> bool:
+    """True when along the straight step ``b -> b + delta`` no gap shrinks below
+    ``fraction`` of its value at ``b`` (so no contact can occur inside the step).
+
+    Exact: per pair, the smallest centre distance along the segment (a quadratic in
+    the step parameter) minus the radii; for the boundary, the workspace is convex and
+    the distance to its boundary concave, so the end points (``bgap``, ``bgap_new``)
+    bound the whole segment.
+    """
+    if not np.all(bgap_new >= fraction * bgap):
+        return False
+    x0 = b[:, None, :] - b[None, :, :]
+    dx = delta[:, None, :] - delta[None, :, :]
+    dd = np.einsum("ijk,ijk->ij", dx, dx)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip(np.where(dd > 0, -np.einsum("ijk,ijk->ij", x0, dx) / dd, 0.0), 0.0, 1.0)
+    closest = x0 + t[:, :, None] * dx
+    dist = np.sqrt(np.einsum("ijk,ijk->ij", closest, closest))
+    gap_min = dist - (radii[:, None] + radii[None, :])
+    np.fill_diagonal(gap_min, np.inf)
+    return bool(np.all(gap_min >= fraction * gaps))
+
+
+def implicit_step(g: Array, hess: Array, length: float) -> Array:
+    """Linearly implicit (Rosenbrock-Euler) step of ``x' = -g`` of about the given length.
+
+    ``delta = -(I / h + H_+)^(-1) g`` with ``H_+`` the Hessian with its negative
+    eigenvalues set to 0 (where the flow diverges an explicit step is accurate; a shift
+    that keeps them would overshoot along them and cut corners) and ``h`` chosen so
+    that ``||delta|| ~= length`` (at most it). In the stiff directions (large positive
+    curvature: the repulsion near a contact) this is a Newton step to the valley floor
+    instead of an overshoot; along the valley it is a gradient step. The arc-length
+    parametrisation is the normalisation of Section 3.3.
+    """
+    lam, Q = sym_eigh(np.ascontiguousarray(hess))
+    lam = np.maximum(lam, 0.0)
+    gq = Q.T @ g
+    # ||delta(mu)|| with mu = 1/h is decreasing in mu: pick mu on a log grid, refine once
+    mus = np.logspace(-12, 12, 49)
+    mu = float(mus[-1])
+    for _ in range(2):
+        lens = np.sqrt(np.sum((gq[None, :] / (mus[:, None] + lam[None, :])) ** 2, axis=1))
+        ok = np.nonzero(lens <= length)[0]
+        if len(ok) == 0:
+            mu = float(mus[-1])
+            break
+        first = int(ok[0])
+        mu = float(mus[first])
+        if first == 0:
+            break
+        mus = np.geomspace(mus[first - 1], mus[first], 17)
+    return -(Q @ (gq / (mu + lam)))
+
+
+def _integrate_implicit(problem: DiscProblem, b0: Array, k: float, epsilon: float,
+                        moving: int | None, stop: Callable[[Array, NavEval], Status | None],
+                        settings: FlowSettings) -> FlowResult:
+    """The normalised gradient flow (Section 3.3) by arc length; see :func:`integrate`.
+
+    Each step has length at most ``min(r, goal_fraction ||b - d||)`` for a trust radius
+    ``r <= step_max``, is a :func:`implicit_step` on ``L = log alpha^(1/k)`` (grad L =
+    v / gamma), and is accepted only if no gap can shrink below half its value along it
+    (:func:`segment_is_safe`) and ``L`` (hence ``phi``) decreases; otherwise the radius
+    halves. Accepted steps let the radius double again.
+    """
+    radii = problem.radii
+    n = problem.n
+    sel = np.arange(2 * n) if moving is None else np.array([2 * moving, 2 * moving + 1])
+    b = np.array(b0, dtype=float)
+    ev = evaluate(b, problem, k)
+    evals = 1
+    path = [b.copy()]
+    log_ws = [log_w(ev, k)]
+    gaps, bgap = ev.gaps, ev.bgap
+    min_clear = float(min(np.min(gaps), np.min(bgap)))
+    log_time = -math.inf
+    log_eps = math.log(epsilon)
+    status = stop(b, ev)
+    steps = 0
+    reason = ""
+    radius = settings.step_max
+    while status is None:
+        if steps >= settings.max_steps:
+            status, reason = Status.BUDGET_EXHAUSTED, f"{settings.max_steps} steps"
+            break
+        gamma = math.exp(ev.log_gamma)
+        g = (ev.v.reshape(-1) / gamma)[sel]
+        if not np.all(np.isfinite(g)):
+            status, reason = Status.STUCK, "non-finite field"
+            break
+        hess = hessian_log_w(b, problem, k)[np.ix_(sel, sel)]
+        err = float(np.linalg.norm((b - problem.goal).reshape(-1)[sel]))
+        length = min(radius, settings.goal_fraction * max(err, 1e-300))
+        lw = log_ws[-1]
+        for _ in range(60):
+            flat = np.zeros(2 * n)
+            flat[sel] = implicit_step(g, hess, length)
+            delta = flat.reshape(n, 2)
+            b_new = b + delta
+            ev_new = evaluate(b_new, problem, k)
+            evals += 1
+            if (np.isfinite(ev_new.log_beta) and log_w(ev_new, k) <= lw
+                    and segment_is_safe(b, delta, radii, gaps, bgap, ev_new.bgap,
+                                        STEP_FRACTION)):
+                break
+            length *= 0.5
+            radius = length
+        else:
+            status, reason = Status.STUCK, "step size collapsed"
+            break
+        radius = min(settings.step_max, 2.0 * radius)
+        ds = float(np.sqrt(np.sum(delta * delta)))
+        log_g = _log_field_norm(ev, moving)
+        if ds > 0:
+            log_dt = math.log(ds) + float(np.logaddexp(0.0, log_eps - log_g))
+            log_time = float(np.logaddexp(log_time, log_dt))
+        b, ev = b_new, ev_new
+        steps += 1
+        gaps, bgap = ev.gaps, ev.bgap
+        min_clear = min(min_clear, float(min(np.min(gaps), np.min(bgap))))
+        path.append(b.copy())
+        log_ws.append(log_w(ev, k))
+        status = stop(b, ev)
+        if status is None and len(log_ws) > settings.window:
+            if log_ws[-settings.window - 1] - log_ws[-1] < settings.min_progress:
+                status, reason = Status.STUCK, "no progress"
+        if status is Status.STUCK and not reason:
+            reason = critical_point_kind(hessian_log_w(b, problem, k)[np.ix_(sel, sel)])
+    return FlowResult(status, np.array(path), steps, evals, min_clear, log_time, reason, log_ws)
+
+
+def critical_point_kind(hess: Array) -> str:
+    """``"spurious minimum"`` or ``"saddle"`` from the Hessian of ``L`` at a stall.
+
+    ``L`` is a monotone function of ``phi``, so at a critical point its Hessian has the
+    same inertia as that of ``phi`` (Sec. 3: phi is Morse; its only minimum should be d).
+    """
+    lam = sym_eigh(np.ascontiguousarray(hess))[0]
+    return "spurious minimum" if float(lam[0]) > 0.0 else "saddle"
 
 
 def _log_field_norm(ev: NavEval, moving: int | None) -> float:

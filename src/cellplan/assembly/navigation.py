@@ -262,3 +262,55 @@ def min_clearance(b: Array, radii: Array, ws: Workspace) -> float:
     """Smallest gap between two discs or a disc and the boundary."""
     gaps, bgap = clearances(b, radii, ws)
     return float(min(np.min(gaps), np.min(bgap)))
+
+
+def log_w(ev: NavEval, k: float) -> float:
+    """``L = log alpha^(1/k) = log gamma - log(beta) / k``: a monotone function of ``phi``.
+
+    ``grad L = v / gamma``, so the gradient flow of ``L`` has the trajectories of the
+    flow of ``phi`` (equations (6), (9)); unlike ``log phi`` (about 0 far from the goal at
+    large k) it is well scaled everywhere.
+    """
+    return ev.log_gamma - ev.log_beta / k
+
+
+def hessian_log_w(b: Array, problem: DiscProblem, k: float) -> Array:
+    """Hessian ``(2n, 2n)`` of ``L = log gamma - log(beta) / k`` (see :func:`log_w`).
+
+    Differentiates equations (3)-(5) (and the boundary term) twice, in log form:
+    ``D^2 log gamma = I / gamma - e e^T / gamma^2``; per pair, with ``x = b_i - b_j``,
+    ``D_x^2 log beta_ij = I / beta_ij - x x^T / beta_ij^2`` entered with signs ``+`` on
+    the ``ii``, ``jj`` and ``-`` on the ``ij``, ``ji`` blocks; for the circular boundary,
+    ``y = b_i - c``, ``D^2 log beta_0i = -I / w - y y^T / w^2``; for the box
+    ``-1 / t^2`` per wall on the diagonal. Vectorised, O(n^2). Used by the linearly
+    implicit step of :mod:`cellplan.assembly.flows`, where it resolves the stiff
+    repulsion near contacts.
+    """
+    n = problem.n
+    diff, B, _ = pair_terms(b, problem.radii)
+    e = (b - problem.goal).reshape(-1)
+    gamma = 0.5 * float(e @ e)
+    eye2 = np.eye(2)
+    inv_b = 1.0 / B
+    np.fill_diagonal(inv_b, 0.0)
+    # M[i, j] = D_x^2 log beta_ij, (n, n, 2, 2), zero on the diagonal
+    M = (inv_b[:, :, None, None] * eye2
+         - (inv_b * inv_b)[:, :, None, None] * diff[:, :, :, None] * diff[:, :, None, :])
+    blocks = -M
+    idx = np.arange(n)
+    blocks[idx, idx] = np.sum(M, axis=1)
+    ws = problem.workspace
+    if isinstance(ws, CircleWorkspace):
+        rel = b - ws.center
+        w = 0.5 * ((ws.radius - problem.radii) ** 2 - np.sum(rel * rel, axis=1))
+        blocks[idx, idx] += (-(1.0 / w)[:, None, None] * eye2
+                             - (1.0 / w**2)[:, None, None] * rel[:, :, None] * rel[:, None, :])
+    else:
+        lo, hi, r = ws.lo, ws.hi, problem.radii
+        for axis in (0, 1):
+            t_lo = b[:, axis] - lo[axis] - r
+            t_hi = hi[axis] - r - b[:, axis]
+            blocks[idx, idx, axis, axis] -= 1.0 / t_lo**2 + 1.0 / t_hi**2
+    hess_log_beta = blocks.transpose(0, 2, 1, 3).reshape(2 * n, 2 * n)
+    hess_gamma = np.eye(2 * n) / gamma - np.outer(e, e) / gamma**2
+    return hess_gamma - hess_log_beta / k

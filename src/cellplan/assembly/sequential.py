@@ -277,7 +277,9 @@ def sequential_assembly(
     # (equation (15)); we release the disc where it is then (a legal configuration).
     low_settings = FlowSettings(dt_max=base.dt_max, euler_fraction=base.euler_fraction,
                                 max_steps=low_steps, stall_ratio=0.0,
-                                window=base.window, min_progress=0.0, stiff_bound=False)
+                                window=base.window, min_progress=0.0, stiff_bound=False,
+                                method=base.method, step_max=base.step_max,
+                                goal_fraction=base.goal_fraction)
     x = np.array(problem.start, dtype=float)
     rows = [x.copy()]
     grasps: list[Grasp] = []
