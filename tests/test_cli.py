@@ -128,3 +128,10 @@ def test_bad_scenario_lists_every_problem(cellplan, tmp_path):
     r = cellplan("validate", str(bad))
     assert r.returncode == 2
     assert "robot.start: configuration (5, 3) collides with obstacle 'w'" in r.stderr
+
+
+def test_validate_summarises_a_disc_scenario(cellplan):
+    r = cellplan("validate", "discs_seven")
+    assert r.returncode == 0, r.stderr
+    assert "discs: 7 generated" in r.stdout
+    assert "C-space dimension" not in r.stdout  # no robot in a pure disc problem

@@ -22,6 +22,16 @@ def summarize(sc: Scenario, cell: Workcell | None) -> dict[str, str]:
         f"{len(sc.workcell.obstacles)} obstacles",
         "sections": ", ".join(sc.section_names()) or "none",
     }
+    if sc.discs is not None:
+        d = sc.discs
+        if d.discs is not None:
+            out["discs"] = f"{len(d.discs)} listed, boundary {d.boundary.type}, k = {d.k:g}"
+        elif d.generate is not None:
+            g = d.generate
+            out["discs"] = (
+                f"{g.n} generated (seed {g.seed}, {g.pattern} goals, {g.starts} starts), "
+                f"boundary {d.boundary.type}, k = {d.k:g}"
+            )
     if sc.robot is None or cell is None:
         return out
     regions = lambda rs: ", ".join(f"{n} ({len(r.components)})" for n, r in rs.items()) or "none"  # noqa: E731
