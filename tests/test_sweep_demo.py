@@ -120,13 +120,6 @@ def test_reproduce_one_paper_one_experiment(tmp_path, fake_papers):
     assert 'id="paper-assembly"' in html and 'id="paper-strategies"' not in html
 
 
-def _registered() -> bool:
-    from cellplan.cli import app
-
-    return any(c.name == "reproduce" for c in app.registered_commands)
-
-
-@pytest.mark.skipif(not _registered(), reason="cli.py does not register `cellplan reproduce` yet")
 def test_cellplan_reproduce_bad_runs_is_one_line_and_exit_2(tmp_path):
     cellplan = Path(sys.executable).parent / "cellplan"
     proc = subprocess.run(
