@@ -229,12 +229,8 @@ def integrate(
                                                                      settings.normalize)
     b = np.array(b0, dtype=float)
     w, ev = fld(b)
-    path = [b.copy()]
-    log_ws = [_log_w(ev, k)]
     gaps, bgap = clearances(b, radii, ws)
-    min_clear = float(min(np.min(gaps), np.min(bgap)))
-    log_time = -math.inf
-    log_eps = math.log(epsilon)
+    record = _Record.start(b, ev, k, epsilon, moving, settings)
     status = stop(b, ev)
     steps = 0
     reason = ""
@@ -250,38 +246,63 @@ def integrate(
         for _ in range(60):
             new = _rk4(fld, b, w, dt, gaps, bgap)
             if new is not None and (settings.stiff_bound
-                                    or _log_w(new[2], k) <= _log_w(ev, k) + 1e-13):
+                                    or log_w(new[2], k) <= log_w(ev, k) + 1e-13):
                 break
             dt *= 0.5
         else:
             status, reason = Status.STUCK, "step size collapsed"
             break
         b_new, w_new, ev_new = new
+        stalled = record.accept(b, ev, b_new, ev_new)
+        b, w, ev = b_new, w_new, ev_new
+        steps += 1
+        gaps, bgap = ev.gaps, ev.bgap
+        status = stop(b, ev)
+        if status is None and stalled:
+            status, reason = Status.STUCK, "no progress"
+    return record.result(status, steps, evals, reason)
+
+
+@dataclass
+class _Record:
+    """What both integrators keep of a run: the path, the progress of ``log w``, the
+    smallest clearance, and the time of the normalised system (Section 3.3)."""
+
+    k: float
+    log_eps: float
+    moving: int | None
+    window: int
+    min_progress: float
+    path: list[Array]
+    log_ws: list[float]
+    min_clear: float
+    log_time: float = -math.inf
+
+    @classmethod
+    def start(cls, b: Array, ev: NavEval, k: float, epsilon: float, moving: int | None,
+              settings: FlowSettings) -> _Record:
+        return cls(k, math.log(epsilon), moving, settings.window, settings.min_progress,
+                   [b.copy()], [log_w(ev, k)], float(min(np.min(ev.gaps), np.min(ev.bgap))))
+
+    def accept(self, b: Array, ev: NavEval, b_new: Array, ev_new: NavEval) -> bool:
+        """Record an accepted step ``b -> b_new``; True when progress has stalled."""
         delta = b_new - b
         ds = float(np.sqrt(np.sum(delta * delta)))
         # time of the normalised system: ds / (||grad phi|| / (eps + ||grad phi||)),
         # in logs: log ds + log(1 + eps / ||grad phi||); grad phi of the moving block.
-        log_g = _log_field_norm(ev, moving)
         if ds > 0:
-            log_dt = math.log(ds) + float(np.logaddexp(0.0, log_eps - log_g))
-            log_time = float(np.logaddexp(log_time, log_dt))
-        b, w, ev = b_new, w_new, ev_new
-        steps += 1
-        gaps, bgap = ev.gaps, ev.bgap
-        min_clear = min(min_clear, float(min(np.min(gaps), np.min(bgap))))
-        path.append(b.copy())
-        log_ws.append(_log_w(ev, k))
-        status = stop(b, ev)
-        if status is None and len(log_ws) > settings.window:
-            if log_ws[-settings.window - 1] - log_ws[-1] < settings.min_progress:
-                status, reason = Status.STUCK, "no progress"
-    return FlowResult(status, np.array(path), steps, evals, min_clear, log_time, reason, log_ws)
+            log_g = _log_field_norm(ev, self.moving)
+            log_dt = math.log(ds) + float(np.logaddexp(0.0, self.log_eps - log_g))
+            self.log_time = float(np.logaddexp(self.log_time, log_dt))
+        self.min_clear = min(self.min_clear, float(min(np.min(ev_new.gaps), np.min(ev_new.bgap))))
+        self.path.append(b_new.copy())
+        self.log_ws.append(log_w(ev_new, self.k))
+        lw = self.log_ws
+        return len(lw) > self.window and lw[-self.window - 1] - lw[-1] < self.min_progress
 
-
-def _log_w(ev: NavEval, k: float) -> float:
-    # log(alpha^(1/k)) = log gamma - log(beta) / k: a monotone function of phi that,
-    # unlike log phi (~0 far from the goal at large k), is well scaled everywhere.
-    return log_w(ev, k)
+    def result(self, status: Status, steps: int, evals: int, reason: str) -> FlowResult:
+        return FlowResult(status, np.array(self.path), steps, evals, self.min_clear,
+                          self.log_time, reason, self.log_ws)
 
 
 # --- the normalised flow with a linearly implicit, clearance-bounded step ---------------------
@@ -359,12 +380,8 @@ def _integrate_implicit(problem: DiscProblem, b0: Array, k: float, epsilon: floa
     b = np.array(b0, dtype=float)
     ev = evaluate(b, problem, k)
     evals = 1
-    path = [b.copy()]
-    log_ws = [log_w(ev, k)]
     gaps, bgap = ev.gaps, ev.bgap
-    min_clear = float(min(np.min(gaps), np.min(bgap)))
-    log_time = -math.inf
-    log_eps = math.log(epsilon)
+    record = _Record.start(b, ev, k, epsilon, moving, settings)
     status = stop(b, ev)
     steps = 0
     reason = ""
@@ -381,7 +398,7 @@ def _integrate_implicit(problem: DiscProblem, b0: Array, k: float, epsilon: floa
         hess = hessian_log_w(b, problem, k)[np.ix_(sel, sel)]
         err = float(np.linalg.norm((b - problem.goal).reshape(-1)[sel]))
         length = min(radius, settings.goal_fraction * max(err, 1e-300))
-        lw = log_ws[-1]
+        lw = record.log_ws[-1]
         for _ in range(60):
             flat = np.zeros(2 * n)
             flat[sel] = implicit_step(g, hess, length)
@@ -399,24 +416,16 @@ def _integrate_implicit(problem: DiscProblem, b0: Array, k: float, epsilon: floa
             status, reason = Status.STUCK, "step size collapsed"
             break
         radius = min(settings.step_max, 2.0 * radius)
-        ds = float(np.sqrt(np.sum(delta * delta)))
-        log_g = _log_field_norm(ev, moving)
-        if ds > 0:
-            log_dt = math.log(ds) + float(np.logaddexp(0.0, log_eps - log_g))
-            log_time = float(np.logaddexp(log_time, log_dt))
+        stalled = record.accept(b, ev, b_new, ev_new)
         b, ev = b_new, ev_new
         steps += 1
         gaps, bgap = ev.gaps, ev.bgap
-        min_clear = min(min_clear, float(min(np.min(gaps), np.min(bgap))))
-        path.append(b.copy())
-        log_ws.append(log_w(ev, k))
         status = stop(b, ev)
-        if status is None and len(log_ws) > settings.window:
-            if log_ws[-settings.window - 1] - log_ws[-1] < settings.min_progress:
-                status, reason = Status.STUCK, "no progress"
+        if status is None and stalled:
+            status, reason = Status.STUCK, "no progress"
         if status is Status.STUCK and not reason:
             reason = critical_point_kind(hessian_log_w(b, problem, k)[np.ix_(sel, sel)])
-    return FlowResult(status, np.array(path), steps, evals, min_clear, log_time, reason, log_ws)
+    return record.result(status, steps, evals, reason)
 
 
 def critical_point_kind(hess: Array) -> str:
