@@ -85,3 +85,51 @@ def test_p4_turns_toward_a_changed_destination_at_once():
     step1 = strategy.move_vector(q, to_d1, strategy.action(q, to_d1))
     step3 = strategy.move_vector(q, to_d3, strategy.action(q, to_d3))
     assert step1[0] < 0 < step3[0]  # D1 is top left, D3 top right
+
+
+def _box_distance(p, lo, hi):
+    return float(np.linalg.norm(np.maximum(np.maximum(np.asarray(lo) - p, p - np.asarray(hi)), 0)))
+
+
+def test_p6_picks_the_component_of_s1_that_suits_the_destination():
+    # Fig. 15: with a request from S1 (two components, left of the arm, one above and one
+    # below the left post) the arm picks from the upper or the lower component depending on
+    # the destination and on where it is, not simply from the nearer one. 48^3 is the
+    # coarsest grid on which the free space of P6 stays connected.
+    sc, cell = load_workcell("strategies_p6")
+    strategy, result = solve_scenario(sc, cell, cells=[48, 48, 48])
+    assert result.converged
+    mdp = strategy.mdp
+    comps = [g.bounds for g in cell.region("S1").geometries]  # (xmin, ymin, xmax, ymax)
+    boxes = [((b[0], b[1]), (b[2], b[3])) for b in comps]
+    upper = int(np.argmax([b[0][1] for b in boxes]))
+    lower = 1 - upper
+
+    def component(q):
+        tool = cell.robot.tool_pose(np.asarray(q)[None])[0, :2]
+        d = [_box_distance(tool, lo, hi) for lo, hi in boxes]
+        return int(np.argmin(d)), d
+
+    rng = np.random.default_rng(0)
+    starts = rng.choice(np.flatnonzero(mdp.live[0]), 60, replace=False)
+    picks: dict[str, dict[int, tuple[int, int]]] = {"D1": {}, "D2": {}}
+    for dest in picks:
+        mode = strategy.mode_index(f"P1,S1,{dest},W")
+        for c in starts:
+            q = mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
+            path, u = follow(strategy, q, mode)
+            if u != FMP:
+                continue
+            picks[dest][int(c)] = (component(path[-1])[0], component(q)[0])
+    both = set(picks["D1"]) & set(picks["D2"])
+    assert len(both) >= 30
+    # D1 is above the arm, D2 below it: the destination decides the component...
+    follows_dest = [c for c in both if picks["D1"][c][0] == upper and picks["D2"][c][0] == lower]
+    assert len(follows_dest) >= len(both) // 4
+    up_d1 = np.mean([picks["D1"][c][0] == upper for c in both])
+    up_d2 = np.mean([picks["D2"][c][0] == upper for c in both])
+    assert up_d1 > up_d2 + 0.3
+    # ...even against the start: the paper's example picks the upper component from a start
+    # nearer the lower one because the destination is nearer the upper one (and vice versa).
+    assert any(p == upper and near == lower for p, near in picks["D1"].values())
+    assert any(p == lower and near == upper for p, near in picks["D2"].values())

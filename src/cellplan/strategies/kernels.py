@@ -461,11 +461,18 @@ def sweep_policy(
             if ((vb >> a) & 1) == 0 or (pa != -9 and pa != a):
                 continue
             if inner:
-                for j in range(ncorner):
-                    idx[j] = c + coff[kcls, a, t, j]
-                    w[j] = cw[kcls, a, t, j]
+                # Corners are stored by decreasing weight: stop at the first zero weight.
+                nc = 0
+                for jj in range(ncorner):
+                    wj = cw[kcls, a, t, jj]
+                    if wj <= _EPS_W:
+                        break
+                    idx[jj] = c + coff[kcls, a, t, jj]
+                    w[jj] = wj
+                    nc += 1
             else:
                 table_stencil(kcls, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
+                nc = ncorner
             val = step_cost
             der = -1.0
             ok = True
@@ -476,7 +483,7 @@ def sweep_policy(
                 ssum = 0.0
                 vsum = 0.0
                 dsum = 0.0
-                for j in range(ncorner):
+                for j in range(nc):
                     wj = w[j]
                     if wj > _EPS_W:
                         i = idx[j]
@@ -502,11 +509,18 @@ def sweep_policy(
         if track and not inline_d and barg >= 0:
             # The derivative of the winning move only (cheaper than one per action).
             if inner:
-                for j in range(ncorner):
-                    idx[j] = c + coff[kcls, barg, t, j]
-                    w[j] = cw[kcls, barg, t, j]
+                # Corners are stored by decreasing weight: stop at the first zero weight.
+                nc = 0
+                for jj in range(ncorner):
+                    wj = cw[kcls, barg, t, jj]
+                    if wj <= _EPS_W:
+                        break
+                    idx[jj] = c + coff[kcls, barg, t, jj]
+                    w[jj] = wj
+                    nc += 1
             else:
                 table_stencil(kcls, barg, mi, offs, fr, heading_axis, shape, periodic, idx, w)
+                nc = ncorner
             bestd = -1.0
             for b in range(b0, b1):
                 L = branch_layer[b]
@@ -514,7 +528,7 @@ def sweep_policy(
                     continue
                 ssum = 0.0
                 dsum = 0.0
-                for j in range(ncorner):
+                for j in range(nc):
                     wj = w[j]
                     if wj > _EPS_W:
                         i = idx[j]
@@ -579,9 +593,35 @@ def sweep_layer(
     pol = np.empty((1, 1), np.int16)
     nchg = np.zeros(1, np.int64)
     return sweep_policy(
-        m, flips, h, D, g, exact_stay, track, pol, 0, nchg, 0.0, live, valid, offs, fr, coff, cw,
-        interior, nact, heading_axis, vcls, cost, fmp_next, tf, branch_ptr, branch_layer,
-        branch_prob, shape, periodic,
+        m,
+        flips,
+        h,
+        D,
+        g,
+        exact_stay,
+        track,
+        pol,
+        0,
+        nchg,
+        0.0,
+        live,
+        valid,
+        offs,
+        fr,
+        coff,
+        cw,
+        interior,
+        nact,
+        heading_axis,
+        vcls,
+        cost,
+        fmp_next,
+        tf,
+        branch_ptr,
+        branch_layer,
+        branch_prob,
+        shape,
+        periodic,
     )
 
 
@@ -657,18 +697,25 @@ def bellman_all(
                 if ((vb >> a) & 1) == 0:
                     continue
                 if inner:
-                    for j in range(ncorner):
-                        idx[j] = c + coff[kcls, a, t, j]
-                        w[j] = cw[kcls, a, t, j]
+                    # Corners are stored by decreasing weight: stop at the first zero weight.
+                    nc = 0
+                    for jj in range(ncorner):
+                        wj = cw[kcls, a, t, jj]
+                        if wj <= _EPS_W:
+                            break
+                        idx[jj] = c + coff[kcls, a, t, jj]
+                        w[jj] = wj
+                        nc += 1
                 else:
                     table_stencil(kcls, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
+                    nc = ncorner
                 val = cost[m]
                 ok = True
                 for b in range(b0, b1):
                     L = branch_layer[b]
                     ssum = 0.0
                     vsum = 0.0
-                    for j in range(ncorner):
+                    for j in range(nc):
                         wj = w[j]
                         if wj > _EPS_W and live[L, idx[j]]:
                             ssum += wj
@@ -963,6 +1010,7 @@ def solve_layers(
     accuracy,
     max_sweeps,
     pol,
+    warm,
     counts,
     live,
     valid,
@@ -990,14 +1038,39 @@ def solve_layers(
     sweep changes the minimiser in fewer than 1% of the cells; it stops when a *full*
     sweep changes the values by less than ``accuracy``, so the result is as accurate as
     with full sweeps only. ``counts[i]`` receives (full sweeps, evaluation sweeps) of
-    ``ms[i]``. The layers must not read each other (C layers read only NR, W layers only
-    C layers), so the threads never race.
+    ``ms[i]``. With ``warm`` (later passes) each layer starts with evaluation sweeps of the
+    policy recorded in the last pass. The layers must not read each other (C layers read
+    only NR, W layers only C layers), so the threads never race.
     """
     for i in prange(ms.shape[0]):
         full, ev = _mpi(
-            ms[i], h, D, g, False, accuracy, max_sweeps, pol, live, valid, offs, fr, coff, cw,
-            interior, nact, heading_axis, vcls, cost, fmp_next, tf, branch_ptr, branch_layer,
-            branch_prob, shape, periodic,
+            ms[i],
+            h,
+            D,
+            g,
+            False,
+            accuracy,
+            max_sweeps,
+            pol,
+            warm,
+            live,
+            valid,
+            offs,
+            fr,
+            coff,
+            cw,
+            interior,
+            nact,
+            heading_axis,
+            vcls,
+            cost,
+            fmp_next,
+            tf,
+            branch_ptr,
+            branch_layer,
+            branch_prob,
+            shape,
+            periodic,
         )
         counts[i, 0] = full
         counts[i, 1] = ev
@@ -1005,9 +1078,33 @@ def solve_layers(
 
 @njit(cache=True)
 def _mpi(
-    m, h, D, g, exact_stay, accuracy, max_sweeps, pol, live, valid, offs, fr, coff, cw,
-    interior, nact, heading_axis, vcls, cost, fmp_next, tf, branch_ptr, branch_layer,
-    branch_prob, shape, periodic,
+    m,
+    h,
+    D,
+    g,
+    exact_stay,
+    accuracy,
+    max_sweeps,
+    pol,
+    warm,
+    live,
+    valid,
+    offs,
+    fr,
+    coff,
+    cw,
+    interior,
+    nact,
+    heading_axis,
+    vcls,
+    cost,
+    fmp_next,
+    tf,
+    branch_ptr,
+    branch_layer,
+    branch_prob,
+    shape,
+    periodic,
 ):  # pragma: no cover - numba
     """Modified policy iteration on one layer (see :func:`solve_layers`)."""
     d = shape.shape[0]
@@ -1019,23 +1116,81 @@ def _mpi(
     full = 0
     ev = 0
     flip = 0
+    # Warm start: the recorded policy is last pass's and nearly right, so evaluate it first
+    # and let one full sweep confirm (saves a full sweep per layer and pass).
+    evaluate_first = warm
     while full + ev < max(1, max_sweeps):
-        nchg[0] = 0
-        change = sweep_policy(
-            m, flip % (1 << d), h, D, g, exact_stay, True, pol, 1, nchg, accuracy, live, valid, offs, fr,
-            coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf, branch_ptr,
-            branch_layer, branch_prob, shape, periodic,
-        )
-        full += 1
-        flip += 1
-        if change < accuracy:
-            break
+        if evaluate_first:
+            evaluate_first = False
+        else:
+            nchg[0] = 0
+            change = sweep_policy(
+                m,
+                flip % (1 << d),
+                h,
+                D,
+                g,
+                exact_stay,
+                True,
+                pol,
+                1,
+                nchg,
+                accuracy,
+                live,
+                valid,
+                offs,
+                fr,
+                coff,
+                cw,
+                interior,
+                nact,
+                heading_axis,
+                vcls,
+                cost,
+                fmp_next,
+                tf,
+                branch_ptr,
+                branch_layer,
+                branch_prob,
+                shape,
+                periodic,
+            )
+            full += 1
+            flip += 1
+            if change < accuracy:
+                break
         if nchg[0] * 100 <= nlive:
             for _ in range(EVAL_SWEEPS):
                 ch = sweep_policy(
-                    m, flip % (1 << d), h, D, g, exact_stay, True, pol, 2, nchg, 0.0, live, valid,
-                    offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
-                    branch_ptr, branch_layer, branch_prob, shape, periodic,
+                    m,
+                    flip % (1 << d),
+                    h,
+                    D,
+                    g,
+                    exact_stay,
+                    True,
+                    pol,
+                    2,
+                    nchg,
+                    0.0,
+                    live,
+                    valid,
+                    offs,
+                    fr,
+                    coff,
+                    cw,
+                    interior,
+                    nact,
+                    heading_axis,
+                    vcls,
+                    cost,
+                    fmp_next,
+                    tf,
+                    branch_ptr,
+                    branch_layer,
+                    branch_prob,
+                    shape,
+                    periodic,
                 )
                 ev += 1
                 flip += 1
@@ -1121,11 +1276,18 @@ def other_branches(
                 if ((vb >> a) & 1) == 0:
                     continue
                 if inner:
-                    for j in range(ncorner):
-                        idx[j] = c + coff[kcls, a, t, j]
-                        w[j] = cw[kcls, a, t, j]
+                    # Corners are stored by decreasing weight: stop at the first zero weight.
+                    nc = 0
+                    for jj in range(ncorner):
+                        wj = cw[kcls, a, t, jj]
+                        if wj <= _EPS_W:
+                            break
+                        idx[jj] = c + coff[kcls, a, t, jj]
+                        w[jj] = wj
+                        nc += 1
                 else:
                     table_stencil(kcls, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
+                    nc = ncorner
                 val = 0.0
                 der = 0.0
                 ok = True
@@ -1136,7 +1298,7 @@ def other_branches(
                     ssum = 0.0
                     vsum = 0.0
                     dsum = 0.0
-                    for j in range(ncorner):
+                    for j in range(nc):
                         wj = w[j]
                         if wj > _EPS_W:
                             i = idx[j]
@@ -1158,8 +1320,31 @@ def other_branches(
 
 @njit(cache=True)
 def sweep_self(
-    m, flips, h, D, g, E, ED, pself, pol, mode, nchg, tie, live, valid, offs, fr, coff, cw,
-    interior, nact, heading_axis, vcls, cost, shape, periodic,
+    m,
+    flips,
+    h,
+    D,
+    g,
+    E,
+    ED,
+    pself,
+    pol,
+    mode,
+    nchg,
+    tie,
+    live,
+    valid,
+    offs,
+    fr,
+    coff,
+    cw,
+    interior,
+    nact,
+    heading_axis,
+    vcls,
+    cost,
+    shape,
+    periodic,
 ):  # pragma: no cover - numba
     """One Gauss-Seidel sweep of a layer without FMP whose other branches are in ``E``.
 
@@ -1207,18 +1392,25 @@ def sweep_self(
             if ((vb >> a) & 1) == 0 or E[c, 1 + a] == np.inf or (pa != -9 and pa != a):
                 continue
             if inner:
-                for j in range(ncorner):
-                    idx[j] = c + coff[kcls, a, t, j]
-                    w[j] = cw[kcls, a, t, j]
+                # Corners are stored by decreasing weight: stop at the first zero weight.
+                nc = 0
+                for jj in range(ncorner):
+                    wj = cw[kcls, a, t, jj]
+                    if wj <= _EPS_W:
+                        break
+                    idx[jj] = c + coff[kcls, a, t, jj]
+                    w[jj] = wj
+                    nc += 1
             else:
                 table_stencil(kcls, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
+                nc = ncorner
             val = step_cost + E[c, 1 + a]
             der = -1.0 + ED[c, 1 + a]
             if pself > 0.0:
                 ssum = 0.0
                 vsum = 0.0
                 dsum = 0.0
-                for j in range(ncorner):
+                for j in range(nc):
                     wj = w[j]
                     if wj > _EPS_W:
                         i = idx[j]
@@ -1254,8 +1446,30 @@ def sweep_self(
 
 @njit(cache=True)
 def solve_self(
-    m, h, D, g, E, ED, pself, accuracy, max_sweeps, pol, counts, live, valid, offs, fr, coff,
-    cw, interior, nact, heading_axis, vcls, cost, shape, periodic,
+    m,
+    h,
+    D,
+    g,
+    E,
+    ED,
+    pself,
+    accuracy,
+    max_sweeps,
+    pol,
+    counts,
+    live,
+    valid,
+    offs,
+    fr,
+    coff,
+    cw,
+    interior,
+    nact,
+    heading_axis,
+    vcls,
+    cost,
+    shape,
+    periodic,
 ):  # pragma: no cover - numba
     """Modified policy iteration with :func:`sweep_self` (as in :func:`solve_layers`).
 
@@ -1274,8 +1488,31 @@ def solve_self(
     while full + ev < max(1, max_sweeps):
         nchg[0] = 0
         change = sweep_self(
-            m, flip % (1 << d), h, D, g, E, ED, pself, pol, 1, nchg, accuracy, live, valid, offs, fr,
-            coff, cw, interior, nact, heading_axis, vcls, cost, shape, periodic,
+            m,
+            flip % (1 << d),
+            h,
+            D,
+            g,
+            E,
+            ED,
+            pself,
+            pol,
+            1,
+            nchg,
+            accuracy,
+            live,
+            valid,
+            offs,
+            fr,
+            coff,
+            cw,
+            interior,
+            nact,
+            heading_axis,
+            vcls,
+            cost,
+            shape,
+            periodic,
         )
         full += 1
         flip += 1
@@ -1284,8 +1521,31 @@ def solve_self(
         if nchg[0] * 100 <= nlive:
             for _ in range(EVAL_SWEEPS):
                 ch = sweep_self(
-                    m, flip % (1 << d), h, D, g, E, ED, pself, pol, 2, nchg, 0.0, live, valid, offs,
-                    fr, coff, cw, interior, nact, heading_axis, vcls, cost, shape, periodic,
+                    m,
+                    flip % (1 << d),
+                    h,
+                    D,
+                    g,
+                    E,
+                    ED,
+                    pself,
+                    pol,
+                    2,
+                    nchg,
+                    0.0,
+                    live,
+                    valid,
+                    offs,
+                    fr,
+                    coff,
+                    cw,
+                    interior,
+                    nact,
+                    heading_axis,
+                    vcls,
+                    cost,
+                    shape,
+                    periodic,
                 )
                 ev += 1
                 flip += 1

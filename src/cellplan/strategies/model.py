@@ -362,6 +362,11 @@ def corner_tables(
             bit = (kk >> (dim - 1 - j)) & 1
             coff[..., kk] += (offs[..., j] + bit) * strides[j]
             cw[..., kk] *= fr[..., j] if bit else 1.0 - fr[..., j]
+    # Largest weights first: the kernels stop at the first zero weight (a move along one
+    # joint axis, for example, has 2 corners of 8 with weight).
+    order = np.argsort(-cw, axis=-1, kind="stable")
+    coff = np.ascontiguousarray(np.take_along_axis(coff, order, axis=-1))
+    cw = np.ascontiguousarray(np.take_along_axis(cw, order, axis=-1))
     ncell = int(np.prod(shape))
     idx = np.indices(tuple(int(n) for n in shape)).reshape(dim, ncell)
     interior = np.zeros((K, ncell), np.bool_)

@@ -16,15 +16,20 @@ the minimisers of the right-hand side. Two solvers share the kernels:
 * :func:`solve_structured` - exploits the structure: for a fixed ``g`` and NR layer, every
   carrying layer and then every waiting layer is a deterministic shortest path with
   terminal cost (FMP into the next mode), solved by alternating-direction Gauss-Seidel
-  sweeps (layers coupled by destination or source changes are swept together as a group,
-  started from their uncoupled solutions); NR is then solved with its stay self-loop
-  eliminated exactly (``h = H_W - g/P``), removing the slow ``(1 - P)`` mode; an outer loop
-  takes the NR layer round the request cycle and moves ``g`` by Newton steps on the drift
-  ``h_NR(ref)`` (the derivative, minus the expected cycle length, is tracked along the
-  minimising actions as ``D = dh/dg``, which also predicts how the NR shape and the other
-  layers move with ``g``). Layers with identical data are solved once. The answer is
-  certified by one Jacobi Bellman sweep over every state, which must pass the same span
-  test.
+  sweeps in a modified policy iteration (full sweeps over every action alternate with
+  cheap sweeps that evaluate only the recorded minimiser; a layer is done when a *full*
+  sweep changes it by less than the inner accuracy); the independent C layers, then the
+  W layers, run in parallel threads (layers coupled by destination or source changes are
+  swept together as a group, started from their uncoupled solutions). NR is then solved
+  with its stay self-loop eliminated exactly (``h = H_W - g/P``), removing the slow
+  ``(1 - P)`` mode; its request branches (into the fixed W layers) are summed once per
+  pass, so its sweeps interpolate NR alone. An outer loop takes the NR layer round the
+  request cycle and moves ``g`` by Newton steps on the drift ``h_NR(ref)`` (the
+  derivative, minus the expected cycle length, is tracked along the minimising actions
+  as ``D = dh/dg``, which also moves the other layers with ``g``); the NR shape is
+  Anderson-accelerated over the last passes. Layers with identical data are solved once.
+  The answer is certified by one Jacobi Bellman sweep over every state, which must pass
+  the same span test.
 """
 
 from __future__ import annotations
@@ -46,6 +51,10 @@ ACCURACY_FACTOR = 0.05
 FIRST_ACCURACY = 1e-3
 # Passes mixed by the Anderson acceleration of the NR shape.
 ANDERSON_DEPTH = 4
+# Start NR from +inf on every pass (an upper bound, so the stopping test is reliable).
+COLD_NR = True
+# Warm passes start each layer with evaluation sweeps of last pass's policy.
+EVAL_FIRST = True
 # Final inner accuracy relative to the span tolerance.
 INNER_FACTOR = 1e-2
 Progress = Callable[[int, float, float], None]  # (sweep, residual span, gain)
@@ -66,7 +75,7 @@ class SolveResult:
     span
         ``gain_upper - gain_lower`` of the final (certifying) sweep.
     sweeps
-        Layer sweeps (structured) or full sweeps (general) performed.
+        Layer sweeps over every action (structured) or full sweeps (general) performed.
     full_sweeps
         Full Jacobi Bellman sweeps over all states.
     status
@@ -75,6 +84,9 @@ class SolveResult:
         Whether one more Bellman sweep leaves every optimal action unchanged.
     policy
         ``(M, N)`` optimal action per state (-2 FMP, -1 stay, ``a >= 0`` move; -3 outside).
+    eval_sweeps
+        Structured solver: cheap layer sweeps that evaluate only the current policy's action
+        (modified policy iteration).
     """
 
     values: np.ndarray
@@ -91,6 +103,7 @@ class SolveResult:
     policy: np.ndarray
     method: str
     seconds: float
+    eval_sweeps: int = 0
 
     @property
     def converged(self) -> bool:
@@ -104,6 +117,7 @@ class SolveResult:
             "span": self.span,
             "sweeps": float(self.sweeps),
             "full_sweeps": float(self.full_sweeps),
+            "eval_sweeps": float(self.eval_sweeps),
             "outer_iterations": float(self.outer_iterations),
             "stable": float(self.stable),
             "policy_changes": float(self.policy_changes),
@@ -141,8 +155,10 @@ def _finish(
     method: str,
     t0: float,
     ref: int,
+    cert: tuple[float, float, np.ndarray, np.ndarray] | None = None,
 ) -> SolveResult:
-    lo, hi, th, policy = _certify(mdp, h)
+    # ``cert``: the certificate of this very ``h``, when the caller already computed it.
+    lo, hi, th, policy = _certify(mdp, h) if cert is None else cert
     full += 1
     span = hi - lo
     g = 0.5 * (lo + hi) if span < tol else g_hint
@@ -223,6 +239,9 @@ def solve_structured(
     With destination or source changes the C (or W) layers are coupled; they are then
     solved together by Gauss-Seidel rounds over the group, started from the uncoupled
     solution (each layer as if its request never changed).
+
+    ``extrapolate`` turns on the Anderson acceleration of the NR shape; without it,
+    ``predictor`` moves the NR shape with ``g`` to first order through ``D``.
     """
     t0 = time.perf_counter()
     coupled = mdp.has_changes()
@@ -244,7 +263,6 @@ def solve_structured(
     eval_sweeps = 0
     pol = np.full(live.shape, -3, np.int16)
     layer_args = args
-    shape_a = mdp.shape
     c_reps = np.array([m for m in order[:R] if groups[m] == m], np.int64)
     w_reps = np.array([m for m in order[R:] if groups[m] == m], np.int64)
     # The uncoupled model: every move keeps the request (used to start coupled groups).
@@ -296,16 +314,18 @@ def solve_structured(
         )
     )
 
-    def solve_nr(g: float, accuracy: float) -> None:
-        nonlocal sweeps
+    # solve_self takes the model arrays up to the loss, then the grid (see kernel_args).
+    nr_args: tuple[object, ...] = (*args[:11], mdp.shape, mdp.periodic)
+
+    def solve_nr(g: float, accuracy: float, cold: bool) -> None:
+        # Cold (+inf): Gauss-Seidel then decreases monotonically and the stopping test bounds
+        # the error; a warm start saves NR sweeps (P5) but costs P1 extra outer passes.
+        nonlocal sweeps, eval_sweeps
         kernels.other_branches(0, h, D, E, ED, *args)
-        nonlocal eval_sweeps
-        h[0][live[0]] = np.inf
+        if cold:
+            h[0][live[0]] = np.inf
         counts = np.zeros(2, np.int64)
-        kernels.solve_self(
-            0, h, D, g, E, ED, p_self, accuracy, max_sweeps, pol, counts, live, *args[1:11],
-            shape_a, mdp.periodic,
-        )
+        kernels.solve_self(0, h, D, g, E, ED, p_self, accuracy, max_sweeps, pol, counts, *nr_args)
         sweeps += int(counts[0])
         eval_sweeps += int(counts[1])
 
@@ -344,6 +364,7 @@ def solve_structured(
     hist_d: list[np.ndarray] = []
     hist_g: list[float] = []
     shift = 0.0
+    cert: tuple[float, float, np.ndarray, np.ndarray] | None = None
     for outer in range(1, max_outer + 1):
         warm: float | None = None
         if outer > 1:
@@ -363,7 +384,18 @@ def solve_structured(
                 for m in kind:
                     start_layer(m, warm)
                 counts = np.zeros((len(kind), 2), np.int64)
-                kernels.solve_layers(kind, h, D, g, accuracy, max_sweeps, pol, counts, *args)
+                kernels.solve_layers(
+                    kind,
+                    h,
+                    D,
+                    g,
+                    accuracy,
+                    max_sweeps,
+                    pol,
+                    EVAL_FIRST and warm is not None,
+                    counts,
+                    *args,
+                )
                 sweeps += int(counts[:, 0].sum())
                 eval_sweeps += int(counts[:, 1].sum())
             for m in order:
@@ -372,7 +404,7 @@ def solve_structured(
                     D[m] = D[groups[m]]
         old = h[0].copy()
         old_d = D[0].copy()
-        solve_nr(g, accuracy)
+        solve_nr(g, accuracy, COLD_NR or outer == 1)
         if ref < 0:
             ref = int(np.flatnonzero(live[0])[np.argmin(h[0][live[0]])])
         delta = (h[0] - old)[live[0]]
@@ -395,11 +427,12 @@ def solve_structured(
             trial = h.copy()
             for m in order:
                 trial[m][live[m]] -= shift
-            lo, hi, _, _ = _certify(mdp, trial)
-            if hi - lo < 0.5 * tol:
+            cert = _certify(mdp, trial)
+            if cert[1] - cert[0] < 0.5 * tol:
                 h[:] = trial
                 shift = 0.0
                 break
+            cert = None
         # Inner accuracy follows the outer progress: early passes need not be exact.
         accuracy = (
             min(FIRST_ACCURACY, max(inner_tol, ACCURACY_FACTOR * min(abs(drift), shape_span)))
@@ -440,7 +473,9 @@ def solve_structured(
             break
     for m in order:
         h[m][live[m]] -= shift
-    return _finish(mdp, h, g, tol, sweeps, 0, outer, "structured", t0, max(ref, 0))
+    result = _finish(mdp, h, g, tol, sweeps, 0, outer, "structured", t0, max(ref, 0), cert)
+    result.eval_sweeps = eval_sweeps
+    return result
 
 
 def solve(
