@@ -2,34 +2,16 @@
 
 from __future__ import annotations
 
+from cellplan.registry import scenario_path
 from cellplan.scenario import loads_scenario
 from cellplan.workcell import Workcell
 
-TINY = """
-cellplan: 1
-name: tiny
-workcell:
-  bounds: {xmin: 0, ymin: 0, xmax: 30, ymax: 30}
-  obstacles:
-    middle: {type: box, min: [12, 12], max: [18, 16]}
-robot:
-  type: translating
-  shape: {type: box, min: [-1, -1], max: [1, 1]}
-  start: [15, 8]
-parts:
-  P1: {shape: {type: box, min: [-2, -0.5], max: [2, 0.5]}}
-sources:
-  S1: {components: [{type: box, min: [2, 2], max: [6, 5]}]}
-  S2: {components: [{type: box, min: [24, 2], max: [28, 5]}]}
-destinations:
-  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}
-strategy:
-  speed: 2.5
-  arrival: {probability: 0.1}
-  fine_motion: {time: 1.5}
-  cells: [CELLS, CELLS]
-  actions: {headings: 8}
-"""
+# The bundled tiny workcell with its grid left open: ``TINY.replace("CELLS", "16")``.
+TINY = (
+    scenario_path("strategies_tiny")
+    .read_text()
+    .replace("cells: [12, 12]", "cells: [CELLS, CELLS]")
+)
 
 
 def tiny(cells: int = 16, extra: str = "") -> tuple:

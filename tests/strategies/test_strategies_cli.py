@@ -3,35 +3,9 @@
 from __future__ import annotations
 
 import json
-import sys
-from dataclasses import dataclass
 
 import pytest
 from strategies_helpers import TINY
-
-from cellplan.cli import main
-
-
-@dataclass
-class Result:
-    returncode: int
-    stdout: str
-    stderr: str
-
-
-@pytest.fixture
-def cellplan(capsys, monkeypatch):
-    def run(*args: str) -> Result:
-        monkeypatch.setattr(sys, "argv", ["cellplan", *args])
-        code = 0
-        try:
-            main()
-        except SystemExit as exc:
-            code = int(exc.code or 0)
-        out = capsys.readouterr()
-        return Result(code, out.out, out.err)
-
-    return run
 
 
 @pytest.fixture

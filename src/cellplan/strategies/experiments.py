@@ -26,22 +26,16 @@ PROBLEMS = {  # bundled scenario -> grid used here (coarser than the bundled one
     "strategies_p4": "48,48",
     "strategies_p5": "40,40,40",
 }
-QUICK = {"smoke": "12,12"}
+QUICK = {"strategies_tiny": "12,12"}
 POLICIES = ("optimal", "reactive", "home")
 
 
 @functools.lru_cache(maxsize=8)
 def _solved(problem: str, cells: str) -> tuple[Any, Any]:
-    from cellplan.scenario import loads_scenario
-    from cellplan.strategies.planners import _TINY
     from cellplan.strategies.strategy import solve_scenario
-    from cellplan.workcell import Workcell, load_workcell
+    from cellplan.workcell import load_workcell
 
-    if problem == "smoke":
-        sc = loads_scenario(_TINY.replace("METHOD", "auto"))
-        cell = Workcell.from_scenario(sc)
-    else:
-        sc, cell = load_workcell(problem)
+    sc, cell = load_workcell(problem)
     strategy, _ = solve_scenario(sc, cell, cells=[int(v) for v in cells.split(",")])
     return strategy, cell
 

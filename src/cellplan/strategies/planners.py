@@ -3,42 +3,16 @@
 from __future__ import annotations
 
 from cellplan.core import PlannerEntry, PlanResult, Status
-
-_TINY = """
-cellplan: 1
-name: strategies-smoke
-workcell:
-  bounds: {xmin: 0, ymin: 0, xmax: 30, ymax: 30}
-  obstacles:
-    middle: {type: box, min: [12, 12], max: [18, 16]}
-robot:
-  type: translating
-  shape: {type: box, min: [-1, -1], max: [1, 1]}
-  start: [15, 8]
-parts:
-  P1: {shape: {type: box, min: [-2, -0.5], max: [2, 0.5]}}
-sources:
-  S1: {components: [{type: box, min: [2, 2], max: [6, 5]}]}
-  S2: {components: [{type: box, min: [24, 2], max: [28, 5]}]}
-destinations:
-  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}
-strategy:
-  speed: 2.5
-  arrival: {probability: 0.1}
-  fine_motion: {time: 1.5}
-  cells: [12, 12]
-  actions: {headings: 8}
-  solver: {method: METHOD}
-"""
+from cellplan.scenario import Scenario
 
 
 def _smoke(method: str, seed: int) -> PlanResult:
-    from cellplan.scenario import loads_scenario
+    from cellplan.scenario import load_scenario
     from cellplan.strategies.simulate import simulate
     from cellplan.strategies.strategy import solve_scenario
     from cellplan.workcell import Workcell
 
-    sc = loads_scenario(_TINY.replace("METHOD", method))
+    sc = with_solver(load_scenario("strategies_tiny"), method)
     cell = Workcell.from_scenario(sc)
     strategy, result = solve_scenario(sc, cell)
     sim = simulate(strategy, 300, seed, start=cell.robot.start)
@@ -47,8 +21,16 @@ def _smoke(method: str, seed: int) -> PlanResult:
     return PlanResult(status, stats, strategy)
 
 
+def with_solver(sc: Scenario, method: str) -> Scenario:
+    """The scenario with its ``strategy.solver.method`` replaced."""
+    assert sc.strategy is not None
+    solver = sc.strategy.solver.model_copy(update={"method": method})
+    return sc.model_copy(update={"strategy": sc.strategy.model_copy(update={"solver": solver})})
+
+
 def smoke_structured(seed: int) -> PlanResult:
-    """Structured average-cost DP on a 12 x 12 two-source cell, then a 300-stage simulation."""
+    """Structured average-cost DP on the bundled ``strategies_tiny`` cell (12 x 12), then a
+    300-stage simulation."""
     return _smoke("structured", seed)
 
 
