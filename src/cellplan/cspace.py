@@ -134,15 +134,6 @@ class Grid:
         index = np.atleast_2d(np.asarray(index))
         return np.asarray(self.lower + (index + 0.5) * self.spacing)
 
-    def contains(self, q: FloatArray) -> BoolArray:
-        """Which configurations lie inside the grid's box (periodic axes always do)."""
-        q = as_batch(q, self.ndim)
-        ok = np.ones(len(q), bool)
-        for i, per in enumerate(self.periodic):
-            if not per:
-                ok &= (q[:, i] >= self.lower[i]) & (q[:, i] <= self.upper[i])
-        return ok
-
 
 Method = Literal["auto", "fft", "exact"]
 

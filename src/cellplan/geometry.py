@@ -42,12 +42,6 @@ DISC_POLYGON_SEGMENTS = 64
 # --- transforms ------------------------------------------------------------------------------
 
 
-def rotation(theta: float | FloatArray) -> FloatArray:
-    """Rotation matrices ``(..., 2, 2)`` for angles ``theta`` (radians)."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-
-
 def transform_points(points: FloatArray, poses: FloatArray) -> FloatArray:
     """Apply poses ``(..., 3)`` = ``(x, y, theta)`` to local points ``(K, 2)``.
 
@@ -197,17 +191,6 @@ class ShapeSet:
         if self.n_discs:
             r = max(r, float(np.max(np.linalg.norm(self.centres, axis=-1) + self.radii)))
         return r
-
-    def bounds(self) -> tuple[float, float, float, float]:
-        """Axis-aligned bounding box ``(xmin, ymin, xmax, ymax)``."""
-        pts = [self.verts[i, :n] for i, n in enumerate(self.counts)]
-        lo = [p.min(axis=0) for p in pts] + [self.centres - self.radii[:, None]]
-        hi = [p.max(axis=0) for p in pts] + [self.centres + self.radii[:, None]]
-        lo_all = np.concatenate([np.atleast_2d(a) for a in lo if np.size(a)])
-        hi_all = np.concatenate([np.atleast_2d(a) for a in hi if np.size(a)])
-        xmin, ymin = lo_all.min(axis=0)
-        xmax, ymax = hi_all.max(axis=0)
-        return float(xmin), float(ymin), float(xmax), float(ymax)
 
     def to_shapely(self, disc_segments: int = DISC_POLYGON_SEGMENTS) -> BaseGeometry:
         """The set as one shapely geometry (discs as inscribed polygons); for drawing and tests."""

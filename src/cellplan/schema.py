@@ -8,11 +8,10 @@ files and converted to radians by the code that consumes them.
 
 from __future__ import annotations
 
-import math
 from typing import Annotated, Literal
 
 import shapely
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from shapely.geometry.base import BaseGeometry
 
 Vec2 = tuple[float, float]
@@ -100,25 +99,7 @@ class Bounds(StrictModel):
         return shapely.box(self.xmin, self.ymin, self.xmax, self.ymax)
 
 
-def check_angle_deg(value: float) -> float:
-    """Angles in files are degrees in (-180, 180]."""
-    if not (-180.0 < value <= 180.0):
-        raise ValueError(f"angle {value} deg is outside (-180, 180]")
-    return value
-
-
-AngleDeg = Annotated[float, Field(allow_inf_nan=False)]
-
-
-def deg(values: float | list[float] | tuple[float, ...]) -> float | list[float]:
-    """Degrees to radians for a scalar or a list."""
-    if isinstance(values, list | tuple):
-        return [math.radians(v) for v in values]
-    return math.radians(values)
-
-
 __all__ = [
-    "AngleDeg",
     "Bounds",
     "BoxShape",
     "DiscShape",
@@ -131,7 +112,4 @@ __all__ = [
     "Shape",
     "StrictModel",
     "Vec2",
-    "check_angle_deg",
-    "deg",
-    "field_validator",
 ]

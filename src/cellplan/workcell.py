@@ -81,6 +81,8 @@ class Workcell:
     _obstacle_cache: dict[tuple[tuple[str, ...], bool], Obstacles] = field(
         default_factory=dict, compare=False, repr=False
     )
+    # Memo of the robot's bodies with each carried part (their flattened arrays are cached).
+    _carrying_cache: dict[str, RigidBodies] = field(default_factory=dict, compare=False, repr=False)
 
     # --- construction ------------------------------------------------------------------------
 
@@ -205,8 +207,9 @@ class Workcell:
         poses = self.robot.body_poses(q)
         bodies = self.robot.bodies
         if carrying is not None:
-            part = self.part(carrying)
-            bodies = RigidBodies((*bodies.bodies, part))
+            if carrying not in self._carrying_cache:
+                self._carrying_cache[carrying] = RigidBodies((*bodies.bodies, self.part(carrying)))
+            bodies = self._carrying_cache[carrying]
             poses = np.concatenate([poses, self.robot.tool_pose(q)[:, None, :]], axis=1)
         return bodies, poses
 
