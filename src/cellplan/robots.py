@@ -94,21 +94,18 @@ class Robot(ABC):
 
     @abstractmethod
     def body_displacement_bounds(self, delta: FloatArray) -> FloatArray:
-        """``(B,)`` bound on how far any point of each body moves when each coordinate
-        changes by at most ``delta[i]`` (along any path inside that box)."""
+        """``(..., B)`` bound on how far any point of each body moves when each coordinate
+        changes by at most ``delta[..., i]`` (along any path inside that box)."""
 
     @abstractmethod
-    def tool_displacement_bound(self, delta: FloatArray, reach: float) -> float:
-        """Bound on how far a point at distance ``reach`` from the tool frame moves."""
+    def tool_displacement_bound(self, delta: FloatArray, reach: float) -> FloatArray:
+        """``(...)`` bound on how far a point at distance ``reach`` from the tool frame moves."""
 
     def workspace_step(self, dq: FloatArray, tool_reach: float = 0.0) -> FloatArray:
         """``(N,)`` bound on the workspace motion of any robot point for C-space steps ``dq``."""
-        dq = np.abs(np.asarray(dq, float))
-        return np.array([self._step_bound(d, tool_reach) for d in np.atleast_2d(dq)])
-
-    def _step_bound(self, d: FloatArray, tool_reach: float) -> float:
-        b = float(np.max(self.body_displacement_bounds(d)))
-        return max(b, self.tool_displacement_bound(d, tool_reach))
+        dq = np.abs(np.atleast_2d(np.asarray(dq, float)))
+        bodies = np.max(self.body_displacement_bounds(dq), axis=-1)
+        return np.maximum(bodies, self.tool_displacement_bound(dq, tool_reach))
 
 
 # --- rigid robots ----------------------------------------------------------------------------
@@ -132,15 +129,14 @@ class RigidRobot(Robot):
         return self.pose_of(q)
 
     def body_displacement_bounds(self, delta: FloatArray) -> FloatArray:
-        return np.array([self._rigid_bound(delta, self.reach)])
+        return self.tool_displacement_bound(delta, self.reach)[..., None]
 
-    def tool_displacement_bound(self, delta: FloatArray, reach: float) -> float:
-        return self._rigid_bound(delta, reach)
-
-    def _rigid_bound(self, delta: FloatArray, reach: float) -> float:
+    def tool_displacement_bound(self, delta: FloatArray, reach: float) -> FloatArray:
+        # translation moves every point alike; a turn by d_theta moves a point at
+        # distance r from the frame origin along an arc of length r * d_theta
         d = np.abs(np.asarray(delta, float))
-        rot = d[2] * reach if self.dim == 3 else 0.0
-        return float(math.hypot(d[0], d[1]) + rot)
+        rot = d[..., 2] * reach if self.dim == 3 else 0.0
+        return np.asarray(np.hypot(d[..., 0], d[..., 1]) + rot)
 
 
 def point_robot(
@@ -233,22 +229,27 @@ class PlanarArm(Robot):
         return np.concatenate([tip, np.asarray(theta)[:, None]], axis=1)
 
     def body_displacement_bounds(self, delta: FloatArray) -> FloatArray:
-        # A point of link j moves by at most |p - joint_i| * delta_i when joint i
-        # turns, and |p - joint_i| <= L_i + ... + L_{j-1} + reach of link j.
-        d = np.abs(np.asarray(delta, float))
-        reach = np.hypot(self.lengths, self.widths / 2)
-        out = np.empty(self.n_links)
-        for j in range(self.n_links):
-            lever = np.array([self.lengths[i:j].sum() + reach[j] for i in range(j + 1)])
-            out[j] = float(np.dot(lever, d[: j + 1]))
-        return out
+        return np.abs(np.asarray(delta, float)) @ self._link_levers().T
 
-    def tool_displacement_bound(self, delta: FloatArray, reach: float) -> float:
-        d = np.abs(np.asarray(delta, float))
-        lever = np.array([self.lengths[i:].sum() for i in range(self.n_links)])
+    def _link_levers(self) -> FloatArray:
+        """``(n, n)``: entry ``(j, i)`` bounds the distance from joint i to any point of link j.
+
+        A point p of link j moves by at most ``|p - joint_i| * delta_i`` when joint i
+        turns, and ``|p - joint_i| <= L_i + ... + L_{j-1} + reach of link j``; joints
+        beyond j do not move link j.
+        """
+        reach = np.hypot(self.lengths, self.widths / 2)
+        along = np.cumsum(self.lengths) - self.lengths  # chain length from the base to joint i
+        lever = along[:, None] - along[None, :] + reach[:, None]
+        return np.where(np.tril(np.ones((self.n_links, self.n_links), bool)), lever, 0.0)
+
+    def tool_displacement_bound(self, delta: FloatArray, reach: float) -> FloatArray:
+        # the tip is L_i + ... + L_n from joint i; a tool frame that turns with the
+        # last link adds its own reach to every lever
+        lever = np.cumsum(self.lengths[::-1])[::-1]
         if self.tool_orientation is None:
             lever = lever + reach
-        return float(np.dot(lever, d))
+        return np.asarray(np.abs(np.asarray(delta, float)) @ lever)
 
     def elbow_branch(self, q: FloatArray) -> FloatArray:
         """``+1`` where joint 2 bends counter-clockwise (q_2 >= 0), ``-1`` otherwise."""
