@@ -25,6 +25,7 @@ PROBLEMS = {  # bundled scenario -> grid used here (coarser than the bundled one
     "strategies_p3": "48,48,30",
     "strategies_p4": "48,48",
     "strategies_p5": "40,40,40",
+    "strategies_p6": "48,48,48",  # the coarsest grid on which P6's free space stays connected
 }
 QUICK = {"strategies_tiny": "12,12"}
 POLICIES = ("optimal", "reactive", "home")
