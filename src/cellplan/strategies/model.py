@@ -383,11 +383,18 @@ def corner_tables(
 
 def compute_live(mdp: LayeredMDP) -> None:
     """Restrict ``mdp.live`` to the states that can finish their request (in place)."""
-    fmp_ok = mdp.tf < np.inf
     for _ in range(100):
-        changed = kernels.live_pass(
-            mdp.live,
-            fmp_ok,
+        if not _live_pass(mdp, mdp.live):
+            return
+    raise RuntimeError("live-state computation did not settle")  # pragma: no cover
+
+
+def _live_pass(mdp: LayeredMDP, live: np.ndarray) -> bool:
+    """One shrinking pass of ``live`` (:func:`kernels.live_pass`); True if anything changed."""
+    return bool(
+        kernels.live_pass(
+            live,
+            mdp.tf < np.inf,
             mdp.valid,
             mdp.offs,
             mdp.fr,
@@ -404,9 +411,7 @@ def compute_live(mdp: LayeredMDP) -> None:
             mdp.shape,
             mdp.periodic,
         )
-        if not changed:
-            return
-    raise RuntimeError("live-state computation did not settle")  # pragma: no cover
+    )
 
 
 def live_problems(mdp: LayeredMDP) -> list[Problem]:
@@ -462,25 +467,7 @@ def _split_problems(mdp: LayeredMDP) -> list[Problem]:
     after a delivery at d could never be served, which empties NR (not unichain).
     """
     live = np.stack([mdp.free[mdp.vcls[m]] for m in range(mdp.n_modes)])
-    kernels.live_pass(
-        live,
-        mdp.tf < np.inf,
-        mdp.valid,
-        mdp.offs,
-        mdp.fr,
-        mdp.coff,
-        mdp.cw,
-        mdp.interior,
-        mdp.nact,
-        mdp.heading_axis,
-        mdp.vcls,
-        mdp.fmp_next,
-        mdp.branch_ptr,
-        mdp.branch_layer,
-        mdp.branch_prob,
-        mdp.shape,
-        mdp.periodic,
-    )
+    _live_pass(mdp, live)
     seen = set()
     out = []
     R = mdp.n_requests
