@@ -186,3 +186,67 @@ def test_spurious_minimum_is_reported_as_stuck_not_solved() -> None:
     ev = evaluate(res.end, p, 256.0)
     assert np.linalg.norm(ev.v) < 1e-4 * np.linalg.norm(res.end - p.goal)
     assert np.linalg.eigvalsh(hessian_log_w(res.end, p, 256.0))[0] > 0
+
+
+def test_lowering_k_leaves_a_spurious_minimum_and_says_so() -> None:
+    # Section 3.2: k is adjusted to eliminate local minima. The same seed as above ends
+    # in a spurious minimum at k = 256; continued at k/2, k/4 it reaches the goal.
+    from cellplan.assembly.planners import run_gradient
+    from cellplan.assembly.problems import default_workspace
+
+    p = generate_problem(GeneratorSpec(n=10, seed=10, gap=0.1), default_workspace(10))
+    plain = gradient_flow(p, 256.0)
+    res = gradient_flow(p, 256.0, escapes=4)
+    assert res.stages[0].status is Status.STUCK and res.stages[0].reason == "spurious minimum"
+    assert res.stages[0].steps == plain.steps
+    assert res.status is Status.SOLVED and res.escapes >= 1
+    assert [s.k for s in res.stages] == [256.0 * 0.5**i for i in range(len(res.stages))]
+    assert all(s.status is Status.STUCK for s in res.stages[:-1])
+    # the first stage is the plain run; the path continues from its end point
+    np.testing.assert_array_equal(res.path[: len(plain.path)], plain.path)
+    assert np.linalg.norm(res.end - p.goal) < 1e-3
+    assert res.min_clearance > 0 and _swept_ok(res.path, p, samples=5)
+    assert res.steps == sum(s.steps for s in res.stages)
+    stats = run_gradient(p, 256.0).stats
+    assert stats["solved_at_k"] == 0.0 and stats["escapes"] == res.escapes
+    assert stats["k_final"] == res.stages[-1].k
+    with pytest.raises(ValueError, match="escape_factor"):
+        gradient_flow(p, 256.0, escape_factor=1.0)
+
+
+def test_no_escape_when_the_flow_at_k_solves() -> None:
+    p = _problem(0)
+    res = gradient_flow(p, 32.0, escapes=4)
+    assert res.status is Status.SOLVED and res.escapes == 0
+    assert len(res.stages) == 1 and res.stages[0].k == 32.0
+
+
+def test_switches_within_counts_grasps_until_the_goal_is_near() -> None:
+    p = _problem(1, 5)
+    res = sequential_assembly(p, 32.0, "paper", tol=1e-2)
+    assert res.status is Status.SOLVED
+    # the paper rule stops as soon as ||x - d|| < tol: no earlier grasp got that close
+    assert res.switches_within(p.goal, 1e-2) == res.switches
+    assert res.switches_within(p.goal, 1e9) == 1
+    counts = [res.switches_within(p.goal, t) for t in (1e-2, 1e-1, 1.0, 3.0)]
+    assert counts == sorted(counts, reverse=True) and counts[1] < counts[0]
+
+
+def test_place_route_goes_round_a_blocking_disc_almost_as_short_as_possible() -> None:
+    from cellplan.assembly.sequential import placement_route
+
+    # disc 0 from (-5, 0) to (5, 0), disc 1 standing at the origin: the shortest path
+    # of the centre keeps distance 2 from the origin, tangent - arc - tangent
+    p = DiscProblem(np.ones(2), np.array([[-5.0, 0.0], [0.0, 0.0]]),
+                    np.array([[5.0, 0.0], [0.0, 10.0]]), CircleWorkspace(np.zeros(2), 20.0))
+    route = placement_route(p, p.start, 0)
+    assert route is not None and np.array_equal(route[-1], p.goal[0])
+    pts = np.array([p.start[0], *route])
+    x = p.start.copy()
+    for b in pts[1:]:
+        assert segment_clearance(p, x, 0, b) > 0
+        x[0] = b
+    length = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    theta = np.arccos(2.0 / 5.0)
+    shortest = 2.0 * np.sqrt(25.0 - 4.0) + 2.0 * (np.pi - 2.0 * theta)
+    assert shortest - 1e-9 < length < 1.01 * shortest

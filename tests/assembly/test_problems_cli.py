@@ -98,6 +98,7 @@ def test_illegal_goal_pattern_is_reported(tmp_path: Path) -> None:
     (["--random", "5", "--algorithm", "magic"], "--algorithm"),
     (["--random", "5", "--rule", "magic"], "--rule"),
     (["--random", "0"], "--random"),
+    (["--random", "5", "--escapes", "-1"], "--escapes"),
 ])
 def test_cli_bad_arguments_exit_2_naming_the_parameter(args: list[str], name: str,
                                                        tmp_path: Path) -> None:

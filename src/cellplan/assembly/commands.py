@@ -18,7 +18,8 @@ ALGORITHMS = ("gradient", "sequential", "control")
 
 
 def check_arguments(scenario: str | None, random_n: int | None, algorithm: str, k: float | None,
-                    epsilon: float | None, rule: str, radius: float, frames: int) -> None:
+                    epsilon: float | None, rule: str, radius: float, frames: int,
+                    escapes: int = 0) -> None:
     """Every mistake in the arguments, one :class:`Problem` each (raised together)."""
     from cellplan.assembly.sequential import RULES
 
@@ -40,6 +41,8 @@ def check_arguments(scenario: str | None, random_n: int | None, algorithm: str, 
         problems.append(Problem("--radius", f"must be > 0, got {radius:g}"))
     if frames < 2:
         problems.append(Problem("--frames", f"must be at least 2, got {frames}"))
+    if not 0 <= escapes <= 20:
+        problems.append(Problem("--escapes", f"must be between 0 and 20, got {escapes}"))
     if problems:
         raise ArgumentError(problems)
 
@@ -60,14 +63,19 @@ def register(app: typer.Typer) -> None:
         log10_beta: Annotated[float | None, typer.Option(help="--random: goal difficulty")] = None,
         radius: Annotated[float, typer.Option(help="--random: disc radius")] = 1.0,
         frames: Annotated[int, typer.Option(help="GIF frames")] = 40,
+        escapes: Annotated[int, typer.Option(
+            help="gradient: times k may be halved after a spurious minimum (0: k alone)")] = 6,
         output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
             "assembly-out"),
     ) -> None:
         """Plan a disc assembly (Whitcomb & Koditschek 1991): frames, GIF and metrics JSON."""
         from cellplan.assembly.run import run_assembly
 
-        check_arguments(scenario, random_n, algorithm, k, epsilon, rule, radius, frames)
+        check_arguments(scenario, random_n, algorithm, k, epsilon, rule, radius, frames, escapes)
         metrics = run_assembly(scenario, random_n, algorithm, k, epsilon, rule, seed,
-                               permutation, log10_beta, radius, frames, output)
-        typer.echo(f"{metrics['status']}: ratio {metrics['ratio']:.3f}, min clearance "
+                               permutation, log10_beta, radius, frames, output, escapes)
+        lowered = int(metrics.get("escapes", 0))
+        note = (f" (stuck at k={metrics['k']:g}; k lowered {lowered}x to "
+                f"{metrics['k_final']:g})" if lowered else "")
+        typer.echo(f"{metrics['status']}{note}: ratio {metrics['ratio']:.3f}, min clearance "
                    f"{metrics['min_clearance']:.3g}; wrote {output}")

@@ -25,6 +25,17 @@ Two integrators, both with steps bounded by the current clearance:
 Outcomes: ``solved`` (goal tolerance reached), ``stuck`` (a critical point other than
 the goal, classified ``spurious minimum`` or ``saddle`` by the Hessian, or no progress,
 or a collapsed step), ``budget_exhausted`` (step budget spent).
+
+Escaping spurious minima by lowering k (:func:`gradient_flow`, ``escapes > 0``). Section
+3.2: the design parameter k "will be adjusted ... to eliminate local minima". A run that
+ends ``stuck`` at k continues from where it stopped along ``-grad phi`` of the same
+construction with ``k * escape_factor`` (default 1/2), as often as ``escapes`` allows.
+The stuck points we see are true minima of phi at that k (positive definite Hessian:
+two discs of a packed cluster on each other's goals; perturbed points flow back), so
+no perturbation can leave them, while phi at a smaller k (stronger repulsion relative
+to the attraction) is in general not critical there. Every stage is the
+paper's gradient algorithm with one k; :attr:`FlowResult.stages` records each stage's
+k and outcome, so a caller reports whether the first k alone solved the problem.
 """
 
 from __future__ import annotations
@@ -104,9 +115,23 @@ class FlowSettings:
     goal_fraction: float = 0.5
 
 
+@dataclass(frozen=True)
+class Stage:
+    """One stage of a gradient run: the k it used, how it ended, its steps."""
+
+    k: float
+    status: Status
+    reason: str
+    steps: int
+
+
 @dataclass
 class FlowResult:
-    """A path of a flow and how it ended."""
+    """A path of a flow and how it ended.
+
+    ``stages`` lists the k-stages of :func:`gradient_flow` (one stage unless a stuck
+    run was continued at a smaller k); empty for the low-level flows.
+    """
 
     status: Status
     path: Array  # (m, n, 2) accepted configurations, the start first
@@ -116,6 +141,12 @@ class FlowResult:
     log_time: float  # log of the normalised system's time (Section 3.3)
     reason: str = ""
     log_w: list[float] = field(default_factory=list)
+    stages: list[Stage] = field(default_factory=list)
+
+    @property
+    def escapes(self) -> int:
+        """Number of times k was lowered after a stuck stage."""
+        return max(len(self.stages) - 1, 0)
 
     @property
     def end(self) -> Array:
@@ -471,12 +502,53 @@ def _rk4(fld: Field, b: Array, w1: Array, dt: float, gaps: Array, bgap: Array
 
 def gradient_flow(problem: DiscProblem, k: float, epsilon: float = 1e-3, tol: float = 1e-3,
                   settings: FlowSettings = FlowSettings(),
-                  direction: Callable[[Array], Array] | None = None) -> FlowResult:
+                  direction: Callable[[Array], Array] | None = None,
+                  escapes: int = 0, escape_factor: float = 0.5) -> FlowResult:
     """All discs move together along ``-grad phi`` (equation (9)) until ``||b - d|| < tol``.
 
     Ends ``solved`` at the goal, ``stuck`` at another critical point or without
-    progress, ``budget_exhausted`` after ``settings.max_steps`` steps.
+    progress, ``budget_exhausted`` after ``settings.max_steps`` steps (each stage).
+
+    Parameters
+    ----------
+    problem, k, epsilon, tol
+        The problem, the exponent k (equation (2)), the normalisation (Section 3.3)
+        and the goal tolerance in R^2n.
+    settings, direction
+        Integration settings; ``direction`` replaces ``-v`` (baselines, RK4 only).
+    escapes
+        How many times a ``stuck`` stage may be continued from its end point with k
+        multiplied by ``escape_factor`` (Section 3.2: k is adjusted to eliminate local
+        minima). 0 (default): the flow at k alone.
+    escape_factor
+        Factor applied to k at each escape, in (0, 1).
     """
+    if not 0.0 < escape_factor < 1.0:
+        raise ValueError(f"escape_factor must be in (0, 1), got {escape_factor}")
+    res = _gradient_stage(problem, problem.start, k, epsilon, tol, settings, direction)
+    stages = [Stage(k, res.status, res.reason, res.steps)]
+    parts = [res]
+    k_now = k
+    while res.status is Status.STUCK and len(stages) <= escapes:
+        k_now *= escape_factor
+        res = _gradient_stage(problem, res.end, k_now, epsilon, tol, settings, direction)
+        stages.append(Stage(k_now, res.status, res.reason, res.steps))
+        parts.append(res)
+    if len(parts) == 1:
+        res.stages = stages
+        return res
+    path = np.concatenate([parts[0].path] + [p.path[1:] for p in parts[1:]])
+    log_time = float(np.logaddexp.reduce([p.log_time for p in parts]))
+    return FlowResult(res.status, path, sum(p.steps for p in parts),
+                      sum(p.evaluations for p in parts),
+                      min(p.min_clearance for p in parts), log_time, res.reason,
+                      [w for p in parts for w in p.log_w], stages)
+
+
+def _gradient_stage(problem: DiscProblem, b0: Array, k: float, epsilon: float, tol: float,
+                    settings: FlowSettings, direction: Callable[[Array], Array] | None
+                    ) -> FlowResult:
+    """The flow (9) at one k from ``b0`` (see :func:`gradient_flow`)."""
     goal = problem.goal
 
     def stop(b: Array, ev: NavEval) -> Status | None:
@@ -487,5 +559,5 @@ def gradient_flow(problem: DiscProblem, k: float, epsilon: float = 1e-3, tol: fl
             return Status.STUCK
         return None
 
-    return integrate(problem, problem.start, k, epsilon, stop=stop, settings=settings,
+    return integrate(problem, b0, k, epsilon, stop=stop, settings=settings,
                      direction=direction)

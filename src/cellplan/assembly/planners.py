@@ -17,17 +17,31 @@ from cellplan.assembly.flows import gradient_flow
 from cellplan.assembly.problems import CircleWorkspace, DiscProblem, generate_problem
 from cellplan.assembly.section import GeneratorSpec
 from cellplan.assembly.sequential import sequential_assembly
-from cellplan.core import PlannerEntry, PlanResult
+from cellplan.core import PlannerEntry, PlanResult, Status
+
+#: default number of k-halvings after a stuck stage (1024 -> 16 at most)
+ESCAPES = 6
 
 
 def run_gradient(problem: DiscProblem, k: float, epsilon: float = 1e-3,
-                 tol: float = 1e-3) -> PlanResult:
-    """The gradient assembly algorithm (Section 4.1); ratio in the R^2n norm (Section 5.1)."""
+                 tol: float = 1e-3, escapes: int = ESCAPES) -> PlanResult:
+    """The gradient assembly algorithm (Section 4.1); ratio in the R^2n norm (Section 5.1).
+
+    A run stuck at a spurious minimum continues at k/2, k/4, ... (at most ``escapes``
+    times; Section 3.2, see :func:`flows.gradient_flow`). The statistics say so:
+    ``solved_at_k`` (1.0 when the flow at the given k alone reached the goal),
+    ``escapes`` (how often k was lowered) and ``k_final``; ``ratio`` is over the
+    whole path, every stage included.
+    """
     t0 = time.perf_counter()
-    res = gradient_flow(problem, k, epsilon, tol)
+    res = gradient_flow(problem, k, epsilon, tol, escapes=escapes)
     straight = float(np.linalg.norm(problem.start - problem.goal))
+    first = res.stages[0]
     stats = {
         "ratio": res.length() / straight if straight > 0 else 1.0,
+        "solved_at_k": float(first.status is Status.SOLVED),
+        "escapes": float(res.escapes),
+        "k_final": float(res.stages[-1].k),
         "length": res.length(),
         "min_clearance": res.min_clearance,
         "steps": float(res.steps),
@@ -49,6 +63,7 @@ def run_sequential(problem: DiscProblem, k: float, rule: str = "paper", epsilon:
         "ratio": float(np.sum(res.disc_lengths())) / straight if straight > 0 else 1.0,
         "switches": float(res.switches),
         "switches_per_disc": res.switches / problem.n,
+        "switches_per_disc_within_0.1": res.switches_within(problem.goal, 0.1) / problem.n,
         "min_clearance": res.min_clearance,
         "evaluations": float(res.evaluations),
         "final_error": float(np.linalg.norm(res.path[-1] - problem.goal)),

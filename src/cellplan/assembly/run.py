@@ -32,9 +32,13 @@ def load_problem(scenario: str) -> tuple[DiscProblem, float, float, float]:
 
 def run_assembly(scenario: str | None, random_n: int | None, algorithm: str, k: float | None,
                  epsilon: float | None, rule: str, seed: int, permutation: bool,
-                 log10_beta: float | None, radius: float, frames: int, output: Path
-                 ) -> dict[str, Any]:
-    """Plan and write ``sequence.png``, ``assembly.gif`` and ``metrics.json`` under ``output``."""
+                 log10_beta: float | None, radius: float, frames: int, output: Path,
+                 escapes: int = 0) -> dict[str, Any]:
+    """Plan and write ``sequence.png``, ``assembly.gif`` and ``metrics.json`` under ``output``.
+
+    ``escapes``: gradient algorithm only, how often k may be halved after the flow
+    stops at a spurious minimum (:func:`planners.run_gradient`).
+    """
     from cellplan.assembly import plots
     from cellplan.assembly.planners import run_control, run_gradient, run_sequential
 
@@ -57,7 +61,7 @@ def run_assembly(scenario: str | None, random_n: int | None, algorithm: str, k: 
     epsilon = eps_file if epsilon is None else epsilon
     result: PlanResult
     if algorithm == "gradient":
-        result = run_gradient(problem, k, epsilon, tol)
+        result = run_gradient(problem, k, epsilon, tol, escapes)
         path = result.payload.path
     elif algorithm == "sequential":
         result = run_sequential(problem, k, rule, epsilon, max(tol, 1e-2))

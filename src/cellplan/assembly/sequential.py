@@ -16,9 +16,9 @@ High level, two rules selectable by name:
     within one radius of the innermost open goal's distance from the pattern centre are
     eligible), so placed discs never wall in an open goal. Each grasp, in order:
 
-    1. an eligible disc with a collision-free route of at most three straight segments
-       to its goal (straight, via an approach point near the goal, or via an exit point
-       and an approach point; the others stand still) is put there;
+    1. an eligible disc with a collision-free polygonal route to its goal (the
+       shortest in a visibility graph around the standing discs, see
+       :func:`placement_route`; the others stand still) is put there;
     2. otherwise the unplaced disc nearest the innermost open goal that can leave is
        parked on a circle around the pattern (at most once between two placements);
     3. otherwise the paper's ``C(x)`` over unplaced, non-stalled discs moves along its
@@ -81,6 +81,20 @@ class SequentialResult:
         seg = np.diff(self.path, axis=0)
         return np.sum(np.linalg.norm(seg, axis=2), axis=0)
 
+    def switches_within(self, goal: Array, tol: float) -> int:
+        """Grasps until the configuration first lies within ``tol`` of ``goal`` in R^2n.
+
+        The paper does not state when its sequential runs end; this shows how much of
+        the switch count (Fig. 9) the last approach to the goal costs. A run that never
+        got that close gives its whole grasp count.
+        """
+        ends = np.cumsum([len(g.path) - 1 for g in self.grasps], dtype=np.int64)
+        if not len(ends):
+            return 0
+        err = np.linalg.norm((self.path[ends] - goal).reshape(len(ends), -1), axis=1)
+        hit = np.flatnonzero(err < tol)
+        return int(hit[0]) + 1 if len(hit) else len(self.grasps)
+
     def actions(self) -> list[dict[str, object]]:
         """The plan as pick / move / release actions for one robot."""
         out: list[dict[str, object]] = []
@@ -136,49 +150,61 @@ def _margin(problem: DiscProblem) -> float:
     return float(min(1e-3 * float(np.min(problem.radii)), 0.25 * float(np.min(gaps))))
 
 
-def placement_route(problem: DiscProblem, x: Array, i: int, directions: int = 24
-                    ) -> list[Array] | None:
-    """The shortest collision-free route of up to three straight segments to disc i's goal.
+def placement_route(problem: DiscProblem, x: Array, i: int, directions: int = 24,
+                    corners: int = 12) -> list[Array] | None:
+    """A short collision-free polygonal route for disc i to its goal, others standing.
 
-    Candidates: straight; via an approach point ``V = d_i + a u`` near the goal; or via
-    an exit point ``E = x_i + a u`` near the disc and then ``V`` (``u`` one of
-    ``directions`` unit vectors, ``a`` one or two times ``2 (rho_i + max rho)``). The
-    other discs stand still. Returns the points after ``x[i]`` (ending at the goal).
+    The shortest path (Dijkstra) in a visibility graph whose nodes are the disc, its
+    goal, ``corners`` points around each standing disc (a polygon circumscribing the
+    circle of centre distances ``rho_i + rho_j`` plus twice the margin, so that the
+    paths hug the obstacles as a shortest path among discs does) and the candidates
+    of the former three-segment search (approach points ``d_i + a u`` and exit points
+    ``x_i + a u``, ``u`` one of ``directions`` unit vectors, ``a`` one or two times
+    ``2 (rho_i + max rho)``), so no route is longer than that search's. An edge is a
+    straight segment whose exact clearance (:func:`segments_clearance`) exceeds the
+    margin. Returns the points after ``x[i]`` (ending at the goal), or ``None``.
     """
+    from scipy.sparse.csgraph import dijkstra
+
     goal = problem.goal[i]
     here = x[i]
     if segment_is_free(problem, x, i, goal):
         return [goal.copy()]
+    margin = _margin(problem)
     reach = 2.0 * (problem.radii[i] + float(np.max(problem.radii)))
     ang = 2.0 * np.pi * np.arange(directions) / directions
-    unit = np.concatenate([reach * np.stack([np.cos(ang), np.sin(ang)], axis=1),
-                           2.0 * reach * np.stack([np.cos(ang), np.sin(ang)], axis=1)])
-    vias, exits = goal + unit, here + unit
-    m = len(unit)
-
-    def free(P: Array, Q: Array) -> NDArray[np.bool_]:
-        return segments_clearance(problem, x, i, P, Q) > _margin(problem)
-
-    v_ok = free(vias, np.repeat(goal[None], m, 0))  # V -> goal
-    v_cost = np.linalg.norm(vias - goal, axis=1)
-    direct = free(np.repeat(here[None], m, 0), vias) & v_ok
-    best: tuple[float, list[Array]] | None = None
-    if np.any(direct):
-        cost = np.where(direct, np.linalg.norm(vias - here, axis=1) + v_cost, np.inf)
-        j = int(np.argmin(cost))
-        best = (float(cost[j]), [vias[j].copy(), goal.copy()])
-    e_ok = free(np.repeat(here[None], m, 0), exits)
-    ev_pairs = np.argwhere(e_ok[:, None] & v_ok[None, :])
-    if len(ev_pairs):
-        P, Q = exits[ev_pairs[:, 0]], vias[ev_pairs[:, 1]]
-        ok = free(P, Q)
-        if np.any(ok):
-            cost = np.where(ok, np.linalg.norm(Q - P, axis=1) + v_cost[ev_pairs[:, 1]]
-                            + np.linalg.norm(P - here, axis=1), np.inf)
-            j = int(np.argmin(cost))
-            if best is None or float(cost[j]) < best[0]:
-                best = (float(cost[j]), [P[j].copy(), Q[j].copy(), goal.copy()])
-    return None if best is None else best[1]
+    unit = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    rays = np.concatenate([reach * unit, 2.0 * reach * unit])
+    others = np.delete(np.arange(problem.n), i)
+    cang = 2.0 * np.pi * (np.arange(corners) + 0.5) / corners
+    cunit = np.stack([np.cos(cang), np.sin(cang)], axis=1)
+    ring = (problem.radii[i] + problem.radii[others] + 2.0 * margin) / np.cos(np.pi / corners)
+    around = (x[others][:, None, :] + ring[:, None, None] * cunit[None]).reshape(-1, 2)
+    nodes = np.concatenate([here[None], goal[None], goal + rays, here + rays, around])
+    nodes = nodes[np.r_[True, True, segments_clearance(problem, x, i, nodes[2:], nodes[2:])
+                        > margin]]
+    m = len(nodes)
+    a, b = np.triu_indices(m, 1)
+    free = np.zeros(len(a), dtype=bool)
+    chunk = max(1, 400_000 // max(problem.n, 1))
+    for lo in range(0, len(a), chunk):
+        sl = slice(lo, lo + chunk)
+        free[sl] = segments_clearance(problem, x, i, nodes[a[sl]], nodes[b[sl]]) > margin
+    weight = np.zeros((m, m))
+    length = np.linalg.norm(nodes[a[free]] - nodes[b[free]], axis=1)
+    weight[a[free], b[free]] = length
+    weight[b[free], a[free]] = length
+    dist, pred = dijkstra(weight, directed=False, indices=0, return_predecessors=True)
+    if not np.isfinite(dist[1]):
+        return None
+    route: list[Array] = []
+    node = 1
+    while node != 0:
+        route.append(nodes[node].copy())
+        node = int(pred[node])
+    route.reverse()
+    route[-1] = goal.copy()
+    return route
 
 
 def parking_route(problem: DiscProblem, x: Array, i: int, directions: int = 24
@@ -323,13 +349,17 @@ def sequential_assembly(
             # innermost open goal's distance from the centre may be placed now
             open_ = np.flatnonzero(~placed)
             layer = goal_depth[open_].min() + problem.radii[open_].min()
-            routes = {int(j): placement_route(problem, x, int(j)) for j in
-                      sorted(open_, key=lambda j: inner_rank[j]) if goal_depth[j] <= layer}
-            free = [j for j, r in routes.items() if r is not None]
-            if free:
-                i = free[0]
-                route = routes[i]
-                assert route is not None
+            # the first eligible disc (inner goals first) with a route is placed
+            found: tuple[int, list[Array]] | None = None
+            for j in sorted(open_, key=lambda j: inner_rank[j]):
+                if goal_depth[j] <= layer:
+                    candidate = placement_route(problem, x, int(j))
+                    if candidate is not None:
+                        found = (int(j), candidate)
+                        break
+            free = [] if found is None else [found[0]]
+            if found is not None:
+                i, route = found
                 disc_path = [x[i].copy(), *route]
                 kinds.extend(["straight"] * len(route))
             else:
@@ -359,10 +389,10 @@ def sequential_assembly(
             kinds.append("flow")
             end = cpath[-1]
             if rule == "place" and not placed[i]:
-                route = placement_route(problem, end, i)
-                if route is not None:
-                    disc_path.extend(route)
-                    kinds.extend(["straight"] * len(route))
+                onward = placement_route(problem, end, i)
+                if onward is not None:
+                    disc_path.extend(onward)
+                    kinds.extend(["straight"] * len(onward))
             stalled[i] = bool(np.linalg.norm(end[i] - x[i]) < tol)
         pts = np.array(disc_path)
         for p in pts[1:]:

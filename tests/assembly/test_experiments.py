@@ -1,0 +1,46 @@
+"""The assembly experiments in their quick form: parameters reach the runs, reports read them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from cellplan.assembly import experiments as ex
+from cellplan.core import RunSpec, Scalar
+
+
+def _rows(specs: list[RunSpec]) -> list[dict[str, Scalar]]:
+    # what the runner stores per run: the parameters, the seed, the run's own row
+    return [{**spec.params, "seed": spec.seed, "run_status": "ok", **ex.run(spec)}
+            for spec in specs]
+
+
+def test_sensitivity_spreads_the_starts_and_reports_per_scale(tmp_path: Path) -> None:
+    specs = ex._runs_sensitivity(2, quick=True)
+    cells = {(s.params["ws_scale"], s.params["start_gap"]) for s in specs}
+    assert cells == {(1.0, 0.05), (2.0, 0.05), (1.0, 1.0)}
+    rows = _rows(specs)
+    assert all(r["solved"] for r in rows)
+
+    def straight(scale: float, seed: int) -> float:
+        (r,) = [r for r in rows if r["ws_scale"] == scale and r["start_gap"] == 0.05
+                and r["seed"] == seed]
+        return float(r["length"]) / float(r["ratio"])
+
+    # the same seed in a workspace twice as wide starts about twice as far out
+    assert all(straight(2.0, s) > 1.5 * straight(1.0, s) for s in (0, 1))
+    piece = ex._report_sensitivity(rows, tmp_path)
+    (_, table), = piece.tables
+    assert len(table) == 3 and all("solved at k" in row for row in table)
+    assert all(Path(f).is_file() for f in piece.figures)
+    assert len(piece.claims) == 1
+
+
+def test_ratio_vs_k_reports_the_flow_at_k_beside_the_escape(tmp_path: Path) -> None:
+    rows = _rows(ex._runs_ratio_vs_k(2, quick=True))
+    assert all("solved_at_k" in r and "escapes" in r for r in rows)
+    piece = ex._report_ratio_vs_k(rows, tmp_path)
+    labels = [c.claim for c in piece.claims]
+    assert any("the flow at k alone" in c for c in labels)
+    assert any("k lowered when stuck" in c for c in labels)
+    (_, table), = piece.tables
+    assert {"solved", "solved at k", "mean (solved at k)"} <= set(table[0])
