@@ -28,97 +28,21 @@ import math
 import numpy as np
 from numba import njit, prange
 
-MAX_DIM = 6
-# Policy-evaluation sweeps between two full sweeps of modified policy iteration (at most).
-EVAL_SWEEPS = 30
-_EPS_W = 1e-12
+from cellplan.strategies.evaluation import evaluate, layer_system, live_cells, self_system
+from cellplan.strategies.stencils import (
+    EPS_W,
+    MAX_DIM,
+    cell_of_order,
+    centre,
+    decode,
+    displacement,
+    move_corners,
+    stencil,
+    table_stencil,
+    wrap,
+)
 
-
-@njit(cache=True, inline="always")
-def decode(c, shape, out):  # pragma: no cover - numba
-    """Multi-index of flat C-order index ``c``."""
-    d = shape.shape[0]
-    for j in range(d - 1, -1, -1):
-        out[j] = c % shape[j]
-        c //= shape[j]
-
-
-@njit(cache=True, inline="always")
-def centre(c, shape, lower, spacing, out):  # pragma: no cover - numba
-    """Configuration at the centre of cell ``c``."""
-    d = shape.shape[0]
-    for j in range(d - 1, -1, -1):
-        i = c % shape[j]
-        c //= shape[j]
-        out[j] = lower[j] + (i + 0.5) * spacing[j]
-
-
-@njit(cache=True, inline="always")
-def displacement(q, disp_a, heading_axis, out):  # pragma: no cover - numba
-    """The C-space displacement of an action from ``q`` (robot-frame for a heading axis)."""
-    d = q.shape[0]
-    for j in range(d):
-        out[j] = disp_a[j]
-    if heading_axis >= 0:
-        ct = math.cos(q[heading_axis])
-        st = math.sin(q[heading_axis])
-        out[0] = disp_a[0] * ct - disp_a[1] * st
-        out[1] = disp_a[0] * st + disp_a[1] * ct
-
-
-@njit(cache=True, inline="always")
-def wrap(q, lower, upper, periodic):  # pragma: no cover - numba
-    """Bring periodic coordinates back into ``[lower, upper)``, in place."""
-    for j in range(q.shape[0]):
-        if periodic[j]:
-            span = upper[j] - lower[j]
-            q[j] = lower[j] + (q[j] - lower[j]) % span
-
-
-@njit(cache=True)
-def stencil(q, shape, lower, spacing, periodic, idx, w, ibuf, frac):  # pragma: no cover - numba
-    """Multilinear stencil of ``q``: ``2^d`` flat indices and weights (some may be 0).
-
-    ``ibuf`` (int, ``2 * MAX_DIM``) and ``frac`` (float, ``MAX_DIM``) are scratch space.
-    """
-    d = shape.shape[0]
-    base = ibuf[:MAX_DIM]
-    nxt = ibuf[MAX_DIM:]
-    for j in range(d):
-        f = (q[j] - lower[j]) / spacing[j] - 0.5
-        i0 = math.floor(f)
-        t = f - i0
-        n = shape[j]
-        if periodic[j]:
-            i0 = i0 % n
-            base[j] = i0
-            nxt[j] = (i0 + 1) % n
-            frac[j] = t
-        else:
-            if i0 < 0:
-                i0 = 0
-                t = 0.0
-            elif i0 >= n - 1:
-                i0 = n - 1
-                t = 0.0
-            base[j] = i0
-            nxt[j] = min(i0 + 1, n - 1)
-            frac[j] = t
-    ncorner = 1 << d
-    for k in range(ncorner):
-        flat = 0
-        wk = 1.0
-        for j in range(d):
-            if (k >> (d - 1 - j)) & 1:
-                ij = nxt[j]
-                wk *= frac[j]
-            else:
-                ij = base[j]
-                wk *= 1.0 - frac[j]
-            flat = flat * shape[j] + ij
-        idx[k] = flat
-        w[k] = wk
-    return ncorner
+_EPS_W = EPS_W
 
 
 @njit(cache=True, inline="always")
@@ -259,77 +183,6 @@ def valid_moves(
     return out
 
 
-@njit(cache=True, inline="always")
-def _cell_of_order(k, shape, flips, mi):  # pragma: no cover - numba
-    """Flat index (and multi-index ``mi``) of the k-th cell in a sweep with flipped axes."""
-    d = shape.shape[0]
-    rem = k
-    for j in range(d - 1, -1, -1):
-        ij = rem % shape[j]
-        rem //= shape[j]
-        if (flips >> j) & 1:
-            ij = shape[j] - 1 - ij
-        mi[j] = ij
-    flat = 0
-    for j in range(d):
-        flat = flat * shape[j] + mi[j]
-    return flat
-
-
-@njit(cache=True, inline="always")
-def table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w):  # pragma: no cover
-    """Stencil of move ``a`` of class ``k`` from the centre of cell ``mi`` (precomputed offsets).
-
-    From a cell centre the landing point of a move is ``mi + offs + fr`` in cell
-    coordinates, the same for every cell (per orientation slice for robot-frame moves),
-    so the multilinear stencil needs no floating-point division.
-    """
-    d = shape.shape[0]
-    t = mi[heading_axis] if heading_axis >= 0 else 0
-    ncorner = 1 << d
-    for kk in range(ncorner):
-        idx[kk] = 0
-        w[kk] = 1.0
-    for j in range(d):
-        n = shape[j]
-        i0 = mi[j] + offs[k, a, t, j]
-        f = fr[k, a, t, j]
-        if periodic[j]:
-            i0 = i0 % n
-            i1 = (i0 + 1) % n
-        else:
-            if i0 < 0:
-                i0 = 0
-                f = 0.0
-            elif i0 >= n - 1:
-                i0 = n - 1
-                f = 0.0
-            i1 = min(i0 + 1, n - 1)
-        for kk in range(ncorner):
-            if (kk >> (d - 1 - j)) & 1:
-                idx[kk] = idx[kk] * n + i1
-                w[kk] *= f
-            else:
-                idx[kk] = idx[kk] * n + i0
-                w[kk] *= 1.0 - f
-    return ncorner
-
-
-@njit(cache=True, inline="always")
-def move_stencil(
-    k, a, c, mi, offs, fr, coff, cw, interior, heading_axis, shape, periodic, idx, w
-):  # pragma: no cover - numba
-    """Stencil of move ``a`` from cell ``c``: precomputed flat offsets away from the border."""
-    if interior[k, c]:
-        t = mi[heading_axis] if heading_axis >= 0 else 0
-        n = coff.shape[3]
-        for kk in range(n):
-            idx[kk] = c + coff[k, a, t, kk]
-            w[kk] = cw[k, a, t, kk]
-        return n
-    return table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
-
-
 @njit(cache=True)
 def sweep_policy(
     m,
@@ -364,11 +217,10 @@ def sweep_policy(
 ):  # pragma: no cover - numba
     """One Gauss-Seidel sweep of layer ``m`` in place (axis order reversed where ``flips``).
 
-    ``mode`` 0: every action is tried (``pol`` is not touched); 1: every action is tried and
-    the minimiser is recorded in ``pol[m]``, ``nchg[0]`` counting the cells whose minimiser
-    changed by more than ``tie`` in value (ties between equally good actions are not counted);
-    2: only the action in ``pol[m]`` is evaluated (a policy-evaluation sweep of
-    modified policy iteration, about ``K + 2`` times cheaper than a full sweep).
+    ``mode`` 0: ``pol`` is not touched; 1: the minimiser is recorded in ``pol[m]``,
+    ``nchg[0]`` counting the cells whose minimiser changed by more than ``tie`` in value
+    (ties between equally good actions are not counted). Between such sweeps the solver
+    evaluates the recorded policy exactly (:mod:`cellplan.strategies.evaluation`).
 
     ``h[m, c] = min_u [ l(u) - g + sum_b P_b h[L_b](x'_u) ]`` (the average-cost form of
     equation (9)); with ``exact_stay`` the stay action's self-loop is solved exactly,
@@ -393,33 +245,22 @@ def sweep_policy(
     b0 = branch_ptr[m]
     b1 = branch_ptr[m + 1]
     step_cost = cost[m] - g
-    # In evaluation sweeps one action is tried, so its derivative is accumulated on the way.
-    inline_d = track and mode == 2
     pself = 0.0
     for b in range(b0, b1):
         if branch_layer[b] == m:
             pself += branch_prob[b]
     maxchange = 0.0
     for kk in range(ncell):
-        c = _cell_of_order(kk, shape, flips, mi)
+        c = cell_of_order(kk, shape, flips, mi)
         if not livem[c]:
             continue
         best = np.inf
         bestd = 0.0
         barg = -3
-        pa = pol[m, c] if mode == 2 else -9
-        if pa == -3:
-            pa = -9  # no action recorded yet: try them all
         pold = pol[m, c] if mode == 1 else -9
         oldv = np.inf
         # FMP: switch to the next mode at the same configuration, loss t_f (equation (7)).
-        if (
-            (pa == -9 or pa == -2)
-            and nxt >= 0
-            and tf[m, c] < np.inf
-            and live[nxt, c]
-            and h[nxt, c] < np.inf
-        ):
+        if nxt >= 0 and tf[m, c] < np.inf and live[nxt, c] and h[nxt, c] < np.inf:
             best = tf[m, c] - g + h[nxt, c]
             barg = -2
             if pold == -2:
@@ -429,8 +270,8 @@ def sweep_policy(
         # Stay: the configuration is unchanged; solved exactly for the self-loop if asked.
         sval = step_cost
         sder = -1.0
-        sok = pa == -9 or pa == -1
-        for b in range(b0 if sok else b1, b1):
+        sok = True
+        for b in range(b0, b1):
             L = branch_layer[b]
             if (exact_stay and L == m) or branch_prob[b] == 0.0:
                 continue
@@ -458,10 +299,11 @@ def sweep_policy(
         inner = interior[kcls, c]
         t = mi[heading_axis] if heading_axis >= 0 else 0
         for a in range(na):
-            if ((vb >> a) & 1) == 0 or (pa != -9 and pa != a):
+            if ((vb >> a) & 1) == 0:
                 continue
+            # Written out: numba compiles the inlined move_corners into a loop about twice
+            # as slow here, the hottest loop of the solver.
             if inner:
-                # Corners are stored by decreasing weight: stop at the first zero weight.
                 nc = 0
                 for jj in range(ncorner):
                     wj = cw[kcls, a, t, jj]
@@ -474,7 +316,6 @@ def sweep_policy(
                 table_stencil(kcls, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
                 nc = ncorner
             val = step_cost
-            der = -1.0
             ok = True
             for b in range(b0, b1):
                 L = branch_layer[b]
@@ -482,7 +323,6 @@ def sweep_policy(
                     continue
                 ssum = 0.0
                 vsum = 0.0
-                dsum = 0.0
                 for j in range(nc):
                     wj = w[j]
                     if wj > _EPS_W:
@@ -492,35 +332,21 @@ def sweep_policy(
                             if hv < np.inf:
                                 ssum += wj
                                 vsum += wj * hv
-                                if inline_d:
-                                    dsum += wj * D[L, i]
                 if ssum <= _EPS_W:
                     ok = False
                     break
                 val += branch_prob[b] * vsum / ssum
-                if inline_d:
-                    der += branch_prob[b] * dsum / ssum
             if ok and a == pold:
                 oldv = val
             if ok and val < best:
                 best = val
                 barg = a
-                bestd = der
-        if track and not inline_d and barg >= 0:
+        if track and barg >= 0:
             # The derivative of the winning move only (cheaper than one per action).
-            if inner:
-                # Corners are stored by decreasing weight: stop at the first zero weight.
-                nc = 0
-                for jj in range(ncorner):
-                    wj = cw[kcls, barg, t, jj]
-                    if wj <= _EPS_W:
-                        break
-                    idx[jj] = c + coff[kcls, barg, t, jj]
-                    w[jj] = wj
-                    nc += 1
-            else:
-                table_stencil(kcls, barg, mi, offs, fr, heading_axis, shape, periodic, idx, w)
-                nc = ncorner
+            nc = move_corners(
+                kcls, barg, c, mi, t, inner, offs, fr, coff, cw,
+                heading_axis, shape, periodic, idx, w,
+            )
             bestd = -1.0
             for b in range(b0, b1):
                 L = branch_layer[b]
@@ -625,7 +451,7 @@ def sweep_layer(
     )
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def bellman_all(
     h,
     out,
@@ -658,17 +484,21 @@ def bellman_all(
     M = h.shape[0]
     ncell = h.shape[1]
     d = shape.shape[0]
-    mi = np.empty(d, np.int64)
     ncorner = 1 << d
-    idx = np.empty(ncorner, np.int64)
-    w = np.empty(ncorner)
-    for m in range(M):
+    # A Jacobi sweep: every state is independent, so chunks of states run in parallel.
+    nchunk = 64
+    for chunk in prange(M * nchunk):
+        m = chunk // nchunk
+        part = chunk % nchunk
+        mi = np.empty(d, np.int64)
+        idx = np.empty(ncorner, np.int64)
+        w = np.empty(ncorner)
         nxt = fmp_next[m]
         kcls = vcls[m]
         na = nact[kcls]
         b0 = branch_ptr[m]
         b1 = branch_ptr[m + 1]
-        for c in range(ncell):
+        for c in range(part * ncell // nchunk, (part + 1) * ncell // nchunk):
             if not live[m, c]:
                 out[m, c] = np.nan
                 policy[m, c] = -3
@@ -696,19 +526,10 @@ def bellman_all(
             for a in range(na):
                 if ((vb >> a) & 1) == 0:
                     continue
-                if inner:
-                    # Corners are stored by decreasing weight: stop at the first zero weight.
-                    nc = 0
-                    for jj in range(ncorner):
-                        wj = cw[kcls, a, t, jj]
-                        if wj <= _EPS_W:
-                            break
-                        idx[jj] = c + coff[kcls, a, t, jj]
-                        w[jj] = wj
-                        nc += 1
-                else:
-                    table_stencil(kcls, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
-                    nc = ncorner
+                nc = move_corners(
+                    kcls, a, c, mi, t, inner, offs, fr, coff, cw,
+                    heading_axis, shape, periodic, idx, w,
+                )
                 val = cost[m]
                 ok = True
                 for b in range(b0, b1):
@@ -862,7 +683,7 @@ def live_pass(
         while True:
             grew = False
             for kk in range(ncell):
-                c = _cell_of_order(kk, shape, sweep % (1 << d), mi)
+                c = cell_of_order(kk, shape, sweep % (1 << d), mi)
                 if not live[m, c]:
                     continue
                 if nxt >= 0 and target[c]:
@@ -872,21 +693,10 @@ def live_pass(
                     if a >= 0:
                         if ((valid[k, c] >> a) & 1) == 0:
                             continue
-                        n = move_stencil(
-                            k,
-                            a,
-                            c,
-                            mi,
-                            offs,
-                            fr,
-                            coff,
-                            cw,
-                            interior,
-                            heading_axis,
-                            shape,
-                            periodic,
-                            idx,
-                            w,
+                        t = mi[heading_axis] if heading_axis >= 0 else 0
+                        n = move_corners(
+                            k, a, c, mi, t, interior[k, c], offs, fr, coff, cw, heading_axis,
+                            shape, periodic, idx, w,
                         )
                     else:
                         if nxt >= 0:
@@ -1108,10 +918,8 @@ def _mpi(
 ):  # pragma: no cover - numba
     """Modified policy iteration on one layer (see :func:`solve_layers`)."""
     d = shape.shape[0]
-    nlive = 0
-    for c in range(live.shape[1]):
-        if live[m, c]:
-            nlive += 1
+    cells, local = live_cells(live[m])
+    nlive = cells.shape[0]
     nchg = np.zeros(1, np.int64)
     full = 0
     ev = 0
@@ -1160,42 +968,15 @@ def _mpi(
             if change < accuracy:
                 break
         if nchg[0] * 100 <= nlive:
-            for _ in range(EVAL_SWEEPS):
-                ch = sweep_policy(
-                    m,
-                    flip % (1 << d),
-                    h,
-                    D,
-                    g,
-                    exact_stay,
-                    True,
-                    pol,
-                    2,
-                    nchg,
-                    0.0,
-                    live,
-                    valid,
-                    offs,
-                    fr,
-                    coff,
-                    cw,
-                    interior,
-                    nact,
-                    heading_axis,
-                    vcls,
-                    cost,
-                    fmp_next,
-                    tf,
-                    branch_ptr,
-                    branch_layer,
-                    branch_prob,
-                    shape,
-                    periodic,
-                )
-                ev += 1
-                flip += 1
-                if ch < 0.5 * accuracy:
-                    break
+            # The policy has nearly settled: evaluate it exactly (one pass in dependency
+            # order, :mod:`cellplan.strategies.evaluation`) rather than by many sweeps.
+            ptr, succ, wt, const, dconst, fixed = layer_system(
+                m, h, D, g, pol, cells, local, live, valid, offs, fr, coff, cw, interior,
+                nact, heading_axis, vcls, cost, fmp_next, tf, branch_ptr, branch_layer,
+                branch_prob, shape, periodic,
+            )
+            evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
+            ev += 1
     return full, ev
 
 
@@ -1275,19 +1056,10 @@ def other_branches(
             for a in range(na):
                 if ((vb >> a) & 1) == 0:
                     continue
-                if inner:
-                    # Corners are stored by decreasing weight: stop at the first zero weight.
-                    nc = 0
-                    for jj in range(ncorner):
-                        wj = cw[kcls, a, t, jj]
-                        if wj <= _EPS_W:
-                            break
-                        idx[jj] = c + coff[kcls, a, t, jj]
-                        w[jj] = wj
-                        nc += 1
-                else:
-                    table_stencil(kcls, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
-                    nc = ncorner
+                nc = move_corners(
+                    kcls, a, c, mi, t, inner, offs, fr, coff, cw,
+                    heading_axis, shape, periodic, idx, w,
+                )
                 val = 0.0
                 der = 0.0
                 ok = True
@@ -1368,18 +1140,15 @@ def sweep_self(
     step_cost = cost[m] - g
     maxchange = 0.0
     for kk in range(ncell):
-        c = _cell_of_order(kk, shape, flips, mi)
+        c = cell_of_order(kk, shape, flips, mi)
         if not livem[c]:
             continue
         best = np.inf
         bestd = 0.0
         barg = -3
-        pa = pol[m, c] if mode == 2 else -9
-        if pa == -3:
-            pa = -9
         pold = pol[m, c] if mode == 1 else -9
         oldv = np.inf
-        if (pa == -9 or pa == -1) and E[c, 0] < np.inf and pself < 1.0 - 1e-12:
+        if E[c, 0] < np.inf and pself < 1.0 - 1e-12:
             best = (step_cost + E[c, 0]) / (1.0 - pself)
             bestd = (-1.0 + ED[c, 0]) / (1.0 - pself)
             barg = -1
@@ -1389,10 +1158,10 @@ def sweep_self(
         inner = interior[kcls, c]
         t = mi[heading_axis] if heading_axis >= 0 else 0
         for a in range(na):
-            if ((vb >> a) & 1) == 0 or E[c, 1 + a] == np.inf or (pa != -9 and pa != a):
+            if ((vb >> a) & 1) == 0 or E[c, 1 + a] == np.inf:
                 continue
+            # Written out, as in sweep_policy (move_corners here is twice as slow).
             if inner:
-                # Corners are stored by decreasing weight: stop at the first zero weight.
                 nc = 0
                 for jj in range(ncorner):
                     wj = cw[kcls, a, t, jj]
@@ -1456,6 +1225,7 @@ def solve_self(
     accuracy,
     max_sweeps,
     pol,
+    warm,
     counts,
     live,
     valid,
@@ -1477,79 +1247,57 @@ def solve_self(
     (full sweeps, evaluation sweeps).
     """
     d = shape.shape[0]
-    nlive = 0
-    for c in range(live.shape[1]):
-        if live[m, c]:
-            nlive += 1
+    cells, local = live_cells(live[m])
+    nlive = cells.shape[0]
     nchg = np.zeros(1, np.int64)
     full = 0
     ev = 0
     flip = 0
+    evaluate_first = warm
     while full + ev < max(1, max_sweeps):
-        nchg[0] = 0
-        change = sweep_self(
-            m,
-            flip % (1 << d),
-            h,
-            D,
-            g,
-            E,
-            ED,
-            pself,
-            pol,
-            1,
-            nchg,
-            accuracy,
-            live,
-            valid,
-            offs,
-            fr,
-            coff,
-            cw,
-            interior,
-            nact,
-            heading_axis,
-            vcls,
-            cost,
-            shape,
-            periodic,
-        )
-        full += 1
-        flip += 1
-        if change < accuracy:
-            break
+        if evaluate_first:
+            # Last pass's policy, evaluated exactly, then confirmed by a full sweep.
+            evaluate_first = False
+            change = np.inf
+        else:
+            nchg[0] = 0
+            change = sweep_self(
+                m,
+                flip % (1 << d),
+                h,
+                D,
+                g,
+                E,
+                ED,
+                pself,
+                pol,
+                1,
+                nchg,
+                accuracy,
+                live,
+                valid,
+                offs,
+                fr,
+                coff,
+                cw,
+                interior,
+                nact,
+                heading_axis,
+                vcls,
+                cost,
+                shape,
+                periodic,
+            )
+            full += 1
+            flip += 1
+            if change < accuracy:
+                break
         if nchg[0] * 100 <= nlive:
-            for _ in range(EVAL_SWEEPS):
-                ch = sweep_self(
-                    m,
-                    flip % (1 << d),
-                    h,
-                    D,
-                    g,
-                    E,
-                    ED,
-                    pself,
-                    pol,
-                    2,
-                    nchg,
-                    0.0,
-                    live,
-                    valid,
-                    offs,
-                    fr,
-                    coff,
-                    cw,
-                    interior,
-                    nact,
-                    heading_axis,
-                    vcls,
-                    cost,
-                    shape,
-                    periodic,
-                )
-                ev += 1
-                flip += 1
-                if ch < 0.5 * accuracy:
-                    break
+            ptr, succ, wt, const, dconst, fixed = self_system(
+                m, h, D, g, E, ED, pself, pol, cells, local, live, valid, offs, fr, coff,
+                cw, interior, nact, heading_axis, vcls, cost, shape, periodic,
+            )
+            evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
+            ev += 1
     counts[0] = full
     counts[1] = ev

@@ -15,15 +15,17 @@ the minimisers of the right-hand side. Two solvers share the kernels:
   ``span(T h - h) < epsilon``; ``min`` and ``max`` of ``T h - h`` bracket ``g``.
 * :func:`solve_structured` - exploits the structure: for a fixed ``g`` and NR layer, every
   carrying layer and then every waiting layer is a deterministic shortest path with
-  terminal cost (FMP into the next mode), solved by alternating-direction Gauss-Seidel
-  sweeps in a modified policy iteration (full sweeps over every action alternate with
-  cheap sweeps that evaluate only the recorded minimiser; a layer is done when a *full*
-  sweep changes it by less than the inner accuracy); the independent C layers, then the
+  terminal cost (FMP into the next mode), solved by policy iteration: alternating-direction
+  Gauss-Seidel sweeps over every action choose the actions, and between them the chosen
+  policy is evaluated exactly in one pass, in the dependency order of its strongly
+  connected components (:mod:`cellplan.strategies.evaluation`); a layer is done when a
+  *full* sweep changes it by less than the inner accuracy. The independent C layers, then the
   W layers, run in parallel threads (layers coupled by destination or source changes are
   swept together as a group, started from their uncoupled solutions). NR is then solved
   with its stay self-loop eliminated exactly (``h = H_W - g/P``), removing the slow
   ``(1 - P)`` mode; its request branches (into the fixed W layers) are summed once per
-  pass, so its sweeps interpolate NR alone. An outer loop takes the NR layer round the
+  pass, so its sweeps interpolate NR alone. From the second pass on every layer starts by
+  evaluating last pass's policy. An outer loop takes the NR layer round the
   request cycle and moves ``g`` by Newton steps on the drift ``h_NR(ref)`` (the
   derivative, minus the expected cycle length, is tracked along the minimising actions
   as ``D = dh/dg``, which also moves the other layers with ``g``); the NR shape is
@@ -35,6 +37,7 @@ the minimisers of the right-hand side. Two solvers share the kernels:
 from __future__ import annotations
 
 import hashlib
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -45,15 +48,15 @@ from cellplan.core import Status
 from cellplan.strategies import kernels
 from cellplan.strategies.model import LayeredMDP
 
+log = logging.getLogger(__name__)
+
 # Inner solves need only be accurate relative to the outer progress (drift, NR shape change).
 ACCURACY_FACTOR = 0.05
 # Inner accuracy of the first passes (cold start, g still far from the gain).
 FIRST_ACCURACY = 1e-3
 # Passes mixed by the Anderson acceleration of the NR shape.
 ANDERSON_DEPTH = 4
-# Start NR from +inf on every pass (an upper bound, so the stopping test is reliable).
-COLD_NR = True
-# Warm passes start each layer with evaluation sweeps of last pass's policy.
+# Warm passes start each layer with an exact evaluation of last pass's policy.
 EVAL_FIRST = True
 # Final inner accuracy relative to the span tolerance.
 INNER_FACTOR = 1e-2
@@ -318,16 +321,19 @@ def solve_structured(
     nr_args: tuple[object, ...] = (*args[:11], mdp.shape, mdp.periodic)
 
     def solve_nr(g: float, accuracy: float, cold: bool) -> None:
-        # Cold (+inf): Gauss-Seidel then decreases monotonically and the stopping test bounds
-        # the error; a warm start saves NR sweeps (P5) but costs P1 extra outer passes.
+        # The first pass starts from +inf (Gauss-Seidel then decreases monotonically);
+        # later passes evaluate last pass's NR policy exactly first, then sweep.
         nonlocal sweeps, eval_sweeps
         kernels.other_branches(0, h, D, E, ED, *args)
         if cold:
             h[0][live[0]] = np.inf
         counts = np.zeros(2, np.int64)
-        kernels.solve_self(0, h, D, g, E, ED, p_self, accuracy, max_sweeps, pol, counts, *nr_args)
+        kernels.solve_self(
+            0, h, D, g, E, ED, p_self, accuracy, max_sweeps, pol, not cold, counts, *nr_args
+        )
         sweeps += int(counts[0])
         eval_sweeps += int(counts[1])
+        log.debug("NR: full sweeps %d, evaluations %d", counts[0], counts[1])
 
     def solve_group(ms: list[int], g: float, accuracy: float, warm: float | None) -> None:
         # Gauss-Seidel rounds over layers coupled by request changes.
@@ -398,13 +404,19 @@ def solve_structured(
                 )
                 sweeps += int(counts[:, 0].sum())
                 eval_sweeps += int(counts[:, 1].sum())
+                log.debug(
+                    "layers %s: full sweeps %s, evaluations %s",
+                    kind.tolist(),
+                    counts[:, 0].tolist(),
+                    counts[:, 1].tolist(),
+                )
             for m in order:
                 if groups[m] != m:
                     h[m] = h[groups[m]]
                     D[m] = D[groups[m]]
         old = h[0].copy()
         old_d = D[0].copy()
-        solve_nr(g, accuracy, COLD_NR or outer == 1)
+        solve_nr(g, accuracy, outer == 1)
         if ref < 0:
             ref = int(np.flatnonzero(live[0])[np.argmin(h[0][live[0]])])
         delta = (h[0] - old)[live[0]]
@@ -420,6 +432,15 @@ def solve_structured(
         D[0][live[0]] -= D[0, ref]
         if progress is not None:
             progress(sweeps, shape_span, g)
+        log.debug(
+            "pass %d: g %.10f drift %.3e d(drift)/dg %.3f NR shape change %.3e inner accuracy %.1e",
+            outer,
+            g,
+            drift,
+            deriv,
+            shape_span,
+            accuracy,
+        )
         if abs(drift) < tol * 0.1 and shape_span < tol * 0.1 and accuracy <= inner_tol:
             break
         if outer > 1 and abs(drift) < tol * 0.5 and shape_span < tol * 0.5:

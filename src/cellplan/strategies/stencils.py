@@ -1,0 +1,183 @@
+"""Numba helpers for a uniform grid of cell centres: indices, stencils, sweep orders.
+
+Shared by the solver kernels (:mod:`cellplan.strategies.kernels`) and the exact policy
+evaluation (:mod:`cellplan.strategies.evaluation`). Cells are flat C-order indices;
+the multilinear stencil of a point is the ``2^d`` surrounding cell centres with their
+weights (Section IV-B of the strategies paper).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+MAX_DIM = 6
+# Corner weights at or below this are treated as zero.
+EPS_W = 1e-12
+
+
+@njit(cache=True, inline="always")
+def decode(c, shape, out):  # pragma: no cover - numba
+    """Multi-index of flat C-order index ``c``."""
+    d = shape.shape[0]
+    for j in range(d - 1, -1, -1):
+        out[j] = c % shape[j]
+        c //= shape[j]
+
+
+@njit(cache=True, inline="always")
+def centre(c, shape, lower, spacing, out):  # pragma: no cover - numba
+    """Configuration at the centre of cell ``c``."""
+    d = shape.shape[0]
+    for j in range(d - 1, -1, -1):
+        i = c % shape[j]
+        c //= shape[j]
+        out[j] = lower[j] + (i + 0.5) * spacing[j]
+
+
+@njit(cache=True, inline="always")
+def displacement(q, disp_a, heading_axis, out):  # pragma: no cover - numba
+    """The C-space displacement of an action from ``q`` (robot-frame for a heading axis)."""
+    d = q.shape[0]
+    for j in range(d):
+        out[j] = disp_a[j]
+    if heading_axis >= 0:
+        ct = math.cos(q[heading_axis])
+        st = math.sin(q[heading_axis])
+        out[0] = disp_a[0] * ct - disp_a[1] * st
+        out[1] = disp_a[0] * st + disp_a[1] * ct
+
+
+@njit(cache=True, inline="always")
+def wrap(q, lower, upper, periodic):  # pragma: no cover - numba
+    """Bring periodic coordinates back into ``[lower, upper)``, in place."""
+    for j in range(q.shape[0]):
+        if periodic[j]:
+            span = upper[j] - lower[j]
+            q[j] = lower[j] + (q[j] - lower[j]) % span
+
+
+@njit(cache=True)
+def stencil(q, shape, lower, spacing, periodic, idx, w, ibuf, frac):  # pragma: no cover - numba
+    """Multilinear stencil of ``q``: ``2^d`` flat indices and weights (some may be 0).
+
+    ``ibuf`` (int, ``2 * MAX_DIM``) and ``frac`` (float, ``MAX_DIM``) are scratch space.
+    """
+    d = shape.shape[0]
+    base = ibuf[:MAX_DIM]
+    nxt = ibuf[MAX_DIM:]
+    for j in range(d):
+        f = (q[j] - lower[j]) / spacing[j] - 0.5
+        i0 = math.floor(f)
+        t = f - i0
+        n = shape[j]
+        if periodic[j]:
+            i0 = i0 % n
+            base[j] = i0
+            nxt[j] = (i0 + 1) % n
+            frac[j] = t
+        else:
+            if i0 < 0:
+                i0 = 0
+                t = 0.0
+            elif i0 >= n - 1:
+                i0 = n - 1
+                t = 0.0
+            base[j] = i0
+            nxt[j] = min(i0 + 1, n - 1)
+            frac[j] = t
+    ncorner = 1 << d
+    for k in range(ncorner):
+        flat = 0
+        wk = 1.0
+        for j in range(d):
+            if (k >> (d - 1 - j)) & 1:
+                ij = nxt[j]
+                wk *= frac[j]
+            else:
+                ij = base[j]
+                wk *= 1.0 - frac[j]
+            flat = flat * shape[j] + ij
+        idx[k] = flat
+        w[k] = wk
+    return ncorner
+
+
+@njit(cache=True, inline="always")
+def cell_of_order(k, shape, flips, mi):  # pragma: no cover - numba
+    """Flat index (and multi-index ``mi``) of the k-th cell in a sweep with flipped axes."""
+    d = shape.shape[0]
+    rem = k
+    for j in range(d - 1, -1, -1):
+        ij = rem % shape[j]
+        rem //= shape[j]
+        if (flips >> j) & 1:
+            ij = shape[j] - 1 - ij
+        mi[j] = ij
+    flat = 0
+    for j in range(d):
+        flat = flat * shape[j] + mi[j]
+    return flat
+
+
+@njit(cache=True, inline="always")
+def table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w):  # pragma: no cover
+    """Stencil of move ``a`` of class ``k`` from the centre of cell ``mi`` (precomputed offsets).
+
+    From a cell centre the landing point of a move is ``mi + offs + fr`` in cell
+    coordinates, the same for every cell (per orientation slice for robot-frame moves),
+    so the multilinear stencil needs no floating-point division.
+    """
+    d = shape.shape[0]
+    t = mi[heading_axis] if heading_axis >= 0 else 0
+    ncorner = 1 << d
+    for kk in range(ncorner):
+        idx[kk] = 0
+        w[kk] = 1.0
+    for j in range(d):
+        n = shape[j]
+        i0 = mi[j] + offs[k, a, t, j]
+        f = fr[k, a, t, j]
+        if periodic[j]:
+            i0 = i0 % n
+            i1 = (i0 + 1) % n
+        else:
+            if i0 < 0:
+                i0 = 0
+                f = 0.0
+            elif i0 >= n - 1:
+                i0 = n - 1
+                f = 0.0
+            i1 = min(i0 + 1, n - 1)
+        for kk in range(ncorner):
+            if (kk >> (d - 1 - j)) & 1:
+                idx[kk] = idx[kk] * n + i1
+                w[kk] *= f
+            else:
+                idx[kk] = idx[kk] * n + i0
+                w[kk] *= 1.0 - f
+    return ncorner
+
+
+@njit(cache=True, inline="always")
+def move_corners(
+    k, a, c, mi, t, inner, offs, fr, coff, cw, heading_axis, shape, periodic, idx, w
+):  # pragma: no cover - numba
+    """Corners and weights of move ``a`` (class ``k``) from cell ``c``; returns their number.
+
+    Away from the border the flat offsets are precomputed (``coff``, ``cw``, corners by
+    decreasing weight, so the list stops at the first zero weight); at the border
+    :func:`table_stencil` clamps. ``t`` is the orientation slice (0 without a heading axis).
+    """
+    if inner:
+        nc = 0
+        for jj in range(idx.shape[0]):
+            wj = cw[k, a, t, jj]
+            if wj <= EPS_W:
+                break
+            idx[jj] = c + coff[k, a, t, jj]
+            w[jj] = wj
+            nc += 1
+        return nc
+    return table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
