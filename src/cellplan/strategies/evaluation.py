@@ -137,23 +137,9 @@ def layer_system(
             dconst[v] = dv
         elif pa >= 0:
             decode(c, shape, mi)
-            t = mi[heading_axis] if heading_axis >= 0 else 0
+            inner = interior[kcls, c]
             nc = move_corners(
-                kcls,
-                pa,
-                c,
-                mi,
-                t,
-                interior[kcls, c],
-                offs,
-                fr,
-                coff,
-                cw,
-                heading_axis,
-                shape,
-                periodic,
-                idx,
-                w,
+                kcls, pa, c, mi, inner, offs, fr, coff, cw, heading_axis, shape, periodic, idx, w
             )
             cv = step_cost
             dv = -1.0
@@ -254,14 +240,13 @@ def self_system(
             dconst[v] = -1.0 + ED[c, 1 + pa]
             if pself > 0.0:
                 decode(c, shape, mi)
-                t = mi[heading_axis] if heading_axis >= 0 else 0
+                inner = interior[kcls, c]
                 nc = move_corners(
                     kcls,
                     pa,
                     c,
                     mi,
-                    t,
-                    interior[kcls, c],
+                    inner,
                     offs,
                     fr,
                     coff,

@@ -28,6 +28,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from cellplan.strategies.coldstart import dijkstra_layer
 from cellplan.strategies.evaluation import evaluate, layer_system, live_cells, self_system
 from cellplan.strategies.stencils import (
     EPS_W,
@@ -344,8 +345,7 @@ def sweep_policy(
         if track and barg >= 0:
             # The derivative of the winning move only (cheaper than one per action).
             nc = move_corners(
-                kcls, barg, c, mi, t, inner, offs, fr, coff, cw,
-                heading_axis, shape, periodic, idx, w,
+                kcls, barg, c, mi, inner, offs, fr, coff, cw, heading_axis, shape, periodic, idx, w
             )
             bestd = -1.0
             for b in range(b0, b1):
@@ -522,13 +522,11 @@ def bellman_all(
                 arg = -1
             vb = valid[kcls, c]
             inner = interior[kcls, c]
-            t = mi[heading_axis] if heading_axis >= 0 else 0
             for a in range(na):
                 if ((vb >> a) & 1) == 0:
                     continue
                 nc = move_corners(
-                    kcls, a, c, mi, t, inner, offs, fr, coff, cw,
-                    heading_axis, shape, periodic, idx, w,
+                    kcls, a, c, mi, inner, offs, fr, coff, cw, heading_axis, shape, periodic, idx, w
                 )
                 val = cost[m]
                 ok = True
@@ -693,10 +691,22 @@ def live_pass(
                     if a >= 0:
                         if ((valid[k, c] >> a) & 1) == 0:
                             continue
-                        t = mi[heading_axis] if heading_axis >= 0 else 0
+                        inner = interior[k, c]
                         n = move_corners(
-                            k, a, c, mi, t, interior[k, c], offs, fr, coff, cw, heading_axis,
-                            shape, periodic, idx, w,
+                            k,
+                            a,
+                            c,
+                            mi,
+                            inner,
+                            offs,
+                            fr,
+                            coff,
+                            cw,
+                            heading_axis,
+                            shape,
+                            periodic,
+                            idx,
+                            w,
                         )
                     else:
                         if nxt >= 0:
@@ -927,6 +937,28 @@ def _mpi(
     # Warm start: the recorded policy is last pass's and nearly right, so evaluate it first
     # and let one full sweep confirm (saves a full sweep per layer and pass).
     evaluate_first = warm
+    if not warm:
+        # Cold start: a first policy by Dijkstra, then exact evaluation and full sweeps.
+        evaluate_first = (
+            dijkstra_layer(
+                m,
+                h,
+                g,
+                pol,
+                live,
+                valid,
+                coff,
+                interior,
+                nact,
+                heading_axis,
+                vcls,
+                cost,
+                fmp_next,
+                tf,
+                shape,
+            )
+            > 0
+        )
     while full + ev < max(1, max_sweeps):
         if evaluate_first:
             evaluate_first = False
@@ -971,9 +1003,31 @@ def _mpi(
             # The policy has nearly settled: evaluate it exactly (one pass in dependency
             # order, :mod:`cellplan.strategies.evaluation`) rather than by many sweeps.
             ptr, succ, wt, const, dconst, fixed = layer_system(
-                m, h, D, g, pol, cells, local, live, valid, offs, fr, coff, cw, interior,
-                nact, heading_axis, vcls, cost, fmp_next, tf, branch_ptr, branch_layer,
-                branch_prob, shape, periodic,
+                m,
+                h,
+                D,
+                g,
+                pol,
+                cells,
+                local,
+                live,
+                valid,
+                offs,
+                fr,
+                coff,
+                cw,
+                interior,
+                nact,
+                heading_axis,
+                vcls,
+                cost,
+                fmp_next,
+                tf,
+                branch_ptr,
+                branch_layer,
+                branch_prob,
+                shape,
+                periodic,
             )
             evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
             ev += 1
@@ -1052,13 +1106,11 @@ def other_branches(
                 ED[c, 0] = sder
             vb = valid[kcls, c]
             inner = interior[kcls, c]
-            t = mi[heading_axis] if heading_axis >= 0 else 0
             for a in range(na):
                 if ((vb >> a) & 1) == 0:
                     continue
                 nc = move_corners(
-                    kcls, a, c, mi, t, inner, offs, fr, coff, cw,
-                    heading_axis, shape, periodic, idx, w,
+                    kcls, a, c, mi, inner, offs, fr, coff, cw, heading_axis, shape, periodic, idx, w
                 )
                 val = 0.0
                 der = 0.0
@@ -1294,8 +1346,29 @@ def solve_self(
                 break
         if nchg[0] * 100 <= nlive:
             ptr, succ, wt, const, dconst, fixed = self_system(
-                m, h, D, g, E, ED, pself, pol, cells, local, live, valid, offs, fr, coff,
-                cw, interior, nact, heading_axis, vcls, cost, shape, periodic,
+                m,
+                h,
+                D,
+                g,
+                E,
+                ED,
+                pself,
+                pol,
+                cells,
+                local,
+                live,
+                valid,
+                offs,
+                fr,
+                coff,
+                cw,
+                interior,
+                nact,
+                heading_axis,
+                vcls,
+                cost,
+                shape,
+                periodic,
             )
             evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
             ev += 1

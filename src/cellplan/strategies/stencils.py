@@ -162,15 +162,16 @@ def table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w):  #
 
 @njit(cache=True, inline="always")
 def move_corners(
-    k, a, c, mi, t, inner, offs, fr, coff, cw, heading_axis, shape, periodic, idx, w
+    k, a, c, mi, inner, offs, fr, coff, cw, heading_axis, shape, periodic, idx, w
 ):  # pragma: no cover - numba
     """Corners and weights of move ``a`` (class ``k``) from cell ``c``; returns their number.
 
     Away from the border the flat offsets are precomputed (``coff``, ``cw``, corners by
     decreasing weight, so the list stops at the first zero weight); at the border
-    :func:`table_stencil` clamps. ``t`` is the orientation slice (0 without a heading axis).
+    :func:`table_stencil` clamps. ``mi`` is the multi-index of ``c``.
     """
     if inner:
+        t = mi[heading_axis] if heading_axis >= 0 else 0
         nc = 0
         for jj in range(idx.shape[0]):
             wj = cw[k, a, t, jj]
