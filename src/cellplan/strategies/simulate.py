@@ -8,17 +8,22 @@ C -> NR with probability one. The loss of each stage is equation (7), so a reque
 waiting time is the loss summed from its arrival to its delivery.
 
 Three policies run in the same simulator: ``optimal`` (the strategy), ``reactive`` and
-``home`` (see :mod:`cellplan.strategies.baselines`).
+``home`` (see :mod:`cellplan.strategies.baselines`). While a request waits, each picks
+its action through an :class:`~cellplan.strategies.execution.Executor` (equation (9)
+with a lookahead and the LRTA* correction, so that no request waits for ever); every
+stage is one of the robot's own motions, a stay, or FMP.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
 from cellplan.strategies.baselines import home_values, per_request_values
+from cellplan.strategies.execution import Executor
 from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
 
 Policy = Literal["optimal", "reactive", "home"]
@@ -50,21 +55,38 @@ class Simulation:
     requests: list[Request] = field(default_factory=list)
     policy: str = "optimal"
     fmp_refused: int = 0
-    cycles_broken: int = 0
+    corrections: int = 0
+    raised: float = 0.0
 
     def metrics(self) -> dict[str, float]:
-        """Waiting time per delivered request, requests served, idle fraction, loss per stage."""
+        """Loss per stage, waiting time per request (delivered only and all), counts.
+
+        ``loss_per_stage`` is the paper's objective: the long-run expected waiting per
+        stage, which the gain ``g`` predicts. ``mean_wait`` is the mean waiting time of the
+        delivered requests only; ``mean_wait_all`` counts every request that arrived, those
+        still open at the end at their age so far (their waiting up to the last stage), so
+        it equals the total loss divided by the number of requests and cannot hide a
+        request that is never served. ``open_requests`` is how many were still open (at
+        most one: a request arrives only in NR) and ``open_wait`` their waiting so far.
+        """
         done = [r.waiting for r in self.requests if r.delivery >= 0]
+        waits = [r.waiting for r in self.requests]
+        still = [r.waiting for r in self.requests if r.delivery < 0]
         stages = len(self.actions)
+        nan = float("nan")
         return {
             "stages": float(stages),
             "requests": float(len(self.requests)),
             "served": float(len(done)),
-            "mean_wait": float(np.mean(done)) if done else float("nan"),
-            "idle_fraction": float(np.mean(self.modes[:-1] == 0)) if stages else float("nan"),
-            "loss_per_stage": float(self.losses.mean()) if stages else float("nan"),
+            "mean_wait": float(np.mean(done)) if done else nan,
+            "mean_wait_all": float(np.mean(waits)) if waits else nan,
+            "open_requests": float(len(still)),
+            "open_wait": float(np.sum(still)),
+            "idle_fraction": float(np.mean(self.modes[:-1] == 0)) if stages else nan,
+            "loss_per_stage": float(self.losses.mean()) if stages else nan,
             "fmp_refused": float(self.fmp_refused),
-            "cycles_broken": float(self.cycles_broken),
+            "corrections": float(self.corrections),
+            "raised": float(self.raised),
         }
 
     def segments(self) -> list[tuple[int, int]]:
@@ -80,18 +102,38 @@ class Simulation:
 
 
 class _Policies:
-    """The action rules of the three policies on one strategy."""
+    """The action rules of the three policies on one strategy, for one run.
 
-    def __init__(self, strategy: Strategy, home: np.ndarray | None) -> None:
+    Every rule that finishes a request executes (9) through an
+    :class:`~cellplan.strategies.execution.Executor` (its corrections last for the run).
+    """
+
+    def __init__(
+        self,
+        strategy: Strategy,
+        home: np.ndarray | None,
+        learn: bool = True,
+        fmp_test: Callable[[np.ndarray, int], np.ndarray] | None = None,
+    ) -> None:
         self.s = strategy
-        self._req: np.ndarray | None = None
+        self.learn = learn
+        self.fmp_test = fmp_test
+        self.optimal = Executor(strategy, learn=learn, fmp_test=fmp_test)
+        self._req: Executor | None = None
         self._home: np.ndarray | None = None
         self.home_q = home
 
     @property
-    def request_values(self) -> np.ndarray:
+    def request(self) -> Executor:
+        """Executor of the per-request values (the baselines while a request waits)."""
         if self._req is None:
-            self._req = per_request_values(self.s.mdp)
+            self._req = Executor(
+                self.s,
+                per_request_values(self.s.mdp),
+                offset=0.0,
+                learn=self.learn,
+                fmp_test=self.fmp_test,
+            )
         return self._req
 
     @property
@@ -117,16 +159,34 @@ class _Policies:
             self._home = layers
         return self._home
 
-    def values(self, policy: str, q: np.ndarray, mode: int, fmp_allowed: bool | None) -> np.ndarray:
+    def executor(self, policy: str, mode: int) -> Executor | None:
+        """The executor behind a policy in a mode (None: the baselines' idle rules)."""
         if policy == "optimal":
-            return self.s.action_values(q, mode, fmp_allowed=fmp_allowed)
-        if mode == 0:
-            if policy == "reactive":
-                out = np.full(2 + self.s.mdp.disp.shape[1], np.nan)
-                out[1] = 0.0
-                return out
-            return self.s.action_values(q, 0, values=self.home_layers, fmp_allowed=False)
-        return self.s.action_values(q, mode, values=self.request_values, fmp_allowed=fmp_allowed)
+            return self.optimal
+        return None if mode == 0 else self.request
+
+    def values(self, policy: str, q: np.ndarray, mode: int, fmp_allowed: bool | None) -> np.ndarray:
+        ex = self.executor(policy, mode)
+        if ex is not None:
+            return ex.action_values(q, mode, fmp_allowed)
+        if policy == "reactive":
+            out = np.full(2 + self.s.mdp.disp.shape[1], np.nan)
+            out[1] = 0.0
+            return out
+        return self.s.action_values(q, 0, values=self.home_layers, fmp_allowed=False)
+
+    def action(self, policy: str, q: np.ndarray, mode: int, fmp_allowed: bool | None) -> int:
+        """The policy's action at ``(q, mode)``, with the executor's correction step."""
+        ex = self.executor(policy, mode)
+        if ex is not None:
+            return ex.action(q, mode, fmp_allowed)
+        return best_action(self.values(policy, q, mode, fmp_allowed))
+
+    @property
+    def corrections(self) -> tuple[int, float]:
+        """Number and total size of the value corrections made so far."""
+        exs = [self.optimal] + ([self._req] if self._req is not None else [])
+        return sum(e.corrections for e in exs), sum(e.raised for e in exs)
 
 
 def simulate(
@@ -140,6 +200,7 @@ def simulate(
     cell: Any = None,
     regions: str = "contact",
     home: np.ndarray | None = None,
+    learn: bool = True,
 ) -> Simulation:
     """Run the assembly process for ``stages`` stages from ``(start, start_mode)``.
 
@@ -160,12 +221,17 @@ def simulate(
         best motion.
     home
         Home configuration of the ``home`` policy.
+    learn
+        Correct inconsistent values while executing (the LRTA* step of
+        :class:`~cellplan.strategies.execution.Executor`); False keeps its lookahead but
+        drops the correction, and with it the guarantee that no request waits for ever.
     """
     if policy not in POLICIES:
         raise ValueError(f"policy must be one of {POLICIES}, not {policy!r}")
     rng = np.random.default_rng(seed)
     mdp = strategy.mdp
-    rules = _Policies(strategy, home)
+    test = region_test(strategy, cell, regions) if cell is not None else None
+    rules = _Policies(strategy, home, learn, test)
     q = np.asarray(start if start is not None else default_start(strategy), float).copy()
     m = int(start_mode)
     dim = len(q)
@@ -177,35 +243,25 @@ def simulate(
     requests: list[Request] = []
     current: Request | None = None
     refused = 0
-    cycles = 0
     if m != 0:
         mode = mdp.modes[m]
         current = Request(mode.part, mode.source, mode.destination, 0)
         requests.append(current)
     for k in range(stages):
-        u = (
-            strategy.action(q, m)
-            if policy == "optimal"
-            else best_action(rules.values(policy, q, m, None))
-        )
-        if u == FMP and cell is not None and not _fmp_confirmed(strategy, cell, regions, q, m):
-            # The grid cell allows FMP but the exact region test at q does not: take the
-            # best motion instead (not stay, which would wait beside the region for ever).
-            vals = rules.values(policy, q, m, False)
-            vals[1] = np.nan
-            u = best_action(vals)
+        fmp_allowed = None
+        if (
+            cell is not None
+            and m != 0
+            and np.isfinite(mdp.tf[m, strategy.cell_of(q)])
+            and test is not None
+            and not test(q[None, :], m)[0]
+        ):
+            # The grid cell allows FMP but the exact region test at q does not: (9) is
+            # evaluated without FMP (stay is not offered while a motion is possible, so the
+            # robot does not wait beside the region for ever).
+            fmp_allowed = False
             refused += 1
-        if u >= 0 and m != 0 and _revisits(strategy.next_configuration(q, m, u), qs, ms, k, m):
-            # Interpolated values at off-grid states can make a few states each prefer the
-            # next one round a loop. Break the loop on the grid: step to the centre of the
-            # current cell (collision-free: a free cell is free throughout its box, which is
-            # convex) and take the solver's action there.
-            centre = strategy.cell_centre(q)
-            u_grid = strategy.grid_action(q, m)
-            if u_grid is not None and u_grid != STAY:
-                q = centre
-                u = u_grid
-                cycles += 1
+        u = rules.action(policy, q, m, fmp_allowed)
         # Loss (7).
         if m == 0:
             loss = 0.0
@@ -243,14 +299,8 @@ def simulate(
         m = m_next
         acts[k], losses[k] = u, loss
         qs[k + 1], ms[k + 1] = q, m
-    return Simulation(qs, ms, acts, losses, requests, policy, refused, cycles)
-
-
-def _revisits(q_next: np.ndarray, qs: np.ndarray, ms: np.ndarray, k: int, m: int) -> bool:
-    """Whether ``q_next`` repeats one of the last eight states of the same mode."""
-    j0 = max(0, k - 7)
-    same = np.all(np.abs(qs[j0 : k + 1] - q_next) < 1e-9, axis=1) & (ms[j0 : k + 1] == m)
-    return bool(same.any())
+    fixes, raised = rules.corrections
+    return Simulation(qs, ms, acts, losses, requests, policy, refused, fixes, raised)
 
 
 def default_start(strategy: Strategy) -> np.ndarray:
@@ -263,11 +313,25 @@ def default_start(strategy: Strategy) -> np.ndarray:
     return np.asarray(centres[np.argmin(np.linalg.norm(centres - mid, axis=1))])
 
 
-def _fmp_confirmed(strategy: Strategy, cell: Any, regions: str, q: np.ndarray, m: int) -> bool:
-    mode = strategy.mdp.modes[m]
-    if mode.kind == "W":
-        return bool(cell.in_region(q[None, :], mode.source, regions, None, None)[0])
-    return bool(cell.in_region(q[None, :], mode.destination, regions, None, mode.part)[0])
+def region_test(
+    strategy: Strategy, cell: Any, regions: str
+) -> Callable[[np.ndarray, int], np.ndarray]:
+    """The exact FMP region test of a workcell: ``(configurations, mode) -> bool array``.
+
+    W modes test the source (empty robot), C modes the destination with the carried part
+    (:meth:`~cellplan.workcell.Workcell.in_region`).
+    """
+    modes = strategy.mdp.modes
+
+    def test(points: np.ndarray, m: int) -> np.ndarray:
+        mode = modes[m]
+        if mode.kind == "W":
+            hit = cell.in_region(points, mode.source, regions, None, None)
+        else:
+            hit = cell.in_region(points, mode.destination, regions, None, mode.part)
+        return np.asarray(hit, dtype=bool)
+
+    return test
 
 
 def compare_policies(

@@ -241,16 +241,6 @@ class Strategy:
         idx = np.array(np.unravel_index(self.cell_of(q), tuple(mdp.shape)))
         return np.asarray(mdp.lower + (idx + 0.5) * mdp.spacing)
 
-    def grid_action(self, q: np.ndarray, mode: int) -> int | None:
-        """The optimal action at the centre of the cell containing ``q`` (None if none)."""
-        centre = self.cell_centre(q)
-        if not self.mdp.live[mode, self.cell_of(centre)]:
-            return None
-        try:
-            return self.action(centre, mode)
-        except ValueError:
-            return None
-
     def next_configuration(self, q: np.ndarray, mode: int, action: int) -> np.ndarray:
         """Where a move (or stay/FMP) takes the robot, equation (5) and its variants."""
         q = np.asarray(q, float).copy()
@@ -367,16 +357,22 @@ def solve_scenario(
     cells: list[int] | None = None,
     method: str | None = None,
     progress: Any = None,
+    snap: bool = True,
 ) -> tuple[Strategy, SolveResult]:
     """Build the model of a scenario's ``strategy:`` section, solve it, wrap the result.
 
     The solver settings come from ``strategy.solver`` (``method`` overrides its method).
+    ``snap=False`` removes the moves whose interpolation snaps the robot sideways
+    (:func:`~cellplan.strategies.transitions.forbid_snapping`).
     """
     from cellplan.strategies.model import build_model
     from cellplan.strategies.solver import solve
+    from cellplan.strategies.transitions import forbid_snapping
 
     sec = scenario.strategy
     mdp = build_model(scenario, cell, cells)
+    if not snap:
+        mdp = forbid_snapping(mdp)
     result = solve(
         mdp,
         method or sec.solver.method,
@@ -387,6 +383,7 @@ def solve_scenario(
     )
     strategy = Strategy.from_solution(mdp, result, scenario)
     strategy.meta["regions"] = sec.regions
+    strategy.meta["transitions"] = "snap" if snap else "no-snap"
     home = sec.home if sec.home is not None else None
     if home is None:
         home = cell.robot.start.tolist()
