@@ -73,3 +73,14 @@ def test_bad_arguments_exit_2(cellplan, scenario, tmp_path):
     assert r.returncode == 2 and "--mode" in r.stderr
     r = cellplan("plot", "strategies_p1", "--strategy", str(npz), "-o", str(tmp_path / "x.png"))
     assert r.returncode == 2 and "different scenario" in r.stderr
+
+
+def test_no_snap_solve_records_the_transition_law(cellplan, scenario, tmp_path):
+    import numpy as np
+
+    npz = tmp_path / "strict.npz"
+    r = cellplan("solve", str(scenario), "--no-snap", "-o", str(npz))
+    assert r.returncode == 0, r.stderr
+    with np.load(npz) as data:
+        meta = json.loads(str(data["meta"]))
+    assert meta["transitions"] == "no-snap"

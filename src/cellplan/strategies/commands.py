@@ -51,6 +51,13 @@ def solve_command(
     save_unconverged: Annotated[
         bool, typer.Option(help="save even if the solve did not converge")
     ] = False,
+    snap: Annotated[
+        bool,
+        typer.Option(
+            help="--no-snap drops moves whose interpolation snaps the robot sideways "
+            "(stricter model, docs/strategies.md)"
+        ),
+    ] = True,
 ) -> None:
     """Compute the optimal strategy of a scenario (Section IV) and save it as .npz."""
     from rich.console import Console
@@ -78,7 +85,9 @@ def solve_command(
         def progress(sweep: int, residual: float, gain: float) -> None:
             bar.update(task, info=f"sweep {sweep}  residual {residual:.3g}  gain {gain:.6f}")
 
-        strategy, result = solve_scenario(sc, cell, cells=shape, method=method, progress=progress)
+        strategy, result = solve_scenario(
+            sc, cell, cells=shape, method=method, progress=progress, snap=snap
+        )
         bar.update(
             task, info=f"sweeps {result.sweeps}  span {result.span:.3g}  gain {result.gain:.6f}"
         )
@@ -162,7 +171,9 @@ def simulate_command(
     )
     Console().print(
         f"{int(metrics['served'])} requests served, mean waiting time "
-        f"{metrics['mean_wait']:.2f}, idle fraction {metrics['idle_fraction']:.2f}; wrote {output}"
+        f"{metrics['mean_wait']:.2f} (delivered) / {metrics['mean_wait_all']:.2f} (all, open "
+        f"ones at their age), loss per stage {metrics['loss_per_stage']:.3f} "
+        f"(gain {strat.gain:.3f}), idle fraction {metrics['idle_fraction']:.2f}; wrote {output}"
     )
 
 

@@ -380,6 +380,12 @@ def solve_system(ptr, succ, wt, const, dconst, fixed, hl, Dl):  # pragma: no cov
     for k in range(comp_ptr.shape[0] - 1):
         a = comp_ptr[k]
         b = comp_ptr[k + 1]
+        if b - a > 1:
+            # Gauss-Seidel round a cycle needs finite starting values.
+            for j in range(a, b):
+                v = members[j]
+                if not fixed[v] and not hl[v] < np.inf:
+                    hl[v] = 0.0
         for _ in range(COMPONENT_SWEEPS if b - a > 1 else 1):
             worst = 0.0
             for j in range(a, b):
