@@ -37,7 +37,9 @@ from cellplan.strategies.stencils import (
     centre,
     decode,
     displacement,
+    first_of_order,
     move_corners,
+    next_of_order,
     stencil,
     table_stencil,
     wrap,
@@ -251,8 +253,10 @@ def sweep_policy(
         if branch_layer[b] == m:
             pself += branch_prob[b]
     maxchange = 0.0
+    c = -1
     for kk in range(ncell):
-        c = cell_of_order(kk, shape, flips, mi)
+        # Walk the cells in sweep order by odometer steps (no division per cell).
+        c = first_of_order(shape, flips, mi) if kk == 0 else next_of_order(shape, flips, mi)
         if not livem[c]:
             continue
         best = np.inf
@@ -1191,8 +1195,9 @@ def sweep_self(
     na = nact[kcls]
     step_cost = cost[m] - g
     maxchange = 0.0
+    c = -1
     for kk in range(ncell):
-        c = cell_of_order(kk, shape, flips, mi)
+        c = first_of_order(shape, flips, mi) if kk == 0 else next_of_order(shape, flips, mi)
         if not livem[c]:
             continue
         best = np.inf

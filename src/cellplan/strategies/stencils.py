@@ -122,6 +122,36 @@ def cell_of_order(k, shape, flips, mi):  # pragma: no cover - numba
 
 
 @njit(cache=True, inline="always")
+def first_of_order(shape, flips, mi):  # pragma: no cover - numba
+    """Set ``mi`` to the first cell of a sweep with flipped axes; returns its flat index."""
+    flat = 0
+    for j in range(shape.shape[0]):
+        mi[j] = shape[j] - 1 if (flips >> j) & 1 else 0
+        flat = flat * shape[j] + mi[j]
+    return flat
+
+
+@njit(cache=True, inline="always")
+def next_of_order(shape, flips, mi):  # pragma: no cover - numba
+    """Step ``mi`` to the next cell of the sweep (an odometer, no division); its flat index."""
+    for j in range(shape.shape[0] - 1, -1, -1):
+        if (flips >> j) & 1:
+            if mi[j] > 0:
+                mi[j] -= 1
+                break
+            mi[j] = shape[j] - 1
+        else:
+            if mi[j] < shape[j] - 1:
+                mi[j] += 1
+                break
+            mi[j] = 0
+    flat = 0
+    for j in range(shape.shape[0]):
+        flat = flat * shape[j] + mi[j]
+    return flat
+
+
+@njit(cache=True, inline="always")
 def table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w):  # pragma: no cover
     """Stencil of move ``a`` of class ``k`` from the centre of cell ``mi`` (precomputed offsets).
 
