@@ -106,3 +106,21 @@ def test_dijkstra_values_are_shortest_paths_on_the_main_corner_graph():
     for c in cells:
         assert abs(h[m, c] - (dist[c] - offset)) < 1e-9
         assert pol[m, c] == -2 or pol[m, c] >= 0
+
+
+def test_stability_check_on_near_ties_equals_a_full_second_sweep():
+    from cellplan.strategies import solver
+
+    sc, cell = tiny(16)
+    mdp = build_model(sc, cell)
+    result = solver.solve(mdp, "structured")
+    h = np.where(mdp.live, result.values, 0.0)
+    noise = np.random.default_rng(0).normal(scale=0.05, size=h.shape)
+    # The solved values (span ~1e-7, few near ties) and perturbed ones (many actions change).
+    for values in (h, h + noise):
+        cert = solver._certify(mdp, values)
+        _, _, th, policy, _ = cert
+        _, full, _ = solver.bellman(mdp, th - result.gain)
+        expected = int(np.count_nonzero((full != policy) & mdp.live))
+        assert solver._stability(mdp, cert, result.gain) == expected
+    assert expected > 0  # the perturbed case exercises the second sweep

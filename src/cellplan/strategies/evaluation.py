@@ -47,33 +47,7 @@ def live_cells(livem):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def layer_system(
-    m,
-    h,
-    D,
-    g,
-    pol,
-    cells,
-    local,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    periodic,
-):  # pragma: no cover - numba
+def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - numba
     """The linear system of the policy ``pol[m]`` on layer ``m`` (other layers fixed).
 
     The same update as :func:`cellplan.strategies.kernels.sweep_policy` restricted to the
@@ -81,6 +55,10 @@ def layer_system(
     of ``cells``), ``const``, ``dconst`` and ``fixed`` (cells without a usable action keep
     their value).
     """
+    (
+        live, _valid, offs, fr, coff, cw, interior, _nact, heading_axis, vcls, cost, fmp_next, tf,
+        branch_ptr, branch_layer, branch_prob, shape, periodic,
+    ) = model  # fmt: skip
     d = shape.shape[0]
     n = cells.shape[0]
     ncorner = 1 << d
@@ -179,36 +157,16 @@ def layer_system(
 
 
 @njit(cache=True)
-def self_system(
-    m,
-    h,
-    D,
-    g,
-    E,
-    ED,
-    pself,
-    pol,
-    cells,
-    local,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    shape,
-    periodic,
-):  # pragma: no cover - numba
+def self_system(m, h, D, g, E, ED, pself, pol, cells, local, model):  # pragma: no cover - numba
     """The linear system of ``pol[m]`` for the NR update of :func:`kernels.sweep_self`.
 
     Stay is solved exactly, ``h = (l - g + E[c, 0]) / (1 - pself)`` (a constant here); a
     move costs ``l - g + E[c, 1 + a] + pself * h[m](x')``.
     """
+    (
+        live, _valid, offs, fr, coff, cw, interior, _nact, heading_axis, vcls, cost, _fmp_next, _tf,
+        _branch_ptr, _branch_layer, _branch_prob, shape, periodic,
+    ) = model  # fmt: skip
     d = shape.shape[0]
     n = cells.shape[0]
     ncorner = 1 << d

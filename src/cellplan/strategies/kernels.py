@@ -188,35 +188,7 @@ def valid_moves(
 
 @njit(cache=True)
 def sweep_policy(
-    m,
-    flips,
-    h,
-    D,
-    g,
-    exact_stay,
-    track,
-    pol,
-    mode,
-    nchg,
-    tie,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    periodic,
+    m, flips, h, D, g, exact_stay, track, pol, mode, nchg, tie, model
 ):  # pragma: no cover - numba
     """One Gauss-Seidel sweep of layer ``m`` in place (axis order reversed where ``flips``).
 
@@ -234,6 +206,10 @@ def sweep_policy(
     The move loop is written out here rather than calling a helper: a call that passes
     a dozen arrays costs more than the arithmetic it does.
     """
+    (
+        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
+        branch_ptr, branch_layer, branch_prob, shape, periodic,
+    ) = model  # fmt: skip
     d = shape.shape[0]
     ncell = h.shape[1]
     mi = np.empty(d, np.int64)
@@ -420,39 +396,13 @@ def sweep_layer(
     derivative ``D = dh/dg`` along the minimising action is updated as well. Returns the
     largest change of ``h[m]``.
     """
+    model = (
+        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
+        branch_ptr, branch_layer, branch_prob, shape, periodic,
+    )  # fmt: skip
     pol = np.empty((1, 1), np.int16)
     nchg = np.zeros(1, np.int64)
-    return sweep_policy(
-        m,
-        flips,
-        h,
-        D,
-        g,
-        exact_stay,
-        track,
-        pol,
-        0,
-        nchg,
-        0.0,
-        live,
-        valid,
-        offs,
-        fr,
-        coff,
-        cw,
-        interior,
-        nact,
-        heading_axis,
-        vcls,
-        cost,
-        fmp_next,
-        tf,
-        branch_ptr,
-        branch_layer,
-        branch_prob,
-        shape,
-        periodic,
-    )
+    return sweep_policy(m, flips, h, D, g, exact_stay, track, pol, 0, nchg, 0.0, model)
 
 
 @njit(cache=True, parallel=True)
@@ -460,6 +410,8 @@ def bellman_all(
     h,
     out,
     policy,
+    gap,
+    subset,
     live,
     valid,
     offs,
@@ -483,10 +435,15 @@ def bellman_all(
 
     ``policy[m, c]`` receives the minimising action: ``-1`` stay, ``-2`` FMP, ``a >= 0``
     move ``a``; ``-3`` for states outside the MDP. Ties (within 1e-12 relative) go to the
-    first action in the order FMP, stay, moves.
+    first action in the order FMP, stay, moves. ``gap[m, c]`` receives the second-best
+    action value minus the best (``inf`` with a single action): adding to ``h`` anything
+    whose span (max - min) is below it cannot change the action there. A non-empty
+    ``subset`` (boolean, like ``h``) limits the sweep to the live states it marks (the
+    outputs elsewhere are left as they were).
     """
     M = h.shape[0]
     ncell = h.shape[1]
+    some = subset.shape[0] > 0
     d = shape.shape[0]
     ncorner = 1 << d
     # A Jacobi sweep: every state is independent, so chunks of states run in parallel.
@@ -506,9 +463,13 @@ def bellman_all(
             if not live[m, c]:
                 out[m, c] = np.nan
                 policy[m, c] = -3
+                gap[m, c] = np.nan
+                continue
+            if some and not subset[m, c]:
                 continue
             decode(c, shape, mi)
             best = np.inf
+            second = np.inf
             arg = -3
             if nxt >= 0 and tf[m, c] < np.inf and live[nxt, c]:
                 best = tf[m, c] + h[nxt, c]
@@ -522,8 +483,11 @@ def bellman_all(
                     break
                 sval += branch_prob[b] * h[L, c]
             if sok and sval < best and (best == np.inf or sval < best - 1e-12 * abs(best)):
+                second = best
                 best = sval
                 arg = -1
+            elif sok and sval < second:
+                second = sval
             vb = valid[kcls, c]
             inner = interior[kcls, c]
             for a in range(na):
@@ -548,10 +512,14 @@ def bellman_all(
                         break
                     val += branch_prob[b] * vsum / ssum
                 if ok and val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
+                    second = best
                     best = val
                     arg = a
+                elif ok and val < second:
+                    second = val
             out[m, c] = best
             policy[m, c] = arg
+            gap[m, c] = second - best
 
 
 @njit(cache=True)
@@ -835,6 +803,7 @@ def solve_layers(
     max_sweeps,
     pol,
     warm,
+    dijkstra,
     counts,
     live,
     valid,
@@ -855,82 +824,37 @@ def solve_layers(
     shape,
     periodic,
 ):  # pragma: no cover - numba
-    """Solve independent layers ``ms`` by modified policy iteration, in parallel.
+    """Solve independent layers ``ms`` by policy iteration, in parallel.
 
     Each layer alternates full Gauss-Seidel sweeps (every action, minimiser recorded in
-    ``pol``) with cheap policy-evaluation sweeps (only the recorded action) once a full
-    sweep changes the minimiser in fewer than 1% of the cells; it stops when a *full*
-    sweep changes the values by less than ``accuracy``, so the result is as accurate as
-    with full sweeps only. ``counts[i]`` receives (full sweeps, evaluation sweeps) of
-    ``ms[i]``. With ``warm`` (later passes) each layer starts with evaluation sweeps of the
-    policy recorded in the last pass. The layers must not read each other (C layers read
-    only NR, W layers only C layers), so the threads never race.
+    ``pol``) with an exact evaluation of the recorded policy
+    (:mod:`cellplan.strategies.evaluation`) once a full sweep changes the minimiser in
+    fewer than 1% of the cells; it stops when a *full* sweep changes the values by less
+    than ``accuracy``. ``counts[i]`` receives (full sweeps, evaluations) of ``ms[i]``.
+    With ``warm`` (later passes) each layer starts by evaluating the policy recorded in the
+    last pass; otherwise (values at ``+inf``), with ``dijkstra``, from the policy of
+    :func:`cellplan.strategies.coldstart.dijkstra_layer`. The layers must not read each
+    other (C layers read only NR, W layers only C layers), so the threads never race.
     """
+    model = (
+        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
+        branch_ptr, branch_layer, branch_prob, shape, periodic,
+    )  # fmt: skip
     for i in prange(ms.shape[0]):
-        full, ev = _mpi(
-            ms[i],
-            h,
-            D,
-            g,
-            False,
-            accuracy,
-            max_sweeps,
-            pol,
-            warm,
-            live,
-            valid,
-            offs,
-            fr,
-            coff,
-            cw,
-            interior,
-            nact,
-            heading_axis,
-            vcls,
-            cost,
-            fmp_next,
-            tf,
-            branch_ptr,
-            branch_layer,
-            branch_prob,
-            shape,
-            periodic,
-        )
+        full, ev = _mpi(ms[i], h, D, g, False, accuracy, max_sweeps, pol, warm, dijkstra, model)
         counts[i, 0] = full
         counts[i, 1] = ev
 
 
 @njit(cache=True)
 def _mpi(
-    m,
-    h,
-    D,
-    g,
-    exact_stay,
-    accuracy,
-    max_sweeps,
-    pol,
-    warm,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    periodic,
+    m, h, D, g, exact_stay, accuracy, max_sweeps, pol, warm, dijkstra, model
 ):  # pragma: no cover - numba
-    """Modified policy iteration on one layer (see :func:`solve_layers`)."""
+    """Policy iteration on one layer (see :func:`solve_layers`)."""
+    (
+        live, valid, _offs, _fr, coff, _cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
+        _branch_ptr, _branch_layer, _branch_prob, shape, _periodic,
+    ) = model  # fmt: skip
     d = shape.shape[0]
     cells, local = live_cells(live[m])
     nlive = cells.shape[0]
@@ -941,7 +865,7 @@ def _mpi(
     # Warm start: the recorded policy is last pass's and nearly right, so evaluate it first
     # and let one full sweep confirm (saves a full sweep per layer and pass).
     evaluate_first = warm
-    if not warm:
+    if not warm and dijkstra:
         # Cold start: a first policy by Dijkstra, then exact evaluation and full sweeps.
         evaluate_first = (
             dijkstra_layer(
@@ -969,35 +893,7 @@ def _mpi(
         else:
             nchg[0] = 0
             change = sweep_policy(
-                m,
-                flip % (1 << d),
-                h,
-                D,
-                g,
-                exact_stay,
-                True,
-                pol,
-                1,
-                nchg,
-                accuracy,
-                live,
-                valid,
-                offs,
-                fr,
-                coff,
-                cw,
-                interior,
-                nact,
-                heading_axis,
-                vcls,
-                cost,
-                fmp_next,
-                tf,
-                branch_ptr,
-                branch_layer,
-                branch_prob,
-                shape,
-                periodic,
+                m, flip % (1 << d), h, D, g, exact_stay, True, pol, 1, nchg, accuracy, model
             )
             full += 1
             flip += 1
@@ -1006,33 +902,7 @@ def _mpi(
         if nchg[0] * 100 <= nlive:
             # The policy has nearly settled: evaluate it exactly (one pass in dependency
             # order, :mod:`cellplan.strategies.evaluation`) rather than by many sweeps.
-            ptr, succ, wt, const, dconst, fixed = layer_system(
-                m,
-                h,
-                D,
-                g,
-                pol,
-                cells,
-                local,
-                live,
-                valid,
-                offs,
-                fr,
-                coff,
-                cw,
-                interior,
-                nact,
-                heading_axis,
-                vcls,
-                cost,
-                fmp_next,
-                tf,
-                branch_ptr,
-                branch_layer,
-                branch_prob,
-                shape,
-                periodic,
-            )
+            ptr, succ, wt, const, dconst, fixed = layer_system(m, h, D, g, pol, cells, local, model)
             evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
             ev += 1
     return full, ev
@@ -1148,31 +1018,7 @@ def other_branches(
 
 @njit(cache=True)
 def sweep_self(
-    m,
-    flips,
-    h,
-    D,
-    g,
-    E,
-    ED,
-    pself,
-    pol,
-    mode,
-    nchg,
-    tie,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    shape,
-    periodic,
+    m, flips, h, D, g, E, ED, pself, pol, mode, nchg, tie, model
 ):  # pragma: no cover - numba
     """One Gauss-Seidel sweep of a layer without FMP whose other branches are in ``E``.
 
@@ -1182,6 +1028,10 @@ def sweep_self(
     ``l - g + E[c, 1 + a] + pself * h[m](x')``. ``pol``, ``mode`` and ``nchg`` as in
     :func:`sweep_policy`. Returns the largest change.
     """
+    (
+        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, _fmp_next, _tf,
+        _branch_ptr, _branch_layer, _branch_prob, shape, periodic,
+    ) = model  # fmt: skip
     d = shape.shape[0]
     ncell = h.shape[1]
     mi = np.empty(d, np.int64)
@@ -1295,6 +1145,11 @@ def solve_self(
     heading_axis,
     vcls,
     cost,
+    fmp_next,
+    tf,
+    branch_ptr,
+    branch_layer,
+    branch_prob,
     shape,
     periodic,
 ):  # pragma: no cover - numba
@@ -1303,6 +1158,10 @@ def solve_self(
     Stops when a full sweep changes less than ``accuracy``; ``counts`` receives
     (full sweeps, evaluation sweeps).
     """
+    model = (
+        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
+        branch_ptr, branch_layer, branch_prob, shape, periodic,
+    )  # fmt: skip
     d = shape.shape[0]
     cells, local = live_cells(live[m])
     nlive = cells.shape[0]
@@ -1319,31 +1178,7 @@ def solve_self(
         else:
             nchg[0] = 0
             change = sweep_self(
-                m,
-                flip % (1 << d),
-                h,
-                D,
-                g,
-                E,
-                ED,
-                pself,
-                pol,
-                1,
-                nchg,
-                accuracy,
-                live,
-                valid,
-                offs,
-                fr,
-                coff,
-                cw,
-                interior,
-                nact,
-                heading_axis,
-                vcls,
-                cost,
-                shape,
-                periodic,
+                m, flip % (1 << d), h, D, g, E, ED, pself, pol, 1, nchg, accuracy, model
             )
             full += 1
             flip += 1
@@ -1351,29 +1186,7 @@ def solve_self(
                 break
         if nchg[0] * 100 <= nlive:
             ptr, succ, wt, const, dconst, fixed = self_system(
-                m,
-                h,
-                D,
-                g,
-                E,
-                ED,
-                pself,
-                pol,
-                cells,
-                local,
-                live,
-                valid,
-                offs,
-                fr,
-                coff,
-                cw,
-                interior,
-                nact,
-                heading_axis,
-                vcls,
-                cost,
-                shape,
-                periodic,
+                m, h, D, g, E, ED, pself, pol, cells, local, model
             )
             evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
             ev += 1

@@ -127,23 +127,47 @@ class SolveResult:
         }
 
 
-def bellman(mdp: LayeredMDP, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(T h, policy)``: one Jacobi sweep of equation (9) over every state (no ``g``)."""
-    out = np.empty_like(h)
-    policy = np.empty(h.shape, np.int64)
-    kernels.bellman_all(h, out, policy, *mdp.kernel_args())
-    return out, policy
+def bellman(
+    mdp: LayeredMDP, h: np.ndarray, subset: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(T h, policy, gap)``: one Jacobi sweep of equation (9) over every state (no ``g``).
+
+    ``gap`` is the second-best action value minus the best, per state. With ``subset``
+    (boolean, like ``h``) only those states are swept; the outputs elsewhere are NaN / -3.
+    """
+    out = np.full_like(h, np.nan)
+    policy = np.full(h.shape, -3, np.int64)
+    gap = np.full_like(h, np.nan)
+    mask = np.zeros((0, 0), np.bool_) if subset is None else subset
+    kernels.bellman_all(h, out, policy, gap, mask, *mdp.kernel_args())
+    return out, policy, gap
 
 
-def _certify(mdp: LayeredMDP, h: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
-    th, policy = bellman(mdp, h)
+Certificate = tuple[float, float, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _certify(mdp: LayeredMDP, h: np.ndarray) -> Certificate:
+    th, policy, gap = bellman(mdp, h)
     r = (th - h)[mdp.live]
-    return float(r.min()), float(r.max()), th, policy
+    return float(r.min()), float(r.max()), th, policy, gap
 
 
-def _stability(mdp: LayeredMDP, th: np.ndarray, policy: np.ndarray, g: float) -> int:
-    _, policy2 = bellman(mdp, th - g)
-    return int(np.count_nonzero((policy2 != policy) & mdp.live))
+def _stability(mdp: LayeredMDP, cert: Certificate, g: float) -> int:
+    """States whose action changes in one more Bellman sweep, ``T (T h - g)`` against ``T h``.
+
+    ``T h - g = h + r`` with ``span(r)`` the certificate's span, so an action can change only
+    where its margin over the second-best action is at most that span (ties included); the
+    second sweep visits only those states.
+    """
+    lo, hi, th, policy, gap = cert
+    live = mdp.live
+    # Float slack: values are sums of tens of terms of size up to |T h|.
+    slack = (hi - lo) + 1e-9 * np.maximum(1.0, np.abs(np.where(live, th, 0.0)))
+    near = live & (gap <= slack)
+    if not np.any(near):
+        return 0
+    _, policy2, _ = bellman(mdp, th - g, near)
+    return int(np.count_nonzero((policy2 != policy) & near))
 
 
 def _finish(
@@ -157,14 +181,15 @@ def _finish(
     method: str,
     t0: float,
     ref: int,
-    cert: tuple[float, float, np.ndarray, np.ndarray] | None = None,
+    cert: Certificate | None = None,
 ) -> SolveResult:
     # ``cert``: the certificate of this very ``h``, when the caller already computed it.
-    lo, hi, th, policy = _certify(mdp, h) if cert is None else cert
+    cert = _certify(mdp, h) if cert is None else cert
+    lo, hi, _, policy, _ = cert
     full += 1
     span = hi - lo
     g = 0.5 * (lo + hi) if span < tol else g_hint
-    changes = _stability(mdp, th, policy, g)
+    changes = _stability(mdp, cert, g)
     full += 1
     values = np.where(mdp.live, h - h[0, ref], np.nan)
     return SolveResult(
@@ -204,7 +229,7 @@ def solve_general(
     g = 0.0
     k = 0
     for k in range(1, max_sweeps + 1):
-        th, _ = bellman(mdp, h)
+        th, _, _ = bellman(mdp, h)
         diff = np.where(live, th - h, 0.0)
         r = diff[live]
         lo, hi = float(r.min()), float(r.max())
@@ -275,6 +300,11 @@ def solve_structured(
             solo_prob[b] = 1.0 if lay[b] == m else 0.0
     solo_args = (*args[:-5], ptr, lay, solo_prob, *args[-2:])
 
+    # A Dijkstra first policy pays off where Gauss-Seidel from +inf is slow to cross the
+    # layer: 3-D joint spaces (8 sweep orders). In the plane 4 orders suffice, and for a
+    # robot-frame heading axis its predecessor search costs more than it saves.
+    cold_dijkstra = d >= 3 and mdp.heading_axis < 0
+
     def solve_layer(
         m: int, g: float, exact_stay: bool, accuracy: float, warm: float | None
     ) -> None:
@@ -316,9 +346,6 @@ def solve_structured(
         )
     )
 
-    # solve_self takes the model arrays up to the loss, then the grid (see kernel_args).
-    nr_args: tuple[object, ...] = (*args[:11], mdp.shape, mdp.periodic)
-
     def solve_nr(g: float, accuracy: float, cold: bool) -> None:
         # The first pass starts from +inf (Gauss-Seidel then decreases monotonically);
         # later passes evaluate last pass's NR policy exactly first, then sweep.
@@ -328,7 +355,7 @@ def solve_structured(
             h[0][live[0]] = np.inf
         counts = np.zeros(2, np.int64)
         kernels.solve_self(
-            0, h, D, g, E, ED, p_self, accuracy, max_sweeps, pol, not cold, counts, *nr_args
+            0, h, D, g, E, ED, p_self, accuracy, max_sweeps, pol, not cold, counts, *args
         )
         sweeps += int(counts[0])
         eval_sweeps += int(counts[1])
@@ -369,7 +396,7 @@ def solve_structured(
     hist_d: list[np.ndarray] = []
     hist_g: list[float] = []
     shift = 0.0
-    cert: tuple[float, float, np.ndarray, np.ndarray] | None = None
+    cert: Certificate | None = None
     for outer in range(1, max_outer + 1):
         warm: float | None = None
         if outer > 1:
@@ -398,6 +425,7 @@ def solve_structured(
                     max_sweeps,
                     pol,
                     EVAL_FIRST and warm is not None,
+                    cold_dijkstra,
                     counts,
                     *args,
                 )
