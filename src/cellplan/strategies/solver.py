@@ -29,9 +29,9 @@ the minimisers of the right-hand side. Two solvers share the kernels:
   request cycle and moves ``g`` by Newton steps on the drift ``h_NR(ref)`` (the
   derivative, minus the expected cycle length, is tracked along the minimising actions
   as ``D = dh/dg``, which also moves the other layers with ``g``); the NR shape is
-  Anderson-accelerated over the last passes. While the NR shape still changes a lot from
-  pass to pass, each C and W layer gets only a few sweeps (an inexact inner solve); such
-  a pass never ends the loop. Layers with identical data are solved once.
+  Anderson-accelerated over the last passes. On the first pass and while the NR shape
+  still changes a lot from pass to pass, each C and W layer gets only a few sweeps (an
+  inexact inner solve); such a pass never ends the loop. Layers with identical data are solved once.
   The answer is certified by one Jacobi Bellman sweep over every state, which must pass
   the same span test.
 """
@@ -55,9 +55,10 @@ log = logging.getLogger(__name__)
 ACCURACY_FACTOR = 0.05
 # Inner accuracy of the first passes (cold start, g still far from the gain).
 FIRST_ACCURACY = 1e-2
-# While the NR shape still changes by more than EARLY_SHAPE * tol per pass, the C and W
-# layers get at most EARLY_SWEEPS full sweeps plus evaluations each: solving them exactly
-# against terminal values that will move again is wasted (P6 at 64^3: 18 -> 13.5 s).
+# On the first pass (g still at its initial guess) and while the NR shape changes by more
+# than EARLY_SHAPE * tol per pass, the C and W layers get at most EARLY_SWEEPS full sweeps
+# plus evaluations each: solving them exactly against terminal values that will move
+# again is wasted (P6 at 64^3: 18 -> 11.3 s).
 EARLY_SWEEPS = 5
 EARLY_SHAPE = 1e4
 # Passes mixed by the Anderson acceleration of the NR shape.
@@ -417,7 +418,7 @@ def solve_structured(
         g_solved = g
         # An early pass (see EARLY_SWEEPS) may end with the layers short of the accuracy, so
         # it can neither stop the loop nor try the certificate.
-        capped = outer > 1 and last_shape > EARLY_SHAPE * tol
+        capped = last_shape > EARLY_SHAPE * tol
         layer_cap = EARLY_SWEEPS if capped else max_sweeps
         if coupled:
             solve_group([mdp.c_layer(r) for r in range(R)], g, accuracy, warm)
