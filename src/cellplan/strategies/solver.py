@@ -489,10 +489,10 @@ def solve_structured(
             and accuracy <= inner_tol
         ):
             break
-        # The drift is the g error times the expected request cycle (-deriv, tens of
-        # stages): test the g error itself.
-        g_error = abs(drift) / max(1.0, -deriv)
-        if not capped and outer > 1 and g_error < tol * 0.5 and shape_span < tol * 0.5:
+        # The certificate's span is about the larger of the drift and the NR shape change
+        # (the drift shows up as the inconsistency at the FMP into NR): try it once both are
+        # within the tolerance; a failed attempt costs one Jacobi sweep.
+        if not capped and outer > 1 and abs(drift) < tol and shape_span < tol * 0.5:
             # Close enough to try the certificate now rather than after another pass.
             trial = h.copy()
             for m in order:
