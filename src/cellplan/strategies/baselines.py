@@ -35,7 +35,7 @@ def per_request_values(mdp: LayeredMDP, tol: float = 1e-9, max_sweeps: int = 100
     for m in [mdp.c_layer(r) for r in range(R)] + [mdp.w_layer(r) for r in range(R)]:
         work[m][mdp.live[m]] = np.inf
         for s in range(max_sweeps):
-            if kernels.sweep_layer(m, s % (1 << d), work, D, 0.0, False, False, *args) < tol:
+            if kernels.sweep_layer(m, s % (1 << d), work, D, 0.0, False, False, args) < tol:
                 break
         h[m] = np.where(mdp.live[m], work[m], np.nan)
     return h
@@ -73,7 +73,7 @@ def home_values(
     d = len(mdp.shape)
     args = aux.kernel_args()
     for s in range(max_sweeps):
-        if kernels.sweep_layer(0, s % (1 << d), h, D, 0.0, False, False, *args) < tol:
+        if kernels.sweep_layer(0, s % (1 << d), h, D, 0.0, False, False, args) < tol:
             break
     out = np.where(live_nr & np.isfinite(h[0]), h[0], np.nan)
     return out

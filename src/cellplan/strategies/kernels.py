@@ -15,6 +15,11 @@ indices) and on the layered MDP of :mod:`cellplan.strategies.model`:
   surrounding cell centres, renormalised over the live ones, so it is also the
   transition distribution of the discretised MDP.
 
+The model arrays travel as one tuple ``model``, in the order of
+:meth:`~cellplan.strategies.model.LayeredMDP.kernel_args` (``live, valid, offs, fr, coff,
+cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf, branch_ptr, branch_layer,
+branch_prob, shape, periodic``); each kernel unpacks the ones it reads.
+
 Action ``a`` of move class ``k`` displaces a configuration by ``disp[k, a]``; with
 ``heading_axis >= 0`` the first two components are in the robot frame (rotated by the
 angle on that axis), which gives the rotating robot of problem 3 its "move along the
@@ -369,24 +374,7 @@ def sweep_layer(
     g,
     exact_stay,
     track,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    periodic,
+    model,
 ):  # pragma: no cover - numba
     """One Gauss-Seidel sweep of layer ``m`` over every action (:func:`sweep_policy`, mode 0).
 
@@ -396,10 +384,6 @@ def sweep_layer(
     derivative ``D = dh/dg`` along the minimising action is updated as well. Returns the
     largest change of ``h[m]``.
     """
-    model = (
-        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
-        branch_ptr, branch_layer, branch_prob, shape, periodic,
-    )  # fmt: skip
     pol = np.empty((1, 1), np.int16)
     nchg = np.zeros(1, np.int64)
     return sweep_policy(m, flips, h, D, g, exact_stay, track, pol, 0, nchg, 0.0, model)
@@ -412,24 +396,7 @@ def bellman_all(
     policy,
     gap,
     subset,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    periodic,
+    model,
 ):  # pragma: no cover - numba
     """One Jacobi Bellman sweep over every state: ``out = T h`` (no g subtracted).
 
@@ -441,6 +408,10 @@ def bellman_all(
     ``subset`` (boolean, like ``h``) limits the sweep to the live states it marks (the
     outputs elsewhere are left as they were).
     """
+    (
+        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
+        branch_ptr, branch_layer, branch_prob, shape, periodic,
+    ) = model  # fmt: skip
     M = h.shape[0]
     ncell = h.shape[1]
     some = subset.shape[0] > 0
@@ -805,24 +776,7 @@ def solve_layers(
     warm,
     dijkstra,
     counts,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    periodic,
+    model,
 ):  # pragma: no cover - numba
     """Solve independent layers ``ms`` by policy iteration, in parallel.
 
@@ -836,10 +790,6 @@ def solve_layers(
     :func:`cellplan.strategies.coldstart.dijkstra_layer`. The layers must not read each
     other (C layers read only NR, W layers only C layers), so the threads never race.
     """
-    model = (
-        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
-        branch_ptr, branch_layer, branch_prob, shape, periodic,
-    )  # fmt: skip
     for i in prange(ms.shape[0]):
         full, ev = _mpi(ms[i], h, D, g, False, accuracy, max_sweeps, pol, warm, dijkstra, model)
         counts[i, 0] = full
@@ -915,24 +865,7 @@ def other_branches(
     D,
     E,
     ED,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    periodic,
+    model,
 ):  # pragma: no cover - numba
     """Expected next value over the branches that leave layer ``m``, per cell and action.
 
@@ -944,6 +877,10 @@ def other_branches(
     touches only its own values (the request branches cost 16 interpolations per move in
     problem 1; done once here instead of once per sweep).
     """
+    (
+        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, _cost, _fmp_next, _tf,
+        branch_ptr, branch_layer, branch_prob, shape, periodic,
+    ) = model  # fmt: skip
     d = shape.shape[0]
     ncell = h.shape[1]
     ncorner = 1 << d
@@ -1134,34 +1071,15 @@ def solve_self(
     pol,
     warm,
     counts,
-    live,
-    valid,
-    offs,
-    fr,
-    coff,
-    cw,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    periodic,
+    model,
 ):  # pragma: no cover - numba
     """Modified policy iteration with :func:`sweep_self` (as in :func:`solve_layers`).
 
     Stops when a full sweep changes less than ``accuracy``; ``counts`` receives
     (full sweeps, evaluation sweeps).
     """
-    model = (
-        live, valid, offs, fr, coff, cw, interior, nact, heading_axis, vcls, cost, fmp_next, tf,
-        branch_ptr, branch_layer, branch_prob, shape, periodic,
-    )  # fmt: skip
+    live = model[0]
+    shape = model[16]  # the order of LayeredMDP.kernel_args
     d = shape.shape[0]
     cells, local = live_cells(live[m])
     nlive = cells.shape[0]

@@ -147,7 +147,7 @@ def bellman(
     policy = np.full(h.shape, -3, np.int64)
     gap = np.full_like(h, np.nan)
     mask = np.zeros((0, 0), np.bool_) if subset is None else subset
-    kernels.bellman_all(h, out, policy, gap, mask, *mdp.kernel_args())
+    kernels.bellman_all(h, out, policy, gap, mask, mdp.kernel_args())
     return out, policy, gap
 
 
@@ -328,7 +328,7 @@ def solve_structured(
         else:
             h[m][lm] += dg * D[m][lm] + warm
         for s in range(max(1, max_sweeps)):
-            change = kernels.sweep_layer(m, s % (1 << d), h, D, g, exact_stay, True, *layer_args)
+            change = kernels.sweep_layer(m, s % (1 << d), h, D, g, exact_stay, True, layer_args)
             sweeps += 1
             if change < accuracy:
                 return
@@ -358,12 +358,12 @@ def solve_structured(
         # The first pass starts from +inf (Gauss-Seidel then decreases monotonically);
         # later passes evaluate last pass's NR policy exactly first, then sweep.
         nonlocal sweeps, eval_sweeps
-        kernels.other_branches(0, h, D, E, ED, *args)
+        kernels.other_branches(0, h, D, E, ED, args)
         if cold:
             h[0][live[0]] = np.inf
         counts = np.zeros(2, np.int64)
         kernels.solve_self(
-            0, h, D, g, E, ED, p_self, accuracy, max_sweeps, pol, not cold, counts, *args
+            0, h, D, g, E, ED, p_self, accuracy, max_sweeps, pol, not cold, counts, args
         )
         sweeps += int(counts[0])
         eval_sweeps += int(counts[1])
@@ -384,7 +384,7 @@ def solve_structured(
             change = 0.0
             for m in ms:
                 change = max(
-                    change, kernels.sweep_layer(m, s % (1 << d), h, D, g, False, True, *args)
+                    change, kernels.sweep_layer(m, s % (1 << d), h, D, g, False, True, args)
                 )
             sweeps += len(ms)
             if change < accuracy:
@@ -440,7 +440,7 @@ def solve_structured(
                     EVAL_FIRST and warm is not None,
                     cold_dijkstra,
                     counts,
-                    *args,
+                    args,
                 )
                 sweeps += int(counts[:, 0].sum())
                 eval_sweeps += int(counts[:, 1].sum())
