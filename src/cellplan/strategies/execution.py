@@ -40,7 +40,6 @@ never modified.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np
@@ -55,20 +54,6 @@ RAISE_FRACTION = 0.5
 # Motion sequences examined per stage by the lookahead, and its deepest horizon.
 LEAF_BUDGET = 400
 MAX_DEPTH = 6
-
-
-@njit(cache=True)
-def _cell(q, shape, lower, spacing, periodic):  # pragma: no cover - numba
-    """Flat index of the grid cell containing ``q`` (its nearest cell centre)."""
-    c = 0
-    for j in range(shape.shape[0]):
-        i = int(math.floor((q[j] - lower[j]) / spacing[j]))
-        if periodic[j]:
-            i = i % shape[j]
-        else:
-            i = min(max(i, 0), shape[j] - 1)
-        c = c * shape[j] + i
-    return c
 
 
 @njit(cache=True)
@@ -168,7 +153,7 @@ def lookahead(
     for j in range(d):
         qd[0, j] = q[j]
     if nxt >= 0 and fmp_root:
-        c = _cell(q, shape, lower, spacing, periodic)
+        c = stencils.cell_containing(q, shape, lower, spacing, periodic)
         if tf[m, c] < np.inf:
             n = stencils.stencil(q, shape, lower, spacing, periodic, idx, w, ibuf, frac)
             v = kernels.interp(h[nxt], live[nxt], idx, w, n)
@@ -201,7 +186,7 @@ def lookahead(
         for j in range(d):
             qd[level + 1, j] = qd[level, j] + dq[j]
         stencils.wrap(qd[level + 1], lower, upper, periodic)
-        c = _cell(qd[level + 1], shape, lower, spacing, periodic)
+        c = stencils.cell_containing(qd[level + 1], shape, lower, spacing, periodic)
         if not live[m, c]:
             continue
         acc[level + 1] = acc[level] + step

@@ -38,6 +38,7 @@ from cellplan.strategies.evaluation import evaluate, layer_system, live_cells, s
 from cellplan.strategies.stencils import (
     EPS_W,
     MAX_DIM,
+    cell_containing,
     cell_of_order,
     centre,
     decode,
@@ -717,15 +718,7 @@ def query(
     Returns -2 (FMP), -1 (stay), a move index, or -9 when no action is available; ``out``
     receives the right-hand side of (9) per action as in :func:`action_values_at`.
     """
-    d = shape.shape[0]
-    c = 0
-    for j in range(d):
-        i = int(math.floor((q[j] - lower[j]) / spacing[j]))
-        if periodic[j]:
-            i = i % shape[j]
-        else:
-            i = min(max(i, 0), shape[j] - 1)
-        c = c * shape[j] + i
+    c = cell_containing(q, shape, lower, spacing, periodic)
     tf_here = tf[m, c]
     allowed = (not forbid_fmp) and tf_here < np.inf
     action_values_at(

@@ -122,6 +122,20 @@ def cell_of_order(k, shape, flips, mi):  # pragma: no cover - numba
 
 
 @njit(cache=True, inline="always")
+def cell_containing(q, shape, lower, spacing, periodic):  # pragma: no cover - numba
+    """Flat index of the grid cell containing configuration ``q`` (clamped at the border)."""
+    c = 0
+    for j in range(shape.shape[0]):
+        i = int(math.floor((q[j] - lower[j]) / spacing[j]))
+        if periodic[j]:
+            i = i % shape[j]
+        else:
+            i = min(max(i, 0), shape[j] - 1)
+        c = c * shape[j] + i
+    return c
+
+
+@njit(cache=True, inline="always")
 def first_of_order(shape, flips, mi):  # pragma: no cover - numba
     """Set ``mi`` to the first cell of a sweep with flipped axes; returns its flat index."""
     flat = 0
