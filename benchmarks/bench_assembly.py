@@ -1,6 +1,8 @@
 """Benchmark of the assembly package: log-space vs plain linear-space phi, time vs n.
 
-Run: ``.venv/bin/python benchmarks/bench_assembly.py`` (add ``--quick`` for a short run).
+Run: ``.venv/bin/python benchmarks/bench_assembly.py`` (add ``--quick`` for a short run;
+``--only-eigh`` for section 4 alone). No environment variable is needed: the implicit step
+calls no BLAS (section 4).
 
 1. Where each formulation fails. For n discs (random legal starts; a hexagonal goal
    cluster up to 15 discs, random legal goals beyond), the same RK4 gradient-flow
@@ -18,21 +20,36 @@ Run: ``.venv/bin/python benchmarks/bench_assembly.py`` (add ``--quick`` for a sh
    continues at k/2, k/4, ...; Section 3.2); they report how many runs the flow at k
    solved alone and how many with k lowered, and the time of the whole run. The RK4
    baseline is the flow at k alone, as before.
+4. The implicit step's eigen-decomposition without BLAS. Per call, at 14, 30 and 100
+   rows (7, 15 and 50 discs): the numba kernel (:func:`eigen.sym_eigh`, full
+   decomposition; :func:`eigen.implicit_step_kernel`, the whole step) against numpy's
+   ``eigh`` (OpenBLAS threads as configured, by default all cores) and numba's LAPACK
+   call (the previous step's); the experiment ``assembly.ratio_vs_k`` at 7 discs, k=96
+   (25 seeds; ``--quick`` 5) with both steps (same paths to rounding); a 50-disc flow
+   with the new step against the previous LAPACK step (``implicit_step(...,
+   lapack=True)``), same process, same problem (full run; ``--quick``: the first 300
+   steps of each).
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import math
+import statistics
 import time
+from collections.abc import Callable
+from unittest import mock
 
 import numpy as np
 
-from cellplan.assembly.flows import FlowSettings, gradient_flow
-from cellplan.assembly.navigation import evaluate, grad_linear, log_beta_parts
+from cellplan.assembly import eigen, experiments, flows
+from cellplan.assembly.flows import FlowSettings, gradient_flow, implicit_step
+from cellplan.assembly.navigation import evaluate, grad_linear, hessian_log_w, log_beta_parts
 from cellplan.assembly.planners import ESCAPES
 from cellplan.assembly.problems import DiscProblem, default_workspace, generate_problem
 from cellplan.assembly.section import GeneratorSpec
+from cellplan.core import RunSpec
 
 LOG_MAX = math.log(np.finfo(float).max)
 LOG_TINY = math.log(np.finfo(float).tiny)
@@ -136,10 +153,97 @@ def fifteen(seeds: int, ks: tuple[float, ...], baseline_k: float) -> None:
               f"(SPARCstation-1, not comparable)")
 
 
+def per_call_ms(fn: Callable[[], object], reps: int) -> float:
+    """Median over 7 batches of the mean time per call (the machine is shared)."""
+    fn()
+    batches = []
+    for _ in range(7):
+        t0 = time.perf_counter()
+        for _ in range(reps):
+            fn()
+        batches.append((time.perf_counter() - t0) / reps * 1e3)
+    return statistics.median(batches)
+
+
+def eigh_cost(m: int, reps: int) -> None:
+    """One decomposition and one step on a real Hessian of ``m / 2`` discs."""
+    p = problem_for(m // 2, 0)
+    k = k_for(m // 2)
+    b = p.start
+    ev = evaluate(b, p, k)
+    g = ev.v.reshape(-1) / math.exp(ev.log_gamma)
+    hess = np.ascontiguousarray(hessian_log_w(b, p, k))
+    new = per_call_ms(lambda: eigen.sym_eigh(hess), reps)
+    npy = per_call_ms(lambda: np.linalg.eigh(hess), reps)
+    lap = per_call_ms(lambda: eigen.sym_eigh_lapack(hess), reps)
+    step_new = per_call_ms(lambda: implicit_step(g, hess, 0.05), reps)
+    step_old = per_call_ms(lambda: implicit_step(g, hess, 0.05, lapack=True), reps)
+    print(f"{m:>4} {new:9.4f} {npy:9.4f} {lap:9.4f} {npy / new:7.2f} {lap / new:7.2f} |"
+          f" {step_new:9.4f} {step_old:9.4f} {step_old / step_new:7.2f}")
+
+
+def flow_new_vs_old(n: int, max_steps: int) -> None:
+    """The same flow with the BLAS-free step and with the previous LAPACK step."""
+    p = problem_for(n, 0)
+    k = k_for(n)
+    settings = FlowSettings(max_steps=max_steps)
+    gradient_flow(problem_for(3, 0), k_for(3))  # compile outside the timing
+    t0 = time.perf_counter()
+    new = gradient_flow(p, k, settings=settings)
+    t_new = time.perf_counter() - t0
+    with mock.patch.object(flows, "implicit_step",
+                           functools.partial(implicit_step, lapack=True)):
+        t0 = time.perf_counter()
+        old = gradient_flow(p, k, settings=settings)
+        t_old = time.perf_counter() - t0
+    straight = float(np.linalg.norm(p.start - p.goal))
+    gap = float(np.max(np.abs(new.path[-1] - old.path[-1]))) if len(new.path) == len(
+        old.path) else float("nan")
+    print(f"{n} discs, k={k:g}: new step {new.status.value} in {new.steps} steps, "
+          f"{t_new:.2f} s ({t_new / max(new.steps, 1) * 1e3:.2f} ms/step), ratio "
+          f"{new.length() / straight:.4f}; LAPACK step {old.status.value} in {old.steps} "
+          f"steps, {t_old:.2f} s ({t_old / max(old.steps, 1) * 1e3:.2f} ms/step), ratio "
+          f"{old.length() / straight:.4f}; old/new time {t_old / t_new:.2f}x; "
+          f"end points differ by {gap:.1e}")
+
+
+def paths_new_vs_old(n: int, k: float, seeds: int) -> None:
+    """The experiment ``assembly.ratio_vs_k`` (planner runs, escapes included) with both
+    steps: the paths must agree to rounding."""
+    specs = [RunSpec("assembly.ratio_vs_k", {"algorithm": "gradient", "n": n, "k": k}, s)
+             for s in range(seeds)]
+    experiments.run(specs[0])  # compile outside the timing
+    t0 = time.perf_counter()
+    new = np.array([float(experiments.run(spec)["ratio"]) for spec in specs])
+    t_new = time.perf_counter() - t0
+    with mock.patch.object(flows, "implicit_step",
+                           functools.partial(implicit_step, lapack=True)):
+        t0 = time.perf_counter()
+        old = np.array([float(experiments.run(spec)["ratio"]) for spec in specs])
+        t_old = time.perf_counter() - t0
+    print(f"{n} discs, k={k:g}, seeds 0..{seeds - 1}: mean ratio new {new.mean():.6f}, "
+          f"LAPACK step {old.mean():.6f}; largest per-run difference "
+          f"{np.max(np.abs(new - old)):.1e}; time {t_new:.2f} s / {t_old:.2f} s")
+
+
+def eigh_section(quick: bool) -> None:
+    print("\n4. eigen-decomposition without BLAS (ms per call, median of 7 batches)")
+    print("rows  kernel  np.eigh  numba-LAPACK  np/kernel  LAPACK/kernel |"
+          " step-new  step-old  old/new")
+    for m in (14, 30, 100):
+        eigh_cost(m, 200 if m < 100 else 40)
+    paths_new_vs_old(7, 96.0, 5 if quick else 25)
+    flow_new_vs_old(50, 300 if quick else 60000)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--only-eigh", action="store_true", help="section 4 alone")
     args = ap.parse_args()
+    if args.only_eigh:
+        eigh_section(args.quick)
+        return
     sizes = (3, 7, 15) if args.quick else (3, 5, 7, 10, 15, 20, 30, 50)
     max_steps = 4000 if args.quick else 60000
     print("1. log-space vs linear-space phi along the same integrator (seed 0)")
@@ -155,6 +259,7 @@ def main() -> None:
         fifteen(3, (256.0,), 256.0)
     else:
         fifteen(20, (128.0, 256.0, 512.0, 1024.0), 256.0)
+    eigh_section(args.quick)
 
 
 if __name__ == "__main__":

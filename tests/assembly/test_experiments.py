@@ -14,20 +14,21 @@ def _rows(specs: list[RunSpec]) -> list[dict[str, Scalar]]:
             for spec in specs]
 
 
-def test_sensitivity_spreads_the_starts_and_reports_per_scale(tmp_path: Path) -> None:
+def test_sensitivity_spreads_the_starts_and_reports_per_fill(tmp_path: Path) -> None:
     specs = ex._runs_sensitivity(2, quick=True)
-    cells = {(s.params["ws_scale"], s.params["start_gap"]) for s in specs}
-    assert cells == {(1.0, 0.05), (2.0, 0.05), (1.0, 1.0)}
+    cells = {(s.params["fill"], s.params["start_gap"]) for s in specs}
+    assert cells == {(0.05, 0.05), (0.0125, 0.05), (0.05, 1.0)}
     rows = _rows(specs)
     assert all(r["solved"] for r in rows)
 
-    def straight(scale: float, seed: int) -> float:
-        (r,) = [r for r in rows if r["ws_scale"] == scale and r["start_gap"] == 0.05
+    def straight(fill: float, seed: int) -> float:
+        (r,) = [r for r in rows if r["fill"] == fill and r["start_gap"] == 0.05
                 and r["seed"] == seed]
         return float(r["length"]) / float(r["ratio"])
 
-    # the same seed in a workspace twice as wide starts about twice as far out
-    assert all(straight(2.0, s) > 1.5 * straight(1.0, s) for s in (0, 1))
+    # a quarter of the fill is a workspace twice as wide: the same seed starts about
+    # twice as far out
+    assert all(straight(0.0125, s) > 1.5 * straight(0.05, s) for s in (0, 1))
     piece = ex._report_sensitivity(rows, tmp_path)
     (_, table), = piece.tables
     assert len(table) == 3 and all("solved at k" in row for row in table)

@@ -10,6 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cellplan.assembly.problems import (
+    DEFAULT_FILL,
     default_workspace,
     gap_for_beta,
     generate_problem,
@@ -49,6 +50,23 @@ def test_generated_problems_are_legal_and_seeded(starts: str) -> None:
         assert not legality_problems(pos, a.radii, a.workspace)
     if starts == "permutation":
         assert sorted(map(tuple, a.start)) == sorted(map(tuple, a.goal))
+
+
+@pytest.mark.parametrize("n", [1, 7, 10, 50])
+@pytest.mark.parametrize("fill", [0.02, 0.05, 0.2])
+def test_default_workspace_has_the_stated_fill(n: int, fill: float) -> None:
+    # n discs of radius rho cover the fraction fill of the circle: n rho^2 / R^2
+    ws = default_workspace(n, 0.5, fill)
+    assert n * 0.5**2 / ws.radius**2 == pytest.approx(fill, rel=1e-12)
+    assert default_workspace(n).radius == pytest.approx(np.sqrt(n / DEFAULT_FILL))
+
+
+def test_bundled_scenarios_use_the_default_workspace() -> None:
+    # the bundled Figs. 1-2 problems are the generator's default distribution
+    for name, n in (("discs_seven", 7), ("discs_ten", 10)):
+        section = load_scenario(name).discs
+        assert section is not None and section.boundary.type == "disc"
+        assert section.boundary.radius == pytest.approx(default_workspace(n).radius, abs=0.01)
 
 
 def test_bundled_scenarios_load() -> None:
@@ -99,6 +117,8 @@ def test_illegal_goal_pattern_is_reported(tmp_path: Path) -> None:
     (["--random", "5", "--rule", "magic"], "--rule"),
     (["--random", "0"], "--random"),
     (["--random", "5", "--escapes", "-1"], "--escapes"),
+    (["--random", "5", "--fill", "0"], "--fill"),
+    (["--random", "5", "--fill", "0.7"], "--fill"),
 ])
 def test_cli_bad_arguments_exit_2_naming_the_parameter(args: list[str], name: str,
                                                        tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ from typing import Annotated
 
 import typer
 
+from cellplan.assembly.problems import DEFAULT_FILL
 from cellplan.errors import ArgumentError, Problem
 
 ALGORITHMS = ("gradient", "sequential", "control")
@@ -19,7 +20,7 @@ ALGORITHMS = ("gradient", "sequential", "control")
 
 def check_arguments(scenario: str | None, random_n: int | None, algorithm: str, k: float | None,
                     epsilon: float | None, rule: str, radius: float, frames: int,
-                    escapes: int = 0) -> None:
+                    escapes: int = 0, fill: float = DEFAULT_FILL) -> None:
     """Every mistake in the arguments, one :class:`Problem` each (raised together)."""
     from cellplan.assembly.sequential import RULES
 
@@ -39,6 +40,8 @@ def check_arguments(scenario: str | None, random_n: int | None, algorithm: str, 
         problems.append(Problem("--rule", f"unknown {rule!r}; use {', '.join(RULES)}"))
     if not radius > 0:
         problems.append(Problem("--radius", f"must be > 0, got {radius:g}"))
+    if not 0 < fill <= 0.5:
+        problems.append(Problem("--fill", f"must be in (0, 0.5], got {fill:g}"))
     if frames < 2:
         problems.append(Problem("--frames", f"must be at least 2, got {frames}"))
     if not 0 <= escapes <= 20:
@@ -62,6 +65,8 @@ def register(app: typer.Typer) -> None:
         permutation: Annotated[bool, typer.Option(help="--random: starts permute goals")] = False,
         log10_beta: Annotated[float | None, typer.Option(help="--random: goal difficulty")] = None,
         radius: Annotated[float, typer.Option(help="--random: disc radius")] = 1.0,
+        fill: Annotated[float, typer.Option(
+            help="--random: fraction of the workspace area the discs cover")] = DEFAULT_FILL,
         frames: Annotated[int, typer.Option(help="GIF frames")] = 40,
         escapes: Annotated[int, typer.Option(
             help="gradient: times k may be halved after a spurious minimum (0: k alone)")] = 6,
@@ -71,9 +76,10 @@ def register(app: typer.Typer) -> None:
         """Plan a disc assembly (Whitcomb & Koditschek 1991): frames, GIF and metrics JSON."""
         from cellplan.assembly.run import run_assembly
 
-        check_arguments(scenario, random_n, algorithm, k, epsilon, rule, radius, frames, escapes)
+        check_arguments(scenario, random_n, algorithm, k, epsilon, rule, radius, frames, escapes,
+                        fill)
         metrics = run_assembly(scenario, random_n, algorithm, k, epsilon, rule, seed,
-                               permutation, log10_beta, radius, frames, output, escapes)
+                               permutation, log10_beta, radius, frames, output, escapes, fill)
         lowered = int(metrics.get("escapes", 0))
         note = (f" (stuck at k={metrics['k']:g}; k lowered {lowered}x to "
                 f"{metrics['k_final']:g})" if lowered else "")

@@ -1,10 +1,12 @@
-"""Numba kernel of the log-space navigation function (same formulas as :mod:`navigation`).
+"""Numba kernel of the flows: the log-space navigation function.
 
-One pass over the disc pairs accumulates ``log beta`` (equations (4)-(5)), ``grad log
-beta``, the repulsion magnitudes used for step control, and the gaps, without the
-temporary ``(n, n, 2)`` arrays of the numpy version; it is what the flows call. The
-numpy version, :func:`navigation.evaluate_numpy`, stays as the reference it is tested
-against.
+:func:`nav_kernel` (same formulas as :mod:`navigation`): one pass over the disc pairs
+accumulates ``log beta`` (equations (4)-(5)), ``grad log beta``, the repulsion magnitudes
+used for step control, and the gaps, without the temporary ``(n, n, 2)`` arrays of the
+numpy version; it is what the flows call. The numpy version,
+:func:`navigation.evaluate_numpy`, stays as the reference it is tested against.
+
+The implicit step's eigensolver is in :mod:`cellplan.assembly.eigen`.
 """
 
 from __future__ import annotations
@@ -97,15 +99,3 @@ def nav_kernel(b: Array, d: Array, radii: Array, circle: bool, w0: Array, w1: Ar
         for j in range(n):
             rep[i, j] = c * dist[i, j] * abs(inv[i, j])
     return log_gamma, log_beta, v, rep, rep_bnd, gaps, bgap
-
-
-@numba.njit(cache=True)
-def sym_eigh(h: Array) -> tuple[Array, Array]:
-    """Eigenvalues and eigenvectors of a small symmetric matrix.
-
-    On the shared machine numba's LAPACK binding took about 0.1 ms for 30 x 30 where
-    numpy's ``eigh`` took 1-2 ms (OpenBLAS thread start-up); for 100 x 100 (50 discs)
-    both cost milliseconds when the cores are busy.
-    """
-    return np.linalg.eigh(h)
-

@@ -276,9 +276,20 @@ def validate_problem(problem: DiscProblem) -> None:
         raise ScenarioError(problems)
 
 
-def default_workspace(n: int, radius: float = 1.0) -> CircleWorkspace:
-    """The circular workspace used for generated problems: radius ``(4 + 2.2 sqrt(n)) rho``.
+#: Fraction of the workspace area the discs of a generated problem cover (see docs/assembly.md,
+#: "The problem distribution"): the paper gives no workspace, and the path-length ratio of
+#: Figs. 3-4 depends on how far out the random starts lie.
+DEFAULT_FILL = 0.05
 
-    Seven unit discs get a workspace of radius about 9.8; fifty cover about 13% of theirs.
+
+def default_workspace(n: int, radius: float = 1.0, fill: float = DEFAULT_FILL) -> CircleWorkspace:
+    """The circular workspace of generated problems: n discs cover ``fill`` of its area.
+
+    Radius ``rho sqrt(n / fill)``: 11.8 for seven unit discs, 14.1 for ten, 31.6 for fifty
+    at the default 5%. A constant fill keeps the density of the random starts the same for
+    every n, so a larger problem is harder only by its own geometry, not by a more
+    crowded sampler.
     """
-    return CircleWorkspace(np.zeros(2), radius * (4.0 + 2.2 * math.sqrt(n)))
+    if not 0.0 < fill <= 0.5:
+        raise ValueError(f"fill must be in (0, 0.5], got {fill}")
+    return CircleWorkspace(np.zeros(2), radius * math.sqrt(n / fill))

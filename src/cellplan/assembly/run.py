@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from cellplan.assembly.problems import (
+    DEFAULT_FILL,
     DiscProblem,
     default_workspace,
     generate_problem,
@@ -33,11 +34,12 @@ def load_problem(scenario: str) -> tuple[DiscProblem, float, float, float]:
 def run_assembly(scenario: str | None, random_n: int | None, algorithm: str, k: float | None,
                  epsilon: float | None, rule: str, seed: int, permutation: bool,
                  log10_beta: float | None, radius: float, frames: int, output: Path,
-                 escapes: int = 0) -> dict[str, Any]:
+                 escapes: int = 0, fill: float = DEFAULT_FILL) -> dict[str, Any]:
     """Plan and write ``sequence.png``, ``assembly.gif`` and ``metrics.json`` under ``output``.
 
     ``escapes``: gradient algorithm only, how often k may be halved after the flow
-    stops at a spurious minimum (:func:`planners.run_gradient`).
+    stops at a spurious minimum (:func:`planners.run_gradient`). ``fill``: ``--random``
+    only, the fraction of the workspace area the generated discs cover.
     """
     from cellplan.assembly import plots
     from cellplan.assembly.planners import run_control, run_gradient, run_sequential
@@ -49,7 +51,7 @@ def run_assembly(scenario: str | None, random_n: int | None, algorithm: str, k: 
         gen = GeneratorSpec(n=random_n, seed=seed, radius=radius,
                             starts="permutation" if permutation else "random",
                             log10_beta_goal=log10_beta)
-        ws = default_workspace(random_n, radius)
+        ws = default_workspace(random_n, radius, fill)
         # name the command-line option behind each generator problem
         option = "--log10-beta" if log10_beta is not None else "--random"
         bad = generator_problems(gen, ws)
