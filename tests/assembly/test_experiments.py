@@ -45,3 +45,17 @@ def test_ratio_vs_k_reports_the_flow_at_k_beside_the_escape(tmp_path: Path) -> N
     assert any("k lowered when stuck" in c for c in labels)
     (_, table), = piece.tables
     assert {"solved", "solved at k", "mean (solved at k)"} <= set(table[0])
+
+
+def test_sequential_reports_escapes_and_both_switch_claims(tmp_path: Path) -> None:
+    rows = _rows(ex._runs_sequential(2, quick=True))
+    paper = [r for r in rows if r["rule"] == "paper"]
+    assert paper and all({"solved_at_k", "escapes", "k_final"} <= set(r) for r in paper)
+    # the place rule never lowers k
+    assert all(r["escapes"] == 0.0 for r in rows if r["rule"] == "place")
+    piece = ex._report_sequential(rows, tmp_path)
+    claims = {c.claim: c for c in piece.claims}
+    assert "paper rule: about three switches per disc on easy goals" in claims
+    rising = claims["paper rule: harder goals need more switches"]
+    assert "easy -> hard" in rising.ours
+    assert all(Path(f).is_file() for f in piece.figures)

@@ -69,7 +69,7 @@ def register(app: typer.Typer) -> None:
             help="--random: fraction of the workspace area the discs cover")] = DEFAULT_FILL,
         frames: Annotated[int, typer.Option(help="GIF frames")] = 40,
         escapes: Annotated[int, typer.Option(
-            help="gradient: times k may be halved after a spurious minimum (0: k alone)")] = 6,
+            help="gradient and paper rule: times k may be halved when stuck (0: k alone)")] = 6,
         output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
             "assembly-out"),
     ) -> None:

@@ -54,16 +54,27 @@ def run_gradient(problem: DiscProblem, k: float, epsilon: float = 1e-3,
 
 
 def run_sequential(problem: DiscProblem, k: float, rule: str = "paper", epsilon: float = 1e-3,
-                   tol: float = 1e-2) -> PlanResult:
-    """Sequential assembly (Section 4.2); ratio over summed disc distances (footnote 6)."""
+                   tol: float = 1e-2, escapes: int = ESCAPES) -> PlanResult:
+    """Sequential assembly (Section 4.2); ratio over summed disc distances (footnote 6).
+
+    Rule ``paper``: a stuck T map (every disc blocked away from the goal, or no progress
+    over 2 n switches) continues at k/2, k/4, ... (at most ``escapes`` times; Section
+    3.2, see :func:`sequential.sequential_assembly`); ``solved_at_k``, ``escapes`` and
+    ``k_final`` say so, as for the gradient planner, and ``switches`` counts every grasp
+    of every stage. The ``place`` rule does not lower k.
+    """
     t0 = time.perf_counter()
-    res = sequential_assembly(problem, k, rule, epsilon=epsilon, tol=tol)  # type: ignore[arg-type]
+    res = sequential_assembly(problem, k, rule, epsilon=epsilon, tol=tol,  # type: ignore[arg-type]
+                              escapes=escapes if rule == "paper" else 0)
     straight = float(np.sum(np.linalg.norm(problem.start - problem.goal, axis=1)))
     stats = {
         "ratio": float(np.sum(res.disc_lengths())) / straight if straight > 0 else 1.0,
         "switches": float(res.switches),
         "switches_per_disc": res.switches / problem.n,
         "switches_per_disc_within_0.1": res.switches_within(problem.goal, 0.1) / problem.n,
+        "solved_at_k": float(res.solved_at_k),
+        "escapes": float(res.escapes),
+        "k_final": float(res.k_final),
         "min_clearance": res.min_clearance,
         "evaluations": float(res.evaluations),
         "final_error": float(np.linalg.norm(res.path[-1] - problem.goal)),

@@ -37,8 +37,9 @@ def run_assembly(scenario: str | None, random_n: int | None, algorithm: str, k: 
                  escapes: int = 0, fill: float = DEFAULT_FILL) -> dict[str, Any]:
     """Plan and write ``sequence.png``, ``assembly.gif`` and ``metrics.json`` under ``output``.
 
-    ``escapes``: gradient algorithm only, how often k may be halved after the flow
-    stops at a spurious minimum (:func:`planners.run_gradient`). ``fill``: ``--random``
+    ``escapes``: gradient algorithm and the sequential paper rule, how often k may be
+    halved after the run is stuck (:func:`planners.run_gradient`,
+    :func:`planners.run_sequential`). ``fill``: ``--random``
     only, the fraction of the workspace area the generated discs cover.
     """
     from cellplan.assembly import plots
@@ -66,7 +67,7 @@ def run_assembly(scenario: str | None, random_n: int | None, algorithm: str, k: 
         result = run_gradient(problem, k, epsilon, tol, escapes)
         path = result.payload.path
     elif algorithm == "sequential":
-        result = run_sequential(problem, k, rule, epsilon, max(tol, 1e-2))
+        result = run_sequential(problem, k, rule, epsilon, max(tol, 1e-2), escapes)
         path = result.payload.path
     else:
         result = run_control(problem, k)

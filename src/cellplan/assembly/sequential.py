@@ -8,7 +8,8 @@ High level, two rules selectable by name:
 
 ``paper``
     ``x_{n+1} = T(x_n) = Omega_{C(x_n)}(x_n)`` with ``C(x)`` the disc of largest
-    ``||f_i(x)||`` (equations (13)-(16)); stops when ``||x - d|| < tol``.
+    ``||f_i(x)||`` (equations (13)-(16)); stops when ``||x - d|| < tol``. Optionally
+    (``escapes > 0``) a stuck T map continues at a smaller k (Section 3.2), see below.
 ``place``
     Ours, to cut switches (the paper sees about three per disc; a person needs one or
     two). A disc put exactly on its goal is *placed* and is not chosen again while
@@ -18,7 +19,7 @@ High level, two rules selectable by name:
 
     1. an eligible disc with a collision-free polygonal route to its goal (the
        shortest in a visibility graph around the standing discs, see
-       :func:`placement_route`; the others stand still) is put there;
+       :func:`routes.placement_route`; the others stand still) is put there;
     2. otherwise the unplaced disc nearest the innermost open goal that can leave is
        parked on a circle around the pattern (at most once between two placements);
     3. otherwise the paper's ``C(x)`` over unplaced, non-stalled discs moves along its
@@ -29,6 +30,39 @@ High level, two rules selectable by name:
 
 The output is a pick / move / release sequence that one robot can execute, with each
 disc's path.
+
+When the paper's T map is stuck (rule ``paper``). Every low-level flow descends phi, so
+``L = log alpha^(1/k)`` (:func:`navigation.log_w`, a monotone function of phi) decreases
+along ``x_0, T(x_0), T^2(x_0), ...``. A stage of the T map at one k is *stuck* when
+
+* every disc is blocked away from the goal: all blocks ``f_i`` of ``grad phi`` vanish
+  (equation (11)), so ``x`` is a critical point of phi other than d. The Hessian of
+  ``L`` says which (:func:`flows.critical_point_kind`): ``spurious minimum`` or
+  ``saddle``. (Given 3,000 switches, four 7-disc runs at k=128 in a workspace of radius
+  ``4 + 2.2 sqrt n`` end here, after about 1,400 switches, Hessian positive definite.)
+* or it makes no progress: ``L`` fell by less than ``min_progress`` (default 0.01:
+  ``alpha^(1/k)`` shrank by less than 1%) over the last ``window`` grasps (default
+  ``2 n``: two rounds, each of which normally shrinks it by a good factor). This is
+  what every budget-exhausted run of our experiments was doing: two (sometimes three
+  or four) discs pressed together hand the turn back and forth (``2626...``), far from
+  any critical point of phi (``||v|| / ||x - d||`` 0.005-0.5), each grasp moving its
+  disc by 0.002-0.03 radii: the disc moves "until blocked" by the other, whose own flow
+  then retreats by about as much. This is block coordinate descent of ``L`` in a
+  narrow, stiff valley (two-block Gauss-Seidel with strong coupling along the contact
+  normal): taken literally, the T map does get out (given 3,000 switches every such run
+  at our default workspace solved, after 159-1,075 switches instead of 20 n = 140),
+  but at a rate that makes the switch count meaningless for a robot.
+
+We read "a disc moves until blocked" literally (``Omega_i`` unchanged, ``C(x)``
+unchanged) and treat a stuck T map the way :func:`flows.gradient_flow` treats a stuck
+gradient flow (Section 3.2: k "will be adjusted ... to eliminate local minima"): with
+``escapes > 0`` the run continues from where it stopped with the T map of the same
+construction at ``k * escape_factor``, at most ``escapes`` times, each stage with its
+own switch budget. Every stage is the paper's T map at one k; ``stages`` records them
+(:class:`flows.Stage`, ``steps`` = grasps), so a report can say whether the T map at the
+stated k alone finished (``solved_at_k``). With ``escapes=0`` (default) the T map runs
+at k alone exactly as before, until solved, every disc blocked, or the budget is spent
+(no-progress is then only named in the reason). Every switch of every stage is counted.
 """
 
 from __future__ import annotations
@@ -39,10 +73,21 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from cellplan.assembly.flows import FlowSettings, integrate
-from cellplan.assembly.navigation import NavEval, clearances, evaluate
-from cellplan.assembly.problems import CircleWorkspace, DiscProblem, workspace_center
+from cellplan.assembly.flows import FlowSettings, Stage, critical_point_kind, integrate
+from cellplan.assembly.navigation import NavEval, clearances, evaluate, hessian_log_w, log_w
+from cellplan.assembly.problems import DiscProblem, workspace_center
+from cellplan.assembly.routes import (
+    placement_route,
+    route_margin,
+    segment_clearance,
+    segment_is_free,
+    segments_clearance,
+)
 from cellplan.core import Status
+
+__all__ = ["RULES", "Grasp", "Rule", "SequentialResult", "parking_route", "path_clearance",
+           "placement_route", "segment_clearance", "segment_is_free", "segments_clearance",
+           "sequential_assembly"]
 
 Array = NDArray[np.float64]
 Rule = Literal["paper", "place"]
@@ -71,11 +116,27 @@ class SequentialResult:
     min_clearance: float
     evaluations: int
     reason: str = ""
+    stages: list[Stage] = field(default_factory=list)
 
     @property
     def switches(self) -> int:
         """Number of grasps (pick, move, release), the paper's switch count (Fig. 9)."""
         return len(self.grasps)
+
+    @property
+    def escapes(self) -> int:
+        """Number of times k was lowered after a stuck stage of the T map."""
+        return max(len(self.stages) - 1, 0)
+
+    @property
+    def k_final(self) -> float:
+        """The k of the last stage (the k asked for when k was never lowered)."""
+        return self.stages[-1].k
+
+    @property
+    def solved_at_k(self) -> bool:
+        """True when the first stage (the rule at the stated k alone) solved the problem."""
+        return self.stages[0].status is Status.SOLVED
 
     def disc_lengths(self) -> Array:
         seg = np.diff(self.path, axis=0)
@@ -106,107 +167,6 @@ class SequentialResult:
         return out
 
 
-def segments_clearance(problem: DiscProblem, x: Array, i: int, P: Array, Q: Array) -> Array:
-    """Smallest gap while disc i moves straight from each ``P[s]`` to ``Q[s]`` (S,).
-
-    The other discs stand at ``x``. Exact: the distance from each other centre to the
-    segment minus the radii; the workspace is convex, so the boundary gap is smallest
-    at an end point.
-    """
-    seg = Q - P  # (S, 2)
-    length2 = np.einsum("sk,sk->s", seg, seg)
-    rel = x[None, :, :] - P[:, None, :]  # (S, n, 2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.einsum("snk,sk->sn", rel, seg) / length2[:, None]
-    t = np.clip(np.nan_to_num(t), 0.0, 1.0)
-    closest = P[:, None, :] + t[..., None] * seg[:, None, :]
-    gap = np.linalg.norm(x[None] - closest, axis=2) - problem.radii[None] - problem.radii[i]
-    gap[:, i] = np.inf
-    ends = np.concatenate([P, Q])
-    ws = problem.workspace
-    if isinstance(ws, CircleWorkspace):
-        bgap = ws.radius - problem.radii[i] - np.linalg.norm(ends - ws.center, axis=1)
-    else:
-        walls = np.concatenate([ends - ws.lo, ws.hi - ends], axis=1)
-        bgap = np.min(walls, axis=1) - problem.radii[i]
-    bgap = np.minimum(bgap[: len(P)], bgap[len(P):])
-    return np.minimum(np.min(gap, axis=1), bgap)
-
-
-def segment_clearance(problem: DiscProblem, x: Array, i: int, target: Array) -> float:
-    """Smallest gap while disc i moves straight from ``x[i]`` to ``target``, others still."""
-    return float(segments_clearance(problem, x, i, x[i][None], np.asarray(target)[None])[0])
-
-
-def segment_is_free(problem: DiscProblem, x: Array, i: int, target: Array) -> bool:
-    """True when disc i can move straight to ``target`` without touching anything."""
-    return segment_clearance(problem, x, i, target) > _margin(problem)
-
-
-def _margin(problem: DiscProblem) -> float:
-    # straight moves keep a small positive clearance, never a touching contact: 1e-3 of
-    # the smallest radius, or a quarter of the tightest goal gap if the pattern is tighter
-    gaps, _ = clearances(problem.goal, problem.radii, problem.workspace)
-    return float(min(1e-3 * float(np.min(problem.radii)), 0.25 * float(np.min(gaps))))
-
-
-def placement_route(problem: DiscProblem, x: Array, i: int, directions: int = 24,
-                    corners: int = 12) -> list[Array] | None:
-    """A short collision-free polygonal route for disc i to its goal, others standing.
-
-    The shortest path (Dijkstra) in a visibility graph whose nodes are the disc, its
-    goal, ``corners`` points around each standing disc (a polygon circumscribing the
-    circle of centre distances ``rho_i + rho_j`` plus twice the margin, so that the
-    paths hug the obstacles as a shortest path among discs does) and the candidates
-    of the former three-segment search (approach points ``d_i + a u`` and exit points
-    ``x_i + a u``, ``u`` one of ``directions`` unit vectors, ``a`` one or two times
-    ``2 (rho_i + max rho)``), so no route is longer than that search's. An edge is a
-    straight segment whose exact clearance (:func:`segments_clearance`) exceeds the
-    margin. Returns the points after ``x[i]`` (ending at the goal), or ``None``.
-    """
-    from scipy.sparse.csgraph import dijkstra
-
-    goal = problem.goal[i]
-    here = x[i]
-    if segment_is_free(problem, x, i, goal):
-        return [goal.copy()]
-    margin = _margin(problem)
-    reach = 2.0 * (problem.radii[i] + float(np.max(problem.radii)))
-    ang = 2.0 * np.pi * np.arange(directions) / directions
-    unit = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-    rays = np.concatenate([reach * unit, 2.0 * reach * unit])
-    others = np.delete(np.arange(problem.n), i)
-    cang = 2.0 * np.pi * (np.arange(corners) + 0.5) / corners
-    cunit = np.stack([np.cos(cang), np.sin(cang)], axis=1)
-    ring = (problem.radii[i] + problem.radii[others] + 2.0 * margin) / np.cos(np.pi / corners)
-    around = (x[others][:, None, :] + ring[:, None, None] * cunit[None]).reshape(-1, 2)
-    nodes = np.concatenate([here[None], goal[None], goal + rays, here + rays, around])
-    nodes = nodes[np.r_[True, True, segments_clearance(problem, x, i, nodes[2:], nodes[2:])
-                        > margin]]
-    m = len(nodes)
-    a, b = np.triu_indices(m, 1)
-    free = np.zeros(len(a), dtype=bool)
-    chunk = max(1, 400_000 // max(problem.n, 1))
-    for lo in range(0, len(a), chunk):
-        sl = slice(lo, lo + chunk)
-        free[sl] = segments_clearance(problem, x, i, nodes[a[sl]], nodes[b[sl]]) > margin
-    weight = np.zeros((m, m))
-    length = np.linalg.norm(nodes[a[free]] - nodes[b[free]], axis=1)
-    weight[a[free], b[free]] = length
-    weight[b[free], a[free]] = length
-    dist, pred = dijkstra(weight, directed=False, indices=0, return_predecessors=True)
-    if not np.isfinite(dist[1]):
-        return None
-    route: list[Array] = []
-    node = 1
-    while node != 0:
-        route.append(nodes[node].copy())
-        node = int(pred[node])
-    route.reverse()
-    route[-1] = goal.copy()
-    return route
-
-
 def parking_route(problem: DiscProblem, x: Array, i: int, directions: int = 24
                   ) -> list[Array] | None:
     """A route of one or two straight segments taking disc i to a parking spot.
@@ -226,13 +186,13 @@ def parking_route(problem: DiscProblem, x: Array, i: int, directions: int = 24
     r_others = np.concatenate([problem.radii, np.delete(problem.radii, i)])
     gap = np.linalg.norm(spots[:, None] - others[None], axis=2) - r_others - problem.radii[i]
     ok = np.min(gap, axis=1) > 0.05 * problem.radii[i]
-    ok &= segments_clearance(problem, x, i, spots, spots) > _margin(problem)
+    ok &= segments_clearance(problem, x, i, spots, spots) > route_margin(problem)
     spots = spots[ok]
     if not len(spots):
         return None
     here = x[i]
     m = len(spots)
-    margin = _margin(problem)
+    margin = route_margin(problem)
     straight = segments_clearance(problem, x, i, np.repeat(here[None], m, 0), spots) > margin
     if np.any(straight):
         cost = np.where(straight, np.linalg.norm(spots - here, axis=1), np.inf)
@@ -244,7 +204,7 @@ def parking_route(problem: DiscProblem, x: Array, i: int, directions: int = 24
     if not len(pairs):
         return None
     P, Q = exits[pairs[:, 0]], spots[pairs[:, 1]]
-    good = segments_clearance(problem, x, i, P, Q) > _margin(problem)
+    good = segments_clearance(problem, x, i, P, Q) > route_margin(problem)
     if not np.any(good):
         return None
     cost = np.where(good, np.linalg.norm(P - here, axis=1) + np.linalg.norm(Q - P, axis=1), np.inf)
@@ -272,8 +232,12 @@ def sequential_assembly(
     max_switches: int | None = None,
     settings: FlowSettings | None = None,
     low_steps: int = 1500,
+    escapes: int = 0,
+    escape_factor: float = 0.5,
+    window: int | None = None,
+    min_progress: float = 1e-2,
 ) -> SequentialResult:
-    """Plan a sequential assembly with the named high-level rule.
+    """Plan a sequential assembly with the named high-level rule (Section 4.2).
 
     Parameters
     ----------
@@ -288,13 +252,34 @@ def sequential_assembly(
         A low-level flow is blocked when ``||v_i|| < block_tol`` (``v`` is ``grad phi``
         rescaled to length units; default ``tol / (4 sqrt(n))``).
     max_switches
-        Budget of grasps (default ``20 n``).
+        Budget of grasps per stage of the T map (default ``20 n``).
     low_steps
         Step budget of one low-level flow; a disc still creeping then is released.
+    escapes
+        ``paper`` only: how many times a stuck T map (every disc blocked away from the
+        goal, or no progress) continues from where it stopped with k multiplied by
+        ``escape_factor`` (Section 3.2, as :func:`flows.gradient_flow`). 0 (default):
+        the T map at k alone.
+    escape_factor
+        Factor applied to k at each escape, in (0, 1).
+    window, min_progress
+        ``paper`` with an escape left: the stage is stuck when ``L = log alpha^(1/k)``
+        fell by less than ``min_progress`` over the last ``window`` grasps (default
+        ``window = 2 n``).
+
+    Returns
+    -------
+    SequentialResult
+        The grasps, the configuration path, the outcome and the stages (one per k).
     """
     if rule not in RULES:
         raise ValueError(f"unknown rule {rule!r}; known: {', '.join(RULES)}")
+    if not 0.0 < escape_factor < 1.0:
+        raise ValueError(f"escape_factor must be in (0, 1), got {escape_factor}")
+    if escapes < 0:
+        raise ValueError(f"escapes must be >= 0, got {escapes}")
     n = problem.n
+    span = 2 * n if window is None else window
     block = tol / (4.0 * np.sqrt(n)) if block_tol is None else block_tol
     budget = 20 * n if max_switches is None else max_switches
     base = settings or FlowSettings()
@@ -327,21 +312,48 @@ def sequential_assembly(
         def stop(b: Array, ev: NavEval) -> Status | None:
             return Status.SOLVED if float(np.linalg.norm(ev.v[i])) < block else None
 
-        res = integrate(problem, x0, k, epsilon, moving=i, stop=stop, settings=low_settings)
+        res = integrate(problem, x0, k_now, epsilon, moving=i, stop=stop,
+                        settings=low_settings)
         evals += res.evaluations
         return res.path, res.status
 
-    status, reason = Status.BUDGET_EXHAUSTED, f"{budget} switches"
-    while len(grasps) < budget:
+    k_now = float(k)
+    stages: list[Stage] = []
+    first = 0  # index of the first grasp of the current stage
+    progress: list[float] = []  # L = log alpha^(1/k_now) before each grasp of the stage
+    while True:
+        if len(grasps) - first >= budget:
+            status, reason = Status.BUDGET_EXHAUSTED, f"{budget} switches"
+            if rule == "paper" and _no_progress(progress, span, min_progress):
+                reason += "; " + _no_progress_reason(grasps[len(grasps) - span:], span)
+            break
         if rule == "paper" and float(np.linalg.norm(x - problem.goal)) < tol:
             status, reason = Status.SOLVED, ""
             break
         if rule == "place" and bool(np.all(placed)):
             status, reason = Status.SOLVED, ""
             break
-        ev = evaluate(x, problem, k)
+        ev = evaluate(x, problem, k_now)
         evals += 1
         norms = np.linalg.norm(ev.v, axis=1)
+        if rule == "paper":
+            progress.append(log_w(ev, k_now))
+            stuck = ""
+            if float(np.max(norms)) < block:
+                # every f_i vanishes, hence grad phi: a critical point other than d
+                stuck = critical_point_kind(hessian_log_w(x, problem, k_now))
+            elif len(stages) < escapes and _no_progress(progress, span, min_progress):
+                stuck = _no_progress_reason(grasps[len(grasps) - span:], span)
+            if stuck:
+                if len(stages) >= escapes:
+                    status, reason = Status.STUCK, stuck
+                    break
+                stages.append(Stage(k_now, Status.STUCK, stuck, len(grasps) - first))
+                # Section 3.2: continue from here with the T map of phi at a smaller k
+                k_now *= escape_factor
+                first = len(grasps)
+                progress = []
+                continue
         kinds: list[str] = []
         disc_path: list[Array] = []
         if rule == "place":
@@ -379,7 +391,7 @@ def sequential_assembly(
         else:
             i = int(np.argmax(norms))  # C(x), equation (16)
         if not kinds:
-            if float(norms[i]) < block:
+            if float(norms[i]) < block:  # place rule: nothing left that can move
                 status, reason = Status.STUCK, "every disc is blocked away from the goal"
                 break
             # a low-level flow that cannot step on any more (its descent step collapses at
@@ -413,7 +425,22 @@ def sequential_assembly(
         for s_idx in range(n_flow - 1 if n_flow else 0, len(pts) - 1):
             min_clear = min(min_clear, segment_clearance(problem, new_rows[s_idx], i,
                                                          pts[s_idx + 1]))
-    return SequentialResult(status, grasps, np.array(rows), min_clear, evals, reason)
+    stages.append(Stage(k_now, status, reason, len(grasps) - first))
+    return SequentialResult(status, grasps, np.array(rows), min_clear, evals, reason, stages)
+
+
+def _no_progress(progress: list[float], window: int, min_progress: float) -> bool:
+    """True when ``L`` fell by less than ``min_progress`` over the last ``window`` grasps."""
+    return len(progress) > window and progress[-window - 1] - progress[-1] < min_progress
+
+
+def _no_progress_reason(recent: list[Grasp], window: int) -> str:
+    """Name the stall; a pair of discs that hand the turn back and forth is named."""
+    discs = sorted({g.disc for g in recent})
+    if len(discs) == 2:
+        return (f"no progress over {window} switches (discs {discs[0]} and {discs[1]} "
+                "hand the turn back and forth)")
+    return f"no progress over {window} switches"
 
 
 def _park_blocker(problem: DiscProblem, x: Array, placed: NDArray[np.bool_],

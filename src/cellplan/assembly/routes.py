@@ -1,0 +1,221 @@
+"""Straight-segment routes for one disc among standing discs (the ``place`` rule's moves).
+
+Not in the paper: our ``place`` rule (:mod:`cellplan.assembly.sequential`) moves a
+grasped disc along a polygonal route while the other discs stand still (one robot,
+Section 4.2's setting). Every segment is checked exactly (:func:`segments_clearance`)
+and must keep a small positive margin (:func:`route_margin`).
+
+The route is the shortest path in a visibility graph (:func:`route_nodes`): the disc,
+its goal, points around every standing disc and fixed approach / exit points; an edge
+is a segment that keeps the margin. Two searches return the same shortest length:
+
+* :func:`shortest_route_full` (baseline): every one of the ``N (N - 1) / 2`` edges is
+  tested (``O(N^2 n)`` for ``N = 12 (n - 1) + 98`` nodes), then Dijkstra.
+* :func:`shortest_route` (default): A* with lazy edge evaluation. The heuristic is the
+  straight distance to the goal (admissible and consistent, so the first time the goal
+  is selected its distance is the graph's shortest); the edges out of a node are
+  tested only when the node is expanded, all of them in one vectorised call, and only
+  towards nodes that could still improve the goal's distance (``g(u) + |uv| + |v d|``
+  below the best distance found so far). Expanded nodes are never re-tested.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellplan.assembly.navigation import clearances
+from cellplan.assembly.problems import CircleWorkspace, DiscProblem
+
+Array = NDArray[np.float64]
+
+
+def segments_clearance(problem: DiscProblem, x: Array, i: int, P: Array, Q: Array) -> Array:
+    """Smallest gap while disc i moves straight from each ``P[s]`` to ``Q[s]`` (S,).
+
+    The other discs stand at ``x``. Exact: the distance from each other centre to the
+    segment minus the radii; the workspace is convex, so the boundary gap is smallest
+    at an end point.
+    """
+    # components as (S, n) arrays: no (S, n, 2) temporaries, no norm calls (hot path)
+    sx, sy = Q[:, 0] - P[:, 0], Q[:, 1] - P[:, 1]
+    rx = x[None, :, 0] - P[:, 0, None]
+    ry = x[None, :, 1] - P[:, 1, None]
+    length2 = sx * sx + sy * sy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (rx * sx[:, None] + ry * sy[:, None]) / length2[:, None]
+    t = np.clip(np.nan_to_num(t), 0.0, 1.0)
+    dx = rx - t * sx[:, None]
+    dy = ry - t * sy[:, None]
+    gap = np.sqrt(dx * dx + dy * dy) - problem.radii[None] - problem.radii[i]
+    gap[:, i] = np.inf
+    ends = np.concatenate([P, Q])
+    ws = problem.workspace
+    if isinstance(ws, CircleWorkspace):
+        bgap = ws.radius - problem.radii[i] - np.linalg.norm(ends - ws.center, axis=1)
+    else:
+        walls = np.concatenate([ends - ws.lo, ws.hi - ends], axis=1)
+        bgap = np.min(walls, axis=1) - problem.radii[i]
+    bgap = np.minimum(bgap[: len(P)], bgap[len(P):])
+    return np.minimum(np.min(gap, axis=1), bgap)
+
+
+def segment_clearance(problem: DiscProblem, x: Array, i: int, target: Array) -> float:
+    """Smallest gap while disc i moves straight from ``x[i]`` to ``target``, others still."""
+    return float(segments_clearance(problem, x, i, x[i][None], np.asarray(target)[None])[0])
+
+
+def route_margin(problem: DiscProblem) -> float:
+    """Clearance every straight move keeps: never a touching contact.
+
+    1e-3 of the smallest radius, or a quarter of the tightest goal gap if the pattern
+    is tighter (Fig. 5(e) has gaps of about 1e-4 radii).
+    """
+    gaps, _ = clearances(problem.goal, problem.radii, problem.workspace)
+    return float(min(1e-3 * float(np.min(problem.radii)), 0.25 * float(np.min(gaps))))
+
+
+def segment_is_free(problem: DiscProblem, x: Array, i: int, target: Array) -> bool:
+    """True when disc i can move straight to ``target`` keeping :func:`route_margin`."""
+    return segment_clearance(problem, x, i, target) > route_margin(problem)
+
+
+def route_nodes(problem: DiscProblem, x: Array, i: int, directions: int = 24,
+                corners: int = 12) -> Array:
+    """Nodes of the visibility graph for disc i: ``[x_i, d_i, ...]`` (N, 2).
+
+    ``corners`` points around each standing disc (a polygon circumscribing the circle
+    of centre distances ``rho_i + rho_j`` plus twice the margin, so that routes hug the
+    obstacles as a shortest path among discs does) and the approach points ``d_i + a u``
+    and exit points ``x_i + a u`` (``u`` one of ``directions`` unit vectors, ``a`` one or
+    two times ``2 (rho_i + max rho)``). Nodes where the disc itself would not keep the
+    margin are dropped (the first two are always kept).
+    """
+    goal, here = problem.goal[i], x[i]
+    margin = route_margin(problem)
+    reach = 2.0 * (problem.radii[i] + float(np.max(problem.radii)))
+    ang = 2.0 * np.pi * np.arange(directions) / directions
+    unit = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    rays = np.concatenate([reach * unit, 2.0 * reach * unit])
+    others = np.delete(np.arange(problem.n), i)
+    cang = 2.0 * np.pi * (np.arange(corners) + 0.5) / corners
+    cunit = np.stack([np.cos(cang), np.sin(cang)], axis=1)
+    ring = (problem.radii[i] + problem.radii[others] + 2.0 * margin) / np.cos(np.pi / corners)
+    around = (x[others][:, None, :] + ring[:, None, None] * cunit[None]).reshape(-1, 2)
+    nodes = np.concatenate([here[None], goal[None], goal + rays, here + rays, around])
+    keep = segments_clearance(problem, x, i, nodes[2:], nodes[2:]) > margin
+    return nodes[np.r_[True, True, keep]]
+
+
+def _walk_back(nodes: Array, pred: NDArray[np.int64]) -> list[Array]:
+    route: list[Array] = []
+    node = 1
+    while node != 0:
+        route.append(nodes[node].copy())
+        node = int(pred[node])
+    route.reverse()
+    return route
+
+
+def _edges_free(problem: DiscProblem, x: Array, i: int, nodes: Array, u: int,
+                others: NDArray[np.int64], margin: float) -> NDArray[np.bool_]:
+    """Edges ``u - others`` that keep the margin, one vectorised test.
+
+    Each segment runs from the lower to the higher node index, as in the baseline, so
+    both searches test exactly the same floating-point segments.
+    """
+    lo, hi = np.minimum(u, others), np.maximum(u, others)
+    return segments_clearance(problem, x, i, nodes[lo], nodes[hi]) > margin
+
+
+def shortest_route(problem: DiscProblem, x: Array, i: int, nodes: Array
+                   ) -> tuple[list[Array], float] | None:
+    """Shortest path from ``nodes[0]`` to ``nodes[1]``: A* with lazy edge tests.
+
+    Same graph and edge test as :func:`shortest_route_full`, hence the same shortest
+    length (the route may differ only between paths of equal length). Returns the
+    points after ``nodes[0]`` and the length, or ``None`` when the goal is unreachable.
+    """
+    margin = route_margin(problem)
+    m = len(nodes)
+    goal = nodes[1]
+    h = np.linalg.norm(nodes - goal, axis=1)  # admissible, consistent
+    g = np.full(m, np.inf)
+    g[0] = 0.0
+    pred = np.full(m, -1, dtype=np.int64)
+    done = np.zeros(m, dtype=bool)
+    # the goal's own edges first: an unreachable goal (occupied, walled in) fails at once
+    # instead of after a search of the whole reachable graph
+    into_goal = _edges_free(problem, x, i, nodes, 1, np.arange(m), margin)
+    into_goal[1] = False
+    if not np.any(into_goal):
+        return None
+    while True:
+        f = np.where(done, np.inf, g + h)
+        u = int(np.argmin(f))
+        if not np.isfinite(f[u]):
+            return None
+        if u == 1:
+            return _walk_back(nodes, pred), float(g[1])
+        done[u] = True
+        cand = np.flatnonzero(~done)
+        step = np.linalg.norm(nodes[cand] - nodes[u], axis=1)
+        via = g[u] + step
+        # only edges that improve the node and could still beat the best goal distance
+        useful = (via < g[cand]) & (via + h[cand] < g[1])
+        cand, via = cand[useful], via[useful]
+        if not len(cand):
+            continue
+        ok = np.empty(len(cand), dtype=bool)
+        is_goal = cand == 1
+        ok[is_goal] = into_goal[u]
+        ok[~is_goal] = _edges_free(problem, x, i, nodes, u, cand[~is_goal], margin)
+        g[cand[ok]] = via[ok]
+        pred[cand[ok]] = u
+
+
+def shortest_route_full(problem: DiscProblem, x: Array, i: int, nodes: Array
+                        ) -> tuple[list[Array], float] | None:
+    """Baseline of :func:`shortest_route`: test every edge, then Dijkstra (scipy)."""
+    from scipy.sparse.csgraph import dijkstra
+
+    margin = route_margin(problem)
+    m = len(nodes)
+    a, b = np.triu_indices(m, 1)
+    free = np.zeros(len(a), dtype=bool)
+    chunk = max(1, 400_000 // max(problem.n, 1))
+    for lo in range(0, len(a), chunk):
+        sl = slice(lo, lo + chunk)
+        free[sl] = segments_clearance(problem, x, i, nodes[a[sl]], nodes[b[sl]]) > margin
+    weight = np.zeros((m, m))
+    length = np.linalg.norm(nodes[a[free]] - nodes[b[free]], axis=1)
+    weight[a[free], b[free]] = length
+    weight[b[free], a[free]] = length
+    dist, pred = dijkstra(weight, directed=False, indices=0, return_predecessors=True)
+    if not np.isfinite(dist[1]):
+        return None
+    return _walk_back(nodes, pred.astype(np.int64)), float(dist[1])
+
+
+def placement_route(problem: DiscProblem, x: Array, i: int, directions: int = 24,
+                    corners: int = 12, full: bool = False) -> list[Array] | None:
+    """A short collision-free polygonal route for disc i to its goal, others standing.
+
+    The straight segment when it is free; otherwise the shortest path in the visibility
+    graph of :func:`route_nodes` (no longer than the former three-segment search, whose
+    candidates are among the nodes). An edge is a straight segment whose exact
+    clearance (:func:`segments_clearance`) exceeds :func:`route_margin`. ``full``
+    selects the baseline search (:func:`shortest_route_full`); both give the same
+    length. Returns the points after ``x[i]`` (ending exactly at the goal), or ``None``.
+    """
+    goal = problem.goal[i]
+    if segment_is_free(problem, x, i, goal):
+        return [goal.copy()]
+    nodes = route_nodes(problem, x, i, directions, corners)
+    search = shortest_route_full if full else shortest_route
+    found = search(problem, x, i, nodes)
+    if found is None:
+        return None
+    route = found[0]
+    route[-1] = goal.copy()
+    return route
