@@ -323,30 +323,10 @@ class Executor:
         tf_here = float(mdp.tf[mode, self.strategy.cell_of(q)])
         if fmp_allowed is None:
             fmp_allowed = bool(np.isfinite(tf_here))
-        kernels.action_values_at(
-            q,
-            mode,
-            self.h,
-            self.live,
-            mdp.free,
-            mdp.disp,
-            mdp.nact,
-            mdp.heading_axis,
-            mdp.vcls,
-            mdp.cost,
-            mdp.fmp_next,
-            tf_here if np.isfinite(tf_here) else 0.0,
-            fmp_allowed,
-            mdp.branch_ptr,
-            mdp.branch_layer,
-            mdp.branch_prob,
-            mdp.shape,
-            mdp.lower,
-            mdp.upper,
-            mdp.spacing,
-            mdp.periodic,
-            self._out,
-        )
+        actions, grid = mdp.point_args()
+        kernels.action_values_at(q, mode, self.h, self.live, *actions,
+                                 tf_here if np.isfinite(tf_here) else 0.0, fmp_allowed, *grid,
+                                 self._out)
         return self._out
 
     def value(self, q: np.ndarray, mode: int) -> float:

@@ -128,6 +128,22 @@ class LayeredMDP:
             self.periodic,
         )
 
+    def point_args(self) -> tuple[
+        tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray],
+        tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+              np.ndarray, np.ndarray],
+    ]:
+        """Model arrays of the point kernels (``action_values_at``, ``query``).
+
+        Those kernels take ``q, m, h, live, *actions, tf, fmp_flag, *grid, out``; the two
+        tuples are ``actions`` and ``grid``, so that every caller passes them in one order.
+        """
+        actions = (self.free, self.disp, self.nact, self.heading_axis, self.vcls, self.cost,
+                   self.fmp_next)
+        grid = (self.branch_ptr, self.branch_layer, self.branch_prob, self.shape, self.lower,
+                self.upper, self.spacing, self.periodic)
+        return actions, grid
+
     def has_changes(self) -> bool:
         """Whether destination or source changes couple the W/C layers (Section III-B)."""
         for m in range(1, self.n_modes):

@@ -160,30 +160,10 @@ class Strategy:
             if key not in cache or cache[key][0] is not values:
                 cache[key] = (values, np.nan_to_num(values, nan=0.0), np.isfinite(values))
             _, h_clean, live = cache[key]
-        kernels.action_values_at(
-            q,
-            mode,
-            h_clean,
-            live,
-            mdp.free,
-            mdp.disp,
-            mdp.nact,
-            mdp.heading_axis,
-            mdp.vcls,
-            mdp.cost,
-            mdp.fmp_next,
-            tf_here if np.isfinite(tf_here) else 0.0,
-            fmp_allowed,
-            mdp.branch_ptr,
-            mdp.branch_layer,
-            mdp.branch_prob,
-            mdp.shape,
-            mdp.lower,
-            mdp.upper,
-            mdp.spacing,
-            mdp.periodic,
-            out,
-        )
+        actions, grid = mdp.point_args()
+        kernels.action_values_at(q, mode, h_clean, live, *actions,
+                                 tf_here if np.isfinite(tf_here) else 0.0, fmp_allowed, *grid,
+                                 out)
         return out
 
     @property
@@ -205,30 +185,9 @@ class Strategy:
         if out is None:
             out = np.empty(2 + mdp.disp.shape[1])
             self.__dict__["_out"] = out
-        u = kernels.query(
-            np.ascontiguousarray(q, dtype=float),
-            mode,
-            self._h0,
-            mdp.live,
-            mdp.free,
-            mdp.disp,
-            mdp.nact,
-            mdp.heading_axis,
-            mdp.vcls,
-            mdp.cost,
-            mdp.fmp_next,
-            mdp.tf,
-            forbid_fmp,
-            mdp.branch_ptr,
-            mdp.branch_layer,
-            mdp.branch_prob,
-            mdp.shape,
-            mdp.lower,
-            mdp.upper,
-            mdp.spacing,
-            mdp.periodic,
-            out,
-        )
+        actions, grid = mdp.point_args()
+        u = kernels.query(np.ascontiguousarray(q, dtype=float), mode, self._h0, mdp.live,
+                          *actions, mdp.tf, forbid_fmp, *grid, out)
         if u == -9:
             raise ValueError(
                 "no action is available here (the state is outside the strategy's domain)"
