@@ -13,8 +13,9 @@ from cellplan.assembly.control import simulate_control
 from cellplan.assembly.flows import gradient_flow
 from cellplan.assembly.navigation import clearances, min_clearance
 from cellplan.assembly.problems import CircleWorkspace, DiscProblem, generate_problem
+from cellplan.assembly.routes import segment_clearance
 from cellplan.assembly.section import GeneratorSpec
-from cellplan.assembly.sequential import segment_clearance, sequential_assembly
+from cellplan.assembly.sequential import sequential_assembly
 from cellplan.core import Status
 
 
@@ -233,7 +234,7 @@ def test_switches_within_counts_grasps_until_the_goal_is_near() -> None:
 
 
 def test_place_route_goes_round_a_blocking_disc_almost_as_short_as_possible() -> None:
-    from cellplan.assembly.sequential import placement_route
+    from cellplan.assembly.routes import placement_route
 
     # disc 0 from (-5, 0) to (5, 0), disc 1 standing at the origin: the shortest path
     # of the centre keeps distance 2 from the origin, tangent - arc - tangent

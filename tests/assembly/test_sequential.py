@@ -16,16 +16,12 @@ from cellplan.assembly.routes import (
     placement_route,
     route_margin,
     route_nodes,
+    segment_clearance,
     shortest_route,
     shortest_route_full,
 )
 from cellplan.assembly.section import GeneratorSpec
-from cellplan.assembly.sequential import (
-    Rule,
-    SequentialResult,
-    segment_clearance,
-    sequential_assembly,
-)
+from cellplan.assembly.sequential import Rule, SequentialResult, sequential_assembly
 from cellplan.core import Status
 
 # Seven unit discs, hexagonal goals with pairwise beta(d) = 1e-16 (Fig. 5(c)). The starts
