@@ -1,9 +1,11 @@
 """The ``cellplan`` command line.
 
-Core commands live here; each paper package adds its own through
-``<package>.commands.register``. Every user mistake surfaces as a
-:class:`~cellplan.errors.CellplanError`: :func:`main` prints one line per
-problem to stderr and exits with status 2, without a traceback.
+Core commands live here; each registered package adds its own through the module its
+declaration names (:attr:`cellplan.core.Package.commands`, a ``register(app)``
+function). Every command goes through the library API. Every user mistake surfaces as a
+:class:`~cellplan.errors.CellplanError`: :func:`main` prints one line per problem to
+stderr and exits with status 2, without a traceback; any other exception is a bug and
+exits 70 with one line naming it (see :mod:`cellplan.cliutil` for every exit status).
 """
 
 from __future__ import annotations
@@ -17,6 +19,14 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from cellplan.cliutil import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    JsonOpt,
+    ScenarioArg,
+    print_json,
+)
 from cellplan.errors import ArgumentError, CellplanError
 
 app = typer.Typer(
@@ -25,13 +35,30 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
 )
-console = Console(stderr=True)
-out = Console()
+console = Console(stderr=True, soft_wrap=True)
+out = Console(soft_wrap=True)
 
-ScenarioArg = Annotated[
-    str, typer.Argument(help="scenario file, or the name of a bundled scenario")
-]
+
+def _version(value: bool) -> None:
+    if value:
+        from cellplan import __version__
+
+        print(f"cellplan {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="print the version"),
+    ] = False,
+) -> None:
+    """Plan robot motions in assembly workcells (strategies, adaptive planning, disc assembly)."""
+
+
 OutputOpt = Annotated[Path, typer.Option("-o", "--output", help="output file")]
 
 
@@ -46,53 +73,62 @@ def schema() -> None:
 @app.command()
 def scenarios() -> None:
     """List the bundled scenarios."""
-    from cellplan.registry import scenario_names, scenario_path
-    from cellplan.scenario import load_scenario
+    from cellplan.api import load
+    from cellplan.registry import scenario_names
 
     table = Table("name", "robot", "sections", "description")
     for name in scenario_names():
-        sc = load_scenario(scenario_path(name))
+        sc = load(name).scenario
         table.add_row(
             name,
             sc.robot.type if sc.robot else "-",
             ", ".join(sc.section_names()) or "-",
-            sc.description.split("\n")[0],
+            first_sentence(sc.description),
         )
     out.print(table)
+
+
+def first_sentence(text: str) -> str:
+    """The first sentence of a description, its line breaks joined."""
+    flat = " ".join(text.split())
+    end = flat.find(". ")
+    return flat if end < 0 else flat[: end + 1]
 
 
 @app.command()
 def planners() -> None:
     """List the registered planners."""
-    from cellplan.registry import planners as registered
+    from cellplan.api import planners as registered
 
-    table = Table("name", "paper", "summary")
-    for entry in registered().values():
-        table.add_row(entry.name, entry.paper, entry.summary)
+    table = Table("name", "section", "summary", "options (default)")
+    for spec in registered().values():
+        options = ", ".join(f"{name} ({default})" for name, default, _ in spec.option_table())
+        table.add_row(spec.name, spec.section or "-", spec.summary, options)
     out.print(table)
 
 
 @app.command()
-def validate(scenario: ScenarioArg) -> None:
+def validate(scenario: ScenarioArg, as_json: JsonOpt = False) -> None:
     """Validate a scenario and print a short summary (modes, C-space dimension, free fraction)."""
-    from cellplan.scenario import load_scenario
+    from cellplan.api import load
     from cellplan.summary import summarize
-    from cellplan.workcell import Workcell
 
-    sc = load_scenario(scenario)
-    cell = Workcell.from_scenario(sc) if sc.robot is not None else None
-    for key, value in summarize(sc, cell).items():
-        out.print(f"{key:>22}: {value}")
+    lines = summarize(load(scenario))
+    if as_json:
+        print_json({"status": "valid", "message": "the scenario is valid", "summary": lines})
+        return
+    for key, value in lines.items():
+        out.print(f"{key:>22}: {value}", markup=False)
 
 
 @app.command()
 def show(scenario: ScenarioArg, output: OutputOpt = Path("workcell.png")) -> None:
     """Draw the workcell: obstacles, sources, destinations, robot at start, a carried part."""
     from cellplan import plots
-    from cellplan.workcell import load_workcell
+    from cellplan.api import load
 
-    _, cell = load_workcell(scenario)
     check_image_path(output)
+    cell = load(scenario).workcell
     plots.save_workcell(cell, output)
     out.print(f"wrote {output}")
 
@@ -111,11 +147,11 @@ def cspace(
 ) -> None:
     """Draw the free-configuration bitmap (a slice for 3-D spaces)."""
     from cellplan import plots
+    from cellplan.api import load
     from cellplan.cspace import Grid, free_bitmap
-    from cellplan.workcell import load_workcell
 
-    _, cell = load_workcell(scenario)
     check_image_path(output)
+    cell = load(scenario).workcell
     if carrying is not None and carrying not in cell.parts:
         raise ArgumentError(
             f"unknown part {carrying!r} (parts: {', '.join(cell.parts) or 'none'})", "--carrying"
@@ -144,15 +180,18 @@ def demo(output: OutputOpt = Path("cellplan-out")) -> None:
 
 
 def parse_cells(text: str, dim: int) -> tuple[int, ...]:
-    """Parse ``--cells 128,128,64``."""
+    """Parse ``--cells 128,128,64`` (each value within :data:`cellplan.cspace.CELLS_RANGE`)."""
+    from cellplan.cspace import CELLS_RANGE
+
+    lo, hi = CELLS_RANGE
     try:
         shape = tuple(int(v) for v in text.split(","))
     except ValueError:
         raise ArgumentError(f"expected comma-separated integers, got {text!r}", "--cells") from None
     if len(shape) != dim:
         raise ArgumentError(f"needs {dim} values for this robot, got {len(shape)}", "--cells")
-    if any(n < 2 or n > 4096 for n in shape):
-        raise ArgumentError("each value must be in [2, 4096]", "--cells")
+    if any(n < lo or n > hi for n in shape):
+        raise ArgumentError(f"each value must be in [{lo}, {hi}]", "--cells")
     return shape
 
 
@@ -165,38 +204,57 @@ def check_image_path(path: Path) -> None:
 
 
 def _register_package_commands() -> None:
-    from cellplan import reproduce_cli
-    from cellplan.adaptive import commands as adaptive_commands
-    from cellplan.assembly import commands as assembly_commands
-    from cellplan.strategies import commands as strategy_commands
+    import importlib
 
-    for module in (strategy_commands, adaptive_commands, assembly_commands, reproduce_cli):
-        module.register(app)
+    from cellplan import reproduce_cli
+    from cellplan.registry import packages
+
+    for pkg in packages().values():
+        if pkg.commands is not None:
+            importlib.import_module(pkg.commands).register(app)
+    reproduce_cli.register(app)
 
 
 _register_package_commands()
 
 
 def main() -> None:
-    """Entry point: run the app; user errors become one line each and exit status 2."""
+    """Entry point: run the app and turn every outcome into an exit status.
+
+    User errors become one line each and exit 2; an unexpected exception is a bug: one
+    line naming its type, exit 70 (``CELLPLAN_DEBUG=1`` shows the traceback).
+    """
+    import os
+
     try:
-        app(standalone_mode=False)
+        code = app(standalone_mode=False)
     except CellplanError as exc:
         for problem in exc.problems:
             console.print(f"[bold red]error[/]: {problem}", highlight=False, soft_wrap=True)
-        sys.exit(2)
+        sys.exit(EXIT_BAD_INPUT)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
     except (typer.Abort, KeyboardInterrupt):
-        console.print("aborted")
-        sys.exit(130)
+        console.print("interrupted")
+        sys.exit(EXIT_INTERRUPTED)
     except Exception as exc:
         # Usage errors (unknown option, missing argument) arrive here in non-standalone
         # mode; recent typer versions raise their own copy of click's exceptions.
         if isinstance(exc, _usage_error_types()):
             exc.show()  # type: ignore[attr-defined]
-            sys.exit(getattr(exc, "exit_code", 2))
-        raise
+            sys.exit(getattr(exc, "exit_code", EXIT_BAD_INPUT))
+        if os.environ.get("CELLPLAN_DEBUG"):
+            raise
+        detail = " ".join(str(exc).split())[:300]
+        console.print(
+            f"[bold red]internal error[/] (a bug in cellplan, please report it): "
+            f"{type(exc).__name__}: {detail}",
+            highlight=False,
+            soft_wrap=True,
+            markup=True,
+        )
+        sys.exit(EXIT_INTERNAL)
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 def _usage_error_types() -> tuple[type[BaseException], ...]:

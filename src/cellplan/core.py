@@ -1,21 +1,37 @@
-"""The small typed core shared by every planner: result status and statistics.
+"""The small typed core every planner shares: status, result, planner and package declarations.
 
-Modelled on OMPL's planner status: every planner returns a result that says
-whether it solved the problem, ran out of time or budget, or proved it
-infeasible, together with plain-number statistics (collision checks, sweeps,
-wall time) that benchmarks and reports read without knowing the planner.
+Modelled on OMPL's planner status and scipy's ``OptimizeResult``: every planner, whatever
+its paper, returns one :class:`Result` that says whether it solved the problem
+(:class:`Status`), why not in one line (``message``), plain-number statistics
+(``stats``), the planner's own object (``solution``: a strategy to query, an assembly
+sequence, an experience graph) and the motion itself (``trajectory``, a
+:class:`~cellplan.trajectory.Trajectory`).
+
+Planners are declared, not hard-wired, in the spirit of Gymnasium's registry: a
+:class:`PlannerSpec` names a planner, its options (a pydantic model whose fields are the
+single source of each option's default, range and description) and the function that
+runs it; a :class:`Package` declares one paper package (its scenario section, planners,
+experiments, CLI commands and report metadata). :mod:`cellplan.registry` collects the
+packages; nothing in the core names a paper.
 """
 
 from __future__ import annotations
 
 import enum
-from collections.abc import Callable, Mapping
+import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from pydantic import BaseModel, ConfigDict
+
+if TYPE_CHECKING:
+    from cellplan.setup import Setup
+    from cellplan.trajectory import Trajectory
 
 
 class Status(enum.StrEnum):
-    """Outcome of a planning call."""
+    """Outcome of a planning call (OMPL's ``PlannerStatus`` in spirit)."""
 
     SOLVED = "solved"
     APPROXIMATE = "approximate"
@@ -24,43 +40,84 @@ class Status(enum.StrEnum):
     STUCK = "stuck"
     INFEASIBLE = "infeasible"
     NOT_CONVERGED = "not_converged"
+    FAILED = "failed"
 
     @property
     def ok(self) -> bool:
+        """True only for :attr:`SOLVED`."""
         return self is Status.SOLVED
 
 
-@dataclass(frozen=True)
-class PlanResult:
-    """What every planner returns: a status, statistics, and a planner-specific payload."""
-
-    status: Status
-    stats: Mapping[str, float] = field(default_factory=dict)
-    payload: Any = None
+Scalar = str | int | float | bool
 
 
-@dataclass(frozen=True)
-class PlannerEntry:
-    """A registered planner.
+@dataclass(frozen=True, eq=False)
+class Result:
+    """What every planner returns.
 
-    Parameters
+    Attributes
     ----------
-    name
-        Registry key, ``<paper>.<planner>`` (``assembly.gradient``).
-    paper
-        ``strategies``, ``adaptive`` or ``assembly``.
-    summary
-        One line for ``cellplan planners``.
-    smoke
-        Runs the planner on a tiny bundled problem with the given seed and returns
-        its :class:`PlanResult`; the conformance test calls it twice per seed and
-        checks status, statistics and determinism.
+    status
+        :class:`Status`; ``status.ok`` (also :attr:`success`) is true only when solved.
+    message
+        One line a person can read: what was achieved, or why not.
+    planner
+        Registry name of the planner that produced it.
+    stats
+        Plain finite numbers (counts, ratios, seconds); benchmarks and reports read them
+        without knowing the planner.
+    solution
+        The planner's own object: a :class:`~cellplan.strategies.strategy.Strategy`, an
+        assembly run, an experience graph ... (see the planner's documentation).
+    trajectory
+        The motion, as a :class:`~cellplan.trajectory.Trajectory`.
+    options
+        The validated options the planner ran with (defaults filled in).
     """
 
-    name: str
-    paper: str
-    summary: str
-    smoke: Callable[[int], PlanResult]
+    status: Status
+    message: str
+    planner: str = ""
+    stats: Mapping[str, float] = field(default_factory=dict)
+    solution: Any = None
+    trajectory: Trajectory | None = None
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def success(self) -> bool:
+        """True when the planner solved the problem (``status is Status.SOLVED``)."""
+        return self.status.ok
+
+    def summary(self) -> dict[str, Any]:
+        """A JSON-ready dict: planner, status, message, statistics and options."""
+        return {
+            "planner": self.planner,
+            "status": str(self.status),
+            "success": self.success,
+            "message": self.message,
+            "stats": {k: _json_number(v) for k, v in self.stats.items()},
+            "options": {k: _json_value(v) for k, v in self.options.items()},
+        }
+
+    def __repr__(self) -> str:
+        traj = "none" if self.trajectory is None else f"{len(self.trajectory)} samples"
+        return (
+            f"Result(planner={self.planner!r}, status={self.status.value!r}, "
+            f"message={self.message!r}, stats={len(self.stats)} numbers, trajectory={traj})"
+        )
+
+
+def _json_number(value: float) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, tuple | list):
+        return [_json_value(v) for v in value]
+    return value
 
 
 def check_stats(stats: Mapping[str, float]) -> list[str]:
@@ -69,9 +126,133 @@ def check_stats(stats: Mapping[str, float]) -> list[str]:
     for key, value in stats.items():
         if not isinstance(key, str):
             bad.append(f"key {key!r} is not a string")
-        if not isinstance(value, int | float) or value != value:
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+        ):
             bad.append(f"{key}={value!r} is not a finite number")
     return bad
+
+
+class Options(BaseModel):
+    """Base of every planner's options: unknown names are errors, values are frozen.
+
+    Each field's default, range (pydantic constraints) and description are the one
+    source the library, the CLI and the docs read. A default of ``None`` means "the
+    scenario's value" (its section's default when the file does not set it).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+Progress = Callable[[float, float | None, str], None]
+"""``progress(done, total, text)``: how a planner reports progress (``total`` None when unknown)."""
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """A registered planner (an entry of :func:`cellplan.planners`).
+
+    Parameters
+    ----------
+    name
+        Registry key: the package name, or ``<package>.<variant>`` (``assembly.gradient``).
+    package
+        Name of the package that registered it.
+    summary
+        One line for ``cellplan planners``.
+    options
+        The :class:`Options` model of the planner.
+    run
+        ``run(setup, options, progress) -> Result``; pure apart from the files the
+        options name (an experience database), never prints or plots.
+    section
+        The scenario section the planner needs (``None``: none).
+    smoke
+        ``(scenario, options)``: a small bundled problem the planner must solve; the
+        conformance test runs it and checks the result contract.
+    """
+
+    name: str
+    package: str
+    summary: str
+    options: type[Options]
+    run: Callable[[Setup, Any, Progress | None], Result]
+    section: str | None = None
+    smoke: tuple[str, Mapping[str, Any]] = ("", {})
+
+    def option_table(self) -> list[tuple[str, str, str]]:
+        """``(name, default, description)`` for each option, in declaration order."""
+        rows = []
+        for key, info in self.options.model_fields.items():
+            default = "scenario's" if info.default is None else repr(info.default)
+            rows.append((key, default, info.description or ""))
+        return rows
+
+
+@dataclass(frozen=True)
+class ShowcaseItem:
+    """One picture set of the demo's showcase, made through the library API.
+
+    ``code`` is the few lines of Python (or a ``cellplan`` command) that make it; the
+    report shows them as a code block under the figures, with ``caption``.
+    """
+
+    title: str
+    figures: Sequence[Any]  # paths of PNG or GIF files
+    caption: str
+    code: str = ""
+
+
+@dataclass(frozen=True)
+class Package:
+    """One package of planners (one paper), declared once in its ``plugin.py``.
+
+    The core (scenario loading, registry, CLI, experiment runner, report) iterates over
+    the registered packages; adding a planner family means writing a package and adding
+    it to :data:`cellplan.registry.BUILTIN_PACKAGES` (or declaring a ``cellplan.packages``
+    entry point), touching nothing else in the core.
+
+    Parameters
+    ----------
+    name
+        Short name (``strategies``), used in reports, ``cellplan reproduce`` and planner names.
+    title, citation, summary
+        How the report introduces the package's paper.
+    section, section_model
+        The scenario key the package reads (``strategy``) and the pydantic model of that
+        section; the model may define ``check(scenario) -> list[Problem]`` for checks that
+        span sections. ``None`` when the package has no section.
+    planners
+        The planners it registers.
+    experiments
+        Module path of its experiment list (``EXPERIMENTS``), imported only when needed.
+    commands
+        Module path with ``register(app)`` adding its CLI commands, imported by the CLI.
+    paper_runs
+        Repetitions per parameter point in the paper (``cellplan reproduce`` default).
+    describe
+        ``describe(setup) -> {label: value}``: lines ``cellplan validate`` prints for the
+        package's section; it may also run the checks every command of the package runs
+        and raise :class:`~cellplan.errors.ScenarioError`.
+    showcase
+        ``showcase(folder) -> [ShowcaseItem]``: one run of the package's planners on
+        bundled scenarios through the API, with pictures, for the demo report.
+    """
+
+    name: str
+    title: str
+    citation: str
+    summary: str
+    section: str | None = None
+    section_model: type[BaseModel] | None = None
+    planners: Sequence[PlannerSpec] = ()
+    experiments: str | None = None
+    commands: str | None = None
+    paper_runs: int = 1
+    describe: Callable[[Setup], Mapping[str, str]] | None = None
+    showcase: Callable[[Any], Sequence[ShowcaseItem]] | None = None
 
 
 # --- experiments -----------------------------------------------------------------------------
@@ -81,8 +262,6 @@ def check_stats(stats: Mapping[str, float]) -> list[str]:
 # expands them into runs, executes each run as a pure function of its spec (on
 # Dask, cached on disk), and hands the rows back to the experiment's ``report``,
 # which draws figures and states its claims; :mod:`cellplan.report` renders them.
-
-Scalar = str | int | float | bool
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ from scipy import fft as sp_fft
 
 from cellplan.geometry import BoolArray, FloatArray, ShapeSet, body_gaps, raster_touching
 from cellplan.robots import PlanarArm, Robot, as_batch
+from cellplan.schema import CELLS_RANGE as _CELLS_RANGE
 from cellplan.workcell import AvoidSources, RegionTest, Workcell
 
 # Sub-sampling of a rotation slice: the sampling gap may add at most this
@@ -52,6 +53,9 @@ _ROTATION_GAP_FRACTION = 0.25
 # C-space grids get a finer raster (by an odd factor, so C-cell centres stay raster
 # cell centres), which keeps the over-approximation to a fraction of a C-cell.
 MIN_RASTER_CELLS = 256
+
+CELLS_RANGE = _CELLS_RANGE
+"""Allowed cells per axis (defined once, in :mod:`cellplan.schema`)."""
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,6 @@ def run_demo(
     """
     from rich.console import Console
 
-    from cellplan.experiments import PAPERS
     from cellplan.reproduce_cli import check_output_dir, reproduce
 
     output = check_output_dir(Path(output))
@@ -69,7 +68,7 @@ def run_demo(
             highlight=False,
         )
     return reproduce(
-        PAPERS,
+        None,
         output,
         runs=DEMO_RUNS,
         quick=True,

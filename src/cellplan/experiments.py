@@ -1,7 +1,8 @@
 """The experiment runner: expand experiments into runs, execute them (serially or on Dask), cache.
 
-Each paper package lists its experiments in ``cellplan.<paper>.experiments`` as
-``EXPERIMENTS: list[Experiment]`` (the contract is in :mod:`cellplan.core`).
+Each registered package names the module that lists its experiments
+(:attr:`cellplan.core.Package.experiments`), which holds ``EXPERIMENTS:
+list[Experiment]`` (the contract is in :mod:`cellplan.core`).
 :func:`run_sweep` turns them into runs with ``make_runs``, executes every run as
 a pure function of its :class:`~cellplan.core.RunSpec`, and writes one tidy CSV
 per experiment (one row per run) beside a JSON file of metadata (versions,
@@ -50,9 +51,6 @@ from cellplan.core import Experiment, RunSpec, Scalar
 from cellplan.errors import ArgumentError, Problem
 from cellplan.fileio import write_json, write_text
 
-PAPERS: tuple[str, ...] = ("strategies", "adaptive", "assembly")
-"""The paper packages, in report order."""
-
 CONNECT_TIMEOUT = "10s"
 """How long to try reaching an existing Dask scheduler before giving up."""
 
@@ -84,16 +82,33 @@ class PaperExperiments:
     note: str = ""
 
 
-def discover(papers: Sequence[str] = PAPERS) -> list[PaperExperiments]:
-    """Import ``cellplan.<paper>.experiments`` for each paper and collect ``EXPERIMENTS``.
+def experiment_modules() -> dict[str, str]:
+    """Package name -> module path of its experiments, for every registered package, in order."""
+    from cellplan.registry import packages
+
+    return {p.name: p.experiments for p in packages().values() if p.experiments}
+
+
+def discover(papers: Mapping[str, str] | Sequence[str] | None = None) -> list[PaperExperiments]:
+    """Import each package's experiments module and collect its ``EXPERIMENTS``.
+
+    ``papers`` maps package names to module paths (default: :func:`experiment_modules`);
+    a sequence of names selects registered packages.
 
     A package without that module has "no experiments yet". A module that fails
     to import, or whose ``EXPERIMENTS`` is malformed, is reported in ``note`` rather
     than raised, so one broken package does not hide the others' results.
     """
+    modules = experiment_modules()
+    if papers is None:
+        papers = modules
+    elif not isinstance(papers, Mapping):
+        papers = {name: modules.get(name, "") for name in papers}
     found = []
-    for paper in papers:
-        module_name = f"cellplan.{paper}.experiments"
+    for paper, module_name in papers.items():
+        if not module_name:
+            found.append(PaperExperiments(paper, note="no experiments yet"))
+            continue
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:

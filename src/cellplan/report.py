@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from cellplan.core import Claim, Experiment, ReportPiece, Scalar
-from cellplan.experiments import PAPERS, ExperimentRun, PaperExperiments, SweepResult
+from cellplan.experiments import ExperimentRun, PaperExperiments, SweepResult
 from cellplan.fileio import write_text
 
 MIME = {
@@ -44,43 +44,20 @@ class PaperInfo:
     summary: str
 
 
-PAPER_INFO: dict[str, PaperInfo] = {
-    "strategies": PaperInfo(
-        "Optimal motion strategies under a stochastic assembly process",
-        "R. Sharma, S. M. LaValle, S. Hutchinson, “Optimizing Robot Motion Strategies for "
-        "Assembly with Stochastic Models of the Assembly Process”, IEEE Transactions on "
-        "Robotics and Automation, 1996.",
-        "Section V solves six workcells (translating, rotating and 3-link robots) for the "
-        "state-feedback strategy that minimises the expected time parts wait. The paper "
-        "reports behaviours rather than numbers: while no request is pending the robot waits "
-        "near the sources (P1, P3); it passes a narrow opening when empty and detours when "
-        "carrying (P1); it delivers to the nearer component of a split destination (P2); it "
-        "turns at once toward a changed destination (P4); it picks the source component that "
-        "suits the destination (P6); and anticipation saves about as many stages as the robot "
-        "spent idle (Section V-C).",
-    ),
-    "adaptive": PaperInfo(
-        "Adaptive experience-graph planning in changing workcells",
-        "P. C. Chen, “Adaptive Path Planning for Flexible Manufacturing”, Sandia National "
-        "Laboratories, 1994.",
-        "Section 4 runs Adapt on a planar 2-link (SCARA-like) workcell with 5 obstacles and 9 "
-        "goals, adding an obstacle and a goal after task 40, and plots the ratio of cumulative "
-        "planning cost (distance evaluations) of Adapt to Solve alone, averaged over 100 runs "
-        "(Fig. 5): 2.5 at task 1, 1.0 at task 16, 0.67 by task 40; after the change the "
-        "on-demand repair A3 is best, then A1, then A0, while A2 jumps and then approaches A3.",
-    ),
-    "assembly": PaperInfo(
-        "Navigation-function assembly planning for disc assemblies",
-        "L. L. Whitcomb, D. E. Koditschek, “Automatic assembly planning and control via "
-        "potential functions”, Proc. IEEE/RSJ IROS Workshop, 1991, pp. 17-23.",
-        "Section 5 measures the path-length ratio (path length over straight-line distance) "
-        "over 25 random starts per point: it falls with k to about 1.25 for 7 discs and under "
-        "1.25 for 10 discs (Figs. 3-4); it is nearly independent of the goal's packing "
-        "β(d) from 1e-2 to 1e-44 (Figs. 6-7); permuted starts on packed goals about double "
-        "it; the sequential (switched) algorithm is about 10% longer, with about three "
-        "switches per disc, more for harder assemblies (Figs. 8-9).",
-    ),
-}
+def _package_names() -> list[str]:
+    from cellplan.registry import packages
+
+    return list(packages())
+
+
+def paper_info(name: str) -> PaperInfo:
+    """Title, citation and summary of a registered package (just its name otherwise)."""
+    from cellplan.registry import packages
+
+    pkg = packages().get(name)
+    if pkg is None:
+        return PaperInfo(name, "", "")
+    return PaperInfo(pkg.title, pkg.citation, pkg.summary)
 
 
 @dataclass
@@ -219,14 +196,14 @@ def write_report(
 
 def _summary_table(found: Sequence[PaperExperiments], pieces: Sequence[ExperimentReport]) -> str:
     rows = []
-    papers = [f.paper for f in found] or list(PAPERS)
+    papers = [f.paper for f in found] or list(_package_names())
     for paper in papers:
         items = [p for p in pieces if p.run.experiment.paper == paper]
         claims = [c for p in items if p.piece for c in p.piece.claims]
         good = sum(1 for c in claims if c.reproduced)
         runs = sum(len(p.run.rows) for p in items)
         failed = sum(p.run.n_failed for p in items)
-        name = PAPER_INFO[paper].title if paper in PAPER_INFO else paper
+        name = paper_info(paper).title
         rows.append(
             f'<tr><td><a href="#paper-{_e(paper)}">{_e(name)}</a></td><td>{len(items)}</td>'
             f"<td>{runs}</td><td>{failed}</td>"
@@ -243,7 +220,7 @@ def _summary_table(found: Sequence[PaperExperiments], pieces: Sequence[Experimen
 def _toc(found: Sequence[PaperExperiments], extra: Sequence[ExtraSection]) -> str:
     links = [
         f'<li><a href="#paper-{_e(f.paper)}">'
-        f"{_e(PAPER_INFO[f.paper].title if f.paper in PAPER_INFO else f.paper)}</a></li>"
+        f"{_e(paper_info(f.paper).title)}</a></li>"
         for f in found
     ]
     links += [f'<li><a href="#{_e(s.anchor)}">{_e(s.title)}</a></li>' for s in extra]
@@ -252,7 +229,7 @@ def _toc(found: Sequence[PaperExperiments], extra: Sequence[ExtraSection]) -> st
 
 
 def _paper_section(paper: str, note: str, items: Sequence[ExperimentReport], outdir: Path) -> str:
-    info = PAPER_INFO.get(paper, PaperInfo(paper, "", ""))
+    info = paper_info(paper)
     parts = [f'<section id="paper-{_e(paper)}"><h2>{_e(info.title)}</h2>']
     if info.citation:
         parts.append(f'<p class="cite">{_e(info.citation)}</p>')

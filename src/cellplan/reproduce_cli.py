@@ -17,12 +17,20 @@ from cellplan.errors import ArgumentError, Problem
 
 T = TypeVar("T")
 
-TARGETS = ("strategies", "adaptive", "assembly", "all")
 
-PAPER_RUNS: dict[str, int] = {"strategies": 10, "adaptive": 100, "assembly": 25}
-"""Default repetitions per parameter point: the papers' own counts (Chen: 100 runs,
-Whitcomb and Koditschek: 25 random starts); the strategies paper reports single
-sample paths, so 10 seeded simulations per problem give confidence intervals."""
+def targets() -> tuple[str, ...]:
+    """The registered packages, in report order, and ``all``."""
+    from cellplan.registry import packages
+
+    return (*packages(), "all")
+
+
+def paper_runs() -> dict[str, int]:
+    """Default repetitions per parameter point: each package's own
+    (:attr:`cellplan.core.Package.paper_runs`, the paper's count)."""
+    from cellplan.registry import packages
+
+    return {p.name: p.paper_runs for p in packages().values()}
 
 
 def parse_runs(text: str | None) -> int | None:
@@ -40,9 +48,10 @@ def parse_runs(text: str | None) -> int | None:
 
 def parse_target(text: str) -> list[str]:
     """The positional target: one paper, or ``all``."""
-    if text not in TARGETS:
-        raise ArgumentError(f"unknown target {text!r} (choose from {', '.join(TARGETS)})", "TARGET")
-    return list(TARGETS[:-1]) if text == "all" else [text]
+    known = targets()
+    if text not in known:
+        raise ArgumentError(f"unknown target {text!r} (choose from {', '.join(known)})", "TARGET")
+    return list(known[:-1]) if text == "all" else [text]
 
 
 def check_output_dir(path: Path) -> Path:
@@ -53,7 +62,7 @@ def check_output_dir(path: Path) -> Path:
 
 
 def reproduce(
-    papers: Sequence[str],
+    papers: Sequence[str] | None,
     outdir: Path,
     runs: int | None = None,
     quick: bool = False,
@@ -70,7 +79,7 @@ def reproduce(
 ) -> Path:
     """Discover, sweep and report the experiments of ``papers``; return ``outdir/index.html``.
 
-    ``runs`` overrides every paper's default count (:data:`PAPER_RUNS`); ``only``
+    ``runs`` overrides every paper's default count (:func:`paper_runs`); ``only``
     restricts the sweep to the named experiments (all must exist); ``time_budget_s``
     is passed to :func:`~cellplan.experiments.run_sweep`.
     """
@@ -93,7 +102,8 @@ def reproduce(
             if f.note:
                 console.print(f"[yellow]note[/]: {f.paper}: {f.note}", highlight=False)
     experiments = [e for f in found for e in f.experiments]
-    per_paper = {p: runs or PAPER_RUNS.get(p, 10) for p in {e.paper for e in experiments}}
+    defaults = paper_runs()
+    per_paper = {p: runs or defaults.get(p, 10) for p in {e.paper for e in experiments}}
     sweep = run_sweep(
         experiments,
         per_paper,
@@ -120,15 +130,17 @@ def register(app: typer.Typer) -> None:
     @app.command("reproduce")
     def reproduce_command_line(
         target: Annotated[
-            str, typer.Argument(metavar="TARGET", help="strategies, adaptive, assembly or all")
+            str,
+            typer.Argument(
+                metavar="TARGET", help="a registered package (see cellplan planners) or all"
+            ),
         ] = "all",
         runs: Annotated[
             str | None,
             typer.Option(
                 "--runs",
                 metavar="N",
-                help="repetitions (seeds) per parameter point; default: each paper's own "
-                "(strategies 10, adaptive 100, assembly 25)",
+                help="repetitions (seeds) per parameter point; default: each paper's own count",
             ),
         ] = None,
         output: Annotated[

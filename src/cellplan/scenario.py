@@ -2,8 +2,10 @@
 
 A scenario is a versioned YAML file (``cellplan: 1``). The core sections
 (``workcell``, ``robot``, ``parts``, ``sources``, ``destinations``, ``cspace``)
-are defined here; each paper package contributes one optional section, defined
-in its own ``section.py`` and added to :class:`Scenario` by one line below.
+are defined here in :class:`ScenarioBase`; each registered package
+(:func:`cellplan.registry.packages`) contributes one optional section, and
+:class:`Scenario` is built from the base and those sections when this module is
+first imported. Loading a file imports only the section models, never planner code.
 
 Validation happens in three layers, each reporting *every* problem it finds as
 one line naming the field:
@@ -25,23 +27,21 @@ import hashlib
 import json
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import yaml
-from pydantic import Field, ValidationError
+from pydantic import Field, ValidationError, create_model
 
-from cellplan.adaptive.section import AdaptiveSection
-from cellplan.assembly.section import DiscsSection
 from cellplan.errors import Problem, ScenarioError
 from cellplan.schema import (
     Bounds,
+    Cells,
     Name,
     PositiveFloat,
     Shape,
     StrictModel,
     Vec2,
 )
-from cellplan.strategies.section import StrategySection
 
 SCHEMA_VERSION = 1
 
@@ -130,14 +130,19 @@ class RegionSpec(StrictModel):
 class CSpaceSpec(StrictModel):
     """Default configuration-space resolution (cells per axis) for bitmaps and reports."""
 
-    cells: list[Annotated[int, Field(ge=2, le=4096)]] | None = None
+    cells: list[Cells] | None = None
 
 
 # --- the scenario ----------------------------------------------------------------------------
 
 
-class Scenario(StrictModel):
-    """A workcell and what runs in it. See ``cellplan schema`` for the full schema."""
+class ScenarioBase(StrictModel):
+    """The core of every scenario: a workcell and what moves in it.
+
+    The registered packages' sections (``strategy:``, ``adaptive:``, ``discs:`` ...)
+    are added as optional fields by :func:`build_scenario_model`; see ``cellplan
+    schema`` for the full schema.
+    """
 
     cellplan: Literal[1] = Field(description="scenario format version")
     name: str = ""
@@ -148,10 +153,10 @@ class Scenario(StrictModel):
     sources: dict[Name, RegionSpec] = Field(default_factory=dict)
     destinations: dict[Name, RegionSpec] = Field(default_factory=dict)
     cspace: CSpaceSpec = Field(default_factory=CSpaceSpec)
-    # One optional section per paper package; adding a section is one line here.
-    strategy: StrategySection | None = None
-    adaptive: AdaptiveSection | None = None
-    discs: DiscsSection | None = None
+
+    if TYPE_CHECKING:
+        # Package sections are fields of the built model; to the type checker they are Any.
+        def __getattr__(self, name: str) -> Any: ...
 
     def digest(self) -> str:
         """SHA-256 of the canonical JSON form; identifies a scenario in saved artefacts."""
@@ -159,11 +164,37 @@ class Scenario(StrictModel):
         return hashlib.sha256(canonical.encode()).hexdigest()
 
     def section_names(self) -> list[str]:
-        """Names of the optional paper sections present in this scenario."""
-        return [n for n in PAPER_SECTIONS if getattr(self, n) is not None]
+        """Names of the package sections present in this scenario."""
+        return [n for n in section_keys() if getattr(self, n, None) is not None]
 
 
-PAPER_SECTIONS = ("strategy", "adaptive", "discs")
+def section_keys() -> list[str]:
+    """Keys of the registered packages' scenario sections, in registry order."""
+    from cellplan.registry import sections
+
+    return list(sections())
+
+
+def build_scenario_model() -> type[ScenarioBase]:
+    """:class:`ScenarioBase` plus one optional field per registered package section."""
+    from cellplan.registry import packages
+
+    fields: dict[str, Any] = {}
+    for pkg in packages().values():
+        if pkg.section is not None and pkg.section_model is not None:
+            fields[pkg.section] = (
+                pkg.section_model | None,
+                Field(default=None, description=f"{pkg.name}: {pkg.title}"),
+            )
+    return create_model(  # type: ignore[call-overload,no-any-return]
+        "Scenario", __base__=ScenarioBase, __doc__=ScenarioBase.__doc__, **fields
+    )
+
+
+if TYPE_CHECKING:
+    Scenario = ScenarioBase
+else:
+    Scenario = build_scenario_model()
 
 
 # --- loading ---------------------------------------------------------------------------------
@@ -228,16 +259,11 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
 
 
 def _is_union_tag(item: str, node: Any) -> bool:
-    return (
-        (isinstance(node, dict)
-        and node.get("type") == item)
-        or item
-        in {
-            "function-after",
-            "function-before",
-            "tagged-union",
-        }
-    )
+    return (isinstance(node, dict) and node.get("type") == item) or item in {
+        "function-after",
+        "function-before",
+        "tagged-union",
+    }
 
 
 def problems_from_validation(exc: ValidationError, data: Any) -> list[Problem]:

@@ -18,6 +18,10 @@ Vec2 = tuple[float, float]
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Probability = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+CELLS_RANGE: tuple[int, int] = (4, 4096)
+"""Allowed grid cells per configuration-space axis, everywhere (files, CLI, library)."""
+Cells = Annotated[int, Field(ge=CELLS_RANGE[0], le=CELLS_RANGE[1])]
+
 Name = Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.\-]+$")]
 
 

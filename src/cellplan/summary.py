@@ -1,19 +1,20 @@
-"""The short summary printed by ``cellplan validate``."""
+"""The short summary printed by ``cellplan validate``.
+
+The core lines describe the workcell; each registered package whose section the scenario
+has adds its own lines through :attr:`cellplan.core.Package.describe`.
+"""
 
 from __future__ import annotations
 
-from cellplan.scenario import Scenario, robot_dimension
-from cellplan.workcell import Workcell
+from cellplan.registry import packages
+from cellplan.scenario import robot_dimension
+from cellplan.setup import Setup
 
 
-def assembly_modes(sc: Scenario) -> int:
-    """2PSD + 1 assembly modes (strategies paper, Section III-A), all requests allowed."""
-    return 2 * len(sc.parts) * len(sc.sources) * len(sc.destinations) + 1
-
-
-def summarize(sc: Scenario, cell: Workcell | None) -> dict[str, str]:
-    """Key facts of a validated scenario (and its workcell model, when it has a robot)."""
-    from cellplan.cspace import Grid, free_bitmap
+def summarize(setup: Setup) -> dict[str, str]:
+    """Key facts of a validated scenario: its workcell model, when it has a robot, and the
+    lines of every package whose section it has (which may run that package's checks)."""
+    sc = setup.scenario
 
     b = sc.workcell.bounds
     out = {
@@ -22,26 +23,25 @@ def summarize(sc: Scenario, cell: Workcell | None) -> dict[str, str]:
         f"{len(sc.workcell.obstacles)} obstacles",
         "sections": ", ".join(sc.section_names()) or "none",
     }
-    if sc.discs is not None:
-        d = sc.discs
-        if d.discs is not None:
-            out["discs"] = f"{len(d.discs)} listed, boundary {d.boundary.type}, k = {d.k:g}"
-        elif d.generate is not None:
-            g = d.generate
-            out["discs"] = (
-                f"{g.n} generated (seed {g.seed}, {g.pattern} goals, {g.starts} starts), "
-                f"boundary {d.boundary.type}, k = {d.k:g}"
-            )
-    if sc.robot is None or cell is None:
-        return out
+    if sc.robot is not None:
+        out |= _workcell_lines(setup)
+    for pkg in packages().values():
+        if pkg.section in sc.section_names() and pkg.describe is not None:
+            out |= dict(pkg.describe(setup))
+    return out
+
+
+def _workcell_lines(setup: Setup) -> dict[str, str]:
+    from cellplan.cspace import Grid, free_bitmap
+
+    sc, cell = setup.scenario, setup.workcell
     regions = lambda rs: ", ".join(f"{n} ({len(r.components)})" for n, r in rs.items()) or "none"  # noqa: E731
-    out |= {
+    out = {
         "robot": sc.robot.type,
         "C-space dimension": str(robot_dimension(sc.robot)),
         "parts": ", ".join(sc.parts) or "none",
         "sources (components)": regions(sc.sources),
         "destinations (components)": regions(sc.destinations),
-        "assembly modes": str(assembly_modes(sc)),
     }
     grid = Grid.for_robot(cell.robot, cell.default_cells)
     free = free_bitmap(cell, grid)

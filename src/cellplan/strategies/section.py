@@ -15,7 +15,15 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import Field, model_validator
 
 from cellplan.errors import Problem
-from cellplan.schema import Name, NonNegativeFloat, PositiveFloat, Probability, StrictModel, Vec2
+from cellplan.schema import (
+    Cells,
+    Name,
+    NonNegativeFloat,
+    PositiveFloat,
+    Probability,
+    StrictModel,
+    Vec2,
+)
 
 if TYPE_CHECKING:
     from cellplan.scenario import Scenario
@@ -114,8 +122,10 @@ class StrategySection(StrictModel):
     fine_motion_regions: dict[Name, FineMotionSpec] = Field(
         default_factory=dict, description="per source/destination override of fine_motion"
     )
-    cells: list[Annotated[int, Field(ge=4, le=1024)]] | None = Field(
-        None, description="grid cells per C-space axis (default: cspace.cells, else 64)"
+    cells: list[Cells] | None = Field(
+        None,
+        description="grid cells per C-space axis (default: cspace.cells, else the robot "
+        "kind's default: 128 x 128 point and translating, 64 x 64 x 32 rotating, 64 per arm joint)",
     )
     actions: ActionSpec = Field(default_factory=ActionSpec)
     home: list[float] | None = Field(

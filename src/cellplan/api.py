@@ -1,0 +1,116 @@
+"""The planning API: load a scenario, list planners, make one, plan.
+
+::
+
+    import cellplan
+    setup = cellplan.load("strategies_p1")
+    result = cellplan.plan(setup, "strategies")
+    result.status, result.message, result.trajectory.save("p1.csv")
+
+:func:`plan` runs any registered planner and returns the common
+:class:`~cellplan.core.Result`; :func:`make` builds a :class:`Planner` (a planner bound
+to a problem and validated options) without running it, as Gymnasium's ``make`` does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from cellplan.core import Options, PlannerSpec, Progress, Result
+from cellplan.errors import Problem, ScenarioError
+from cellplan.registry import parse_options, planner
+from cellplan.registry import planners as _registered
+from cellplan.setup import Setup, as_setup
+
+if TYPE_CHECKING:
+    from cellplan.scenario import Scenario
+
+
+def load(path_or_name: str | Path) -> Setup:
+    """Read and validate a scenario file (or a bundled scenario by name).
+
+    Raises
+    ------
+    ScenarioError
+        One problem per mistake in the file, each naming its field.
+    """
+    return as_setup(path_or_name)
+
+
+def loads(text: str) -> Setup:
+    """Parse and validate scenario YAML text."""
+    from cellplan.scenario import loads_scenario
+
+    return Setup(loads_scenario(text), "<string>")
+
+
+def planners() -> dict[str, PlannerSpec]:
+    """Every registered planner by name (``spec.option_table()`` lists its options)."""
+    return dict(_registered())
+
+
+@dataclass(frozen=True)
+class Planner:
+    """A registered planner bound to one problem and validated options."""
+
+    spec: PlannerSpec
+    setup: Setup
+    options: Options
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def solve(self, progress: Progress | None = None) -> Result:
+        """Run the planner; ``progress(done, total, text)`` is called as it goes."""
+        result = self.spec.run(self.setup, self.options, progress)
+        return dataclasses.replace(
+            result, planner=self.spec.name, options=self.options.model_dump()
+        )
+
+
+def make(name: str, setup: Setup | Scenario | str | Path, /, **options: Any) -> Planner:
+    """Build planner ``name`` for a problem, validating every option.
+
+    Raises
+    ------
+    ArgumentError
+        An unknown planner or option (with a suggestion), or an option out of range.
+    ScenarioError
+        The scenario lacks the section the planner needs.
+    """
+    spec = planner(name)
+    opts = parse_options(spec, options)
+    setup = as_setup(setup)
+    if spec.section is not None and getattr(setup.scenario, spec.section, None) is None:
+        raise ScenarioError(
+            [
+                Problem(
+                    spec.section,
+                    f"this scenario has no '{spec.section}:' section, which "
+                    f"planner {spec.name} needs",
+                )
+            ]
+        )
+    return Planner(spec, setup, opts)
+
+
+def plan(
+    setup: Setup | Scenario | str | Path,
+    name: str,
+    /,
+    *,
+    progress: Progress | None = None,
+    **options: Any,
+) -> Result:
+    """Run planner ``name`` on a problem and return its :class:`~cellplan.core.Result`.
+
+    ``options`` are the planner's options (``cellplan.planners()[name].option_table()``);
+    an unknown or out-of-range option raises :class:`~cellplan.errors.ArgumentError`
+    naming it. A planner that runs but does not solve returns a result whose ``status``
+    and ``message`` say why; it does not raise.
+    """
+    return make(name, setup, **options).solve(progress)

@@ -1,0 +1,58 @@
+"""The assembly package's declaration: its scenario section, planners, experiments, commands.
+
+This is the only place the core learns about the package (see
+:data:`cellplan.registry.BUILTIN_PACKAGES`). It imports nothing heavy: planners import
+their algorithm modules when they run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+from cellplan.assembly.section import DiscsSection
+from cellplan.core import Package
+
+TITLE = "Navigation-function assembly planning for disc assemblies"
+CITATION = (
+    "L. L. Whitcomb, D. E. Koditschek, “Automatic assembly planning and control via "
+    "potential functions”, Proc. IEEE/RSJ IROS Workshop, 1991, pp. 17-23."
+)
+SUMMARY = (
+    "Section 5 measures the path-length ratio (path length over straight-line distance) "
+    "over 25 random starts per point: it falls with k to about 1.25 for 7 discs and under "
+    "1.25 for 10 discs (Figs. 3-4); it is nearly independent of the goal's packing "
+    "β(d) from 1e-2 to 1e-44 (Figs. 6-7); permuted starts on packed goals about double "
+    "it; the sequential (switched) algorithm is about 10% longer, with about three "
+    "switches per disc, more for harder assemblies (Figs. 8-9)."
+)
+
+if TYPE_CHECKING:
+    from cellplan.setup import Setup
+
+
+def describe(setup: Setup) -> Mapping[str, str]:
+    """``cellplan validate`` lines: the discs, listed or generated, and k."""
+    d = setup.scenario.discs
+    if d.discs is not None:
+        return {"discs": f"{len(d.discs)} listed, boundary {d.boundary.type}, k = {d.k:g}"}
+    g = d.generate
+    return {
+        "discs": f"{g.n} generated (seed {g.seed}, {g.pattern} goals, {g.starts} starts), "
+        f"boundary {d.boundary.type}, k = {d.k:g}"
+    }
+
+
+PACKAGE = Package(
+    name="assembly",
+    title=TITLE,
+    citation=CITATION,
+    summary=SUMMARY,
+    section="discs",
+    section_model=DiscsSection,
+    planners=(),
+    experiments="cellplan.assembly.experiments",
+    commands="cellplan.assembly.commands",
+    paper_runs=25,
+    describe=describe,
+)

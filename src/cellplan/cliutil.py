@@ -1,0 +1,97 @@
+"""Helpers every CLI command shares: the ``--json`` option, summaries, exit statuses.
+
+Exit statuses (also in docs/reliability.md): 0 solved, 1 ran but did not solve (the
+status line says why), 2 bad input or arguments, 70 internal error (a bug), 130
+interrupted. With ``--json`` a command prints exactly one JSON object on stdout
+(status, message, stats, output files) and nothing else there; progress and notes go
+to stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+
+from cellplan.core import Result
+
+EXIT_SOLVED = 0
+EXIT_NOT_SOLVED = 1
+EXIT_BAD_INPUT = 2
+EXIT_INTERNAL = 70
+EXIT_INTERRUPTED = 130
+
+JsonOpt = Annotated[
+    bool,
+    typer.Option(
+        "--json", help="print one JSON object (status, message, stats, outputs) on stdout"
+    ),
+]
+ScenarioArg = Annotated[
+    str, typer.Argument(help="scenario file, or the name of a bundled scenario")
+]
+
+
+def stdout() -> Console:
+    """A console for summaries: stdout, never hard-wrapped (safe to pipe)."""
+    return Console(soft_wrap=True, highlight=False)
+
+
+def stderr() -> Console:
+    """A console for progress and notes."""
+    return Console(stderr=True, soft_wrap=True, highlight=False)
+
+
+def progress_enabled(as_json: bool) -> bool:
+    """Progress bars are drawn only on a terminal, never with ``--json``."""
+    return not as_json and sys.stderr.isatty()
+
+
+def finish(
+    result: Result,
+    as_json: bool,
+    summary: str,
+    outputs: Mapping[str, str | Path] | None = None,
+    extra: Mapping[str, Any] | None = None,
+) -> None:
+    """Print the result (a summary line, or one JSON object) and exit 0 if solved, else 1.
+
+    The summary line starts with the status when the plan did not succeed, so a person
+    sees at once why the exit status is 1.
+    """
+    files = {k: str(v) for k, v in (outputs or {}).items()}
+    if as_json:
+        payload = result.summary()
+        payload["outputs"] = files
+        if extra:
+            payload.update(_clean(dict(extra)))
+        sys.stdout.write(json.dumps(payload, allow_nan=False) + "\n")
+        sys.stdout.flush()
+    else:
+        line = summary if result.success else f"{result.status.value}: {result.message}. {summary}"
+        stdout().print(line, markup=False)
+    raise typer.Exit(EXIT_SOLVED if result.success else EXIT_NOT_SOLVED)
+
+
+def print_json(payload: Mapping[str, Any]) -> None:
+    """Write one JSON object on stdout (non-finite numbers become null)."""
+    sys.stdout.write(json.dumps(_clean(dict(payload)), allow_nan=False) + "\n")
+    sys.stdout.flush()
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, Mapping):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_clean(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value

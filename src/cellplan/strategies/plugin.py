@@ -1,0 +1,55 @@
+"""The strategies package's declaration: its scenario section, planners, experiments, commands.
+
+This is the only place the core learns about the package (see
+:data:`cellplan.registry.BUILTIN_PACKAGES`). It imports nothing heavy: planners import
+their algorithm modules when they run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+from cellplan.core import Package
+from cellplan.strategies.section import StrategySection
+
+TITLE = "Optimal motion strategies under a stochastic assembly process"
+CITATION = (
+    "R. Sharma, S. M. LaValle, S. Hutchinson, “Optimizing Robot Motion Strategies for "
+    "Assembly with Stochastic Models of the Assembly Process”, IEEE Transactions on "
+    "Robotics and Automation, 1996."
+)
+SUMMARY = (
+    "Section V solves six workcells (translating, rotating and 3-link robots) for the "
+    "state-feedback strategy that minimises the expected time parts wait. The paper "
+    "reports behaviours rather than numbers: while no request is pending the robot waits "
+    "near the sources (P1, P3); it passes a narrow opening when empty and detours when "
+    "carrying (P1); it delivers to the nearer component of a split destination (P2); it "
+    "turns at once toward a changed destination (P4); it picks the source component that "
+    "suits the destination (P6); and anticipation saves about as many stages as the robot "
+    "spent idle (Section V-C)."
+)
+
+if TYPE_CHECKING:
+    from cellplan.setup import Setup
+
+
+def describe(setup: Setup) -> Mapping[str, str]:
+    """``cellplan validate`` lines: the number of assembly modes (Section III-A)."""
+    sc = setup.scenario
+    return {"assembly modes": str(2 * len(sc.parts) * len(sc.sources) * len(sc.destinations) + 1)}
+
+
+PACKAGE = Package(
+    name="strategies",
+    title=TITLE,
+    citation=CITATION,
+    summary=SUMMARY,
+    section="strategy",
+    section_model=StrategySection,
+    planners=(),
+    experiments="cellplan.strategies.experiments",
+    commands="cellplan.strategies.commands",
+    paper_runs=10,
+    describe=describe,
+)

@@ -1,0 +1,111 @@
+"""Every degree/radian conversion in cellplan, and the checks on configurations given in code.
+
+The convention: scenario files (and everything a person types: CLI options, YAML) write
+angles in **degrees**; code, saved trajectories and strategy files use **radians**. The
+conversion happens here and nowhere else, so a reader can find every place where a unit
+changes by searching for this module.
+
+A robot's angular axes are the ones not named ``x`` or ``y`` (``theta`` of a rotating
+body, ``q1 ... qn`` of an arm).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cellplan.errors import ArgumentError, Problem
+
+FloatArray = NDArray[np.float64]
+
+LENGTH = "workcell"
+"""Unit name of positions: the scenario's own length unit."""
+ANGLE = "rad"
+"""Unit name of angles in code."""
+
+#: The largest magnitude an angle (radians) may have where code takes configurations.
+#: Two full turns lets callers pass unwrapped angles; a value in degrees (90, 180) is
+#: far outside and is refused with a message saying angles are radians here.
+ANGLE_LIMIT = 2.0 * math.pi
+
+
+def radians(degrees: Any) -> Any:
+    """Degrees to radians (scalars stay Python floats, arrays stay arrays)."""
+    if np.isscalar(degrees):
+        return math.radians(float(degrees))  # type: ignore[arg-type]
+    return np.radians(np.asarray(degrees, dtype=float))
+
+
+def degrees(rad: Any) -> Any:
+    """Radians to degrees (scalars stay Python floats, arrays stay arrays)."""
+    if np.isscalar(rad):
+        return math.degrees(float(rad))  # type: ignore[arg-type]
+    return np.degrees(np.asarray(rad, dtype=float))
+
+
+def angular_axes(axis_names: Sequence[str]) -> tuple[bool, ...]:
+    """Which axes of a configuration are angles (every axis but ``x`` and ``y``)."""
+    return tuple(name not in ("x", "y") for name in axis_names)
+
+
+def axis_units(axis_names: Sequence[str]) -> tuple[str, ...]:
+    """The unit of each axis in code: ``"workcell"`` or ``"rad"``."""
+    return tuple(ANGLE if a else LENGTH for a in angular_axes(axis_names))
+
+
+def config_from_file(axis_names: Sequence[str], values: Sequence[float]) -> FloatArray:
+    """A configuration as written in a file (degrees for angles) in code units (radians)."""
+    q = np.asarray(values, dtype=float).copy()
+    mask = np.array(angular_axes(axis_names), dtype=bool)
+    q[..., mask] = np.radians(q[..., mask])
+    return q
+
+
+def config_to_file(axis_names: Sequence[str], q: ArrayLike) -> FloatArray:
+    """A configuration in code units as it would be written in a file (degrees for angles)."""
+    out = np.asarray(q, dtype=float).copy()
+    mask = np.array(angular_axes(axis_names), dtype=bool)
+    out[..., mask] = np.degrees(out[..., mask])
+    return out
+
+
+def check_configurations(q: ArrayLike, axis_names: Sequence[str], name: str = "q") -> FloatArray:
+    """``q`` as a float ``(N, dim)`` array, or an :class:`ArgumentError` naming what is wrong.
+
+    Refuses a wrong shape, non-finite values, and angles beyond :data:`ANGLE_LIMIT`
+    (the usual sign of degrees passed where radians are expected).
+    """
+    dim = len(axis_names)
+    try:
+        arr = np.asarray(q, dtype=float)
+    except (TypeError, ValueError):
+        raise ArgumentError([Problem(name, "expected an array of numbers")]) from None
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != dim:
+        raise ArgumentError(
+            [Problem(name, f"expected shape (N, {dim}) or ({dim},), got {np.shape(q)}")]
+        )
+    if not np.all(np.isfinite(arr)):
+        raise ArgumentError([Problem(name, "contains NaN or infinite values")])
+    mask = np.array(angular_axes(axis_names), dtype=bool)
+    if mask.any():
+        angles = np.abs(arr[:, mask])
+        if angles.size and angles.max() > ANGLE_LIMIT + 1e-9:
+            row, col = np.unravel_index(int(np.argmax(angles)), angles.shape)
+            axis = [a for a, m in zip(axis_names, mask, strict=True) if m][col]
+            value = arr[row, np.flatnonzero(mask)[col]]
+            raise ArgumentError(
+                [
+                    Problem(
+                        name,
+                        f"angle {axis}={value:g} is outside [-2 pi, 2 pi]; angles are radians "
+                        "here (degrees only in scenario files: use cellplan.units.radians)",
+                    )
+                ]
+            )
+    return arr
