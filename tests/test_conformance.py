@@ -1,20 +1,25 @@
-"""Every registered planner obeys the core contract (the Gymnasium-style conformance test).
+"""Every registered planner obeys the contract (the Gymnasium-style conformance check).
 
-For each planner: its smoke run returns a :class:`PlanResult` with a
-:class:`Status`, plain finite numeric statistics, and is deterministic for a
-seed (timing statistics aside).
+For each planner, its smoke problem is planned through the public API twice with the
+same options. The result must be a :class:`Result` with a :class:`Status`, a one-line
+message, finite statistics and a non-empty :class:`Trajectory` that round-trips through
+CSV and JSON; the smoke problem must be *solved* (a planner that always reports stuck
+fails here); and the run must be deterministic (timing statistics aside).
 """
 
 from __future__ import annotations
 
 import gc
 
+import numpy as np
 import pytest
 
-from cellplan.core import PlanResult, Status, check_stats
-from cellplan.registry import planners
+import cellplan
+from cellplan.core import Options, Result, Status, check_stats
+from cellplan.registry import scenario_names
+from cellplan.trajectory import Trajectory
 
-PLANNERS = planners()
+PLANNERS = cellplan.planners()
 TIMING = ("time", "seconds", "wall")
 
 
@@ -22,23 +27,55 @@ def _deterministic_part(stats):
     return {k: v for k, v in stats.items() if not any(t in k for t in TIMING)}
 
 
-def test_registry_names_are_qualified_by_paper():
-    for name, entry in PLANNERS.items():
-        assert name == entry.name
-        assert entry.paper in ("strategies", "adaptive", "assembly")
-        assert name.startswith(entry.paper + ".")
-        assert entry.summary
+def test_every_package_registers_planners():
+    packages = {spec.package for spec in PLANNERS.values()}
+    assert {"strategies", "adaptive", "assembly"} <= packages
+
+
+def test_registry_entries_are_well_formed():
+    for name, spec in PLANNERS.items():
+        assert name == spec.name
+        assert name == spec.package or name.startswith(spec.package + ".")
+        assert spec.summary
+        assert issubclass(spec.options, Options)
+        scenario, options = spec.smoke
+        assert scenario in scenario_names()
+        spec.options.model_validate(dict(options))  # the smoke options are valid options
+        for key, _default, description in spec.option_table():
+            assert description, f"{name}: option {key} has no description"
 
 
 @pytest.mark.parametrize("name", sorted(PLANNERS))
-def test_planner_conformance(name):
-    entry = PLANNERS[name]
-    first = entry.smoke(0)
-    second = entry.smoke(0)
+def test_planner_conformance(name, tmp_path):
+    spec = PLANNERS[name]
+    scenario, options = spec.smoke
+    setup = cellplan.load(scenario)
+    first = cellplan.plan(setup, name, **options)
+    second = cellplan.plan(setup, name, **options)
     gc.collect()
     for result in (first, second):
-        assert isinstance(result, PlanResult)
+        assert isinstance(result, Result)
         assert isinstance(result.status, Status)
+        assert result.planner == name
+        assert result.message and "\n" not in result.message
         assert check_stats(result.stats) == []
-    assert first.status == second.status
+        assert isinstance(result.trajectory, Trajectory)
+        assert len(result.trajectory) >= 2
+        assert result.solution is not None
+    assert first.status is Status.SOLVED, f"{name} did not solve its smoke problem: {first.message}"
+    assert first.success
     assert _deterministic_part(first.stats) == _deterministic_part(second.stats)
+    traj = first.trajectory
+    assert np.array_equal(traj.q, second.trajectory.q)
+    for suffix in (".csv", ".json", ".npz"):
+        path = traj.save(tmp_path / f"traj{suffix}")
+        assert Trajectory.load(path) == traj
+
+
+@pytest.mark.parametrize("name", sorted(PLANNERS))
+def test_unknown_option_is_one_line_naming_it(name):
+    spec = PLANNERS[name]
+    scenario, _ = spec.smoke
+    with pytest.raises(cellplan.ArgumentError) as err:
+        cellplan.make(name, scenario, no_such_option=1)
+    assert [p.field for p in err.value.problems] == ["no_such_option"]

@@ -23,7 +23,8 @@ from cellplan.errors import ArgumentError
 def fake_papers(monkeypatch):
     """Every paper offers one fake experiment, except adaptive, which has none yet."""
 
-    def discover(papers=ex.PAPERS):
+    def discover(papers=None):
+        papers = list(ex.experiment_modules()) if papers is None else papers
         return [
             ex.PaperExperiments(
                 p,
@@ -139,24 +140,36 @@ def test_real_demo_runs_every_package(tmp_path):
     """The real demo on the real packages (slow; the fake-experiment test covers the code)."""
     index = run_demo(tmp_path / "demo")
     text = index.read_text(encoding="utf-8")
-    for paper in ex.PAPERS:
+    for paper in ex.experiment_modules():
         assert f'id="paper-{paper}"' in text
     assert "report failed" not in text and "failed to import" not in text
 
 
-def test_showcase_runs_commands_and_reports_failures(tmp_path, monkeypatch):
+def test_showcase_runs_each_package_and_reports_failures(tmp_path):
     import cellplan.demo as demo
+    from cellplan.core import Package, ShowcaseItem
 
-    monkeypatch.setattr(
-        demo,
-        "SHOWCASE",
-        (
-            (("show", "strategies_p1", "-o", "{dir}/cell.png"), ("cell.png",)),
-            (("show", "no_such_scenario", "-o", "{dir}/x.png"), ("x.png",)),
-        ),
-    )
-    section = demo.run_showcase(tmp_path / "showcase")
-    assert section.figures == [tmp_path / "showcase" / "cell.png"]
-    assert section.figures[0].stat().st_size > 0
-    assert section.notes[0] == "cellplan show strategies_p1 -o showcase/cell.png"
-    assert section.notes[1].startswith("cellplan show no_such_scenario -o showcase/x.png: failed:")
+    def good(folder):
+        folder.mkdir(parents=True)
+        (folder / "a.png").write_bytes(b"png")
+        return [
+            ShowcaseItem("A picture", [folder / "a.png"], "what it shows", "cellplan.plan(...)")
+        ]
+
+    def bad(folder):
+        raise RuntimeError("broken")
+
+    pkgs = {
+        "good": Package("good", "Good", "", "", showcase=good),
+        "bad": Package("bad", "Bad", "", "", showcase=bad),
+        "none": Package("none", "None", "", ""),
+    }
+    section = demo.run_showcase(tmp_path / "showcase", pkgs)
+    assert [item.title for item in section.items] == ["A picture"]
+    assert section.items[0].figures == [tmp_path / "showcase" / "good" / "a.png"]
+    assert section.errors == ["bad: showcase failed: RuntimeError: broken"]
+    from cellplan.report import _extra_section
+
+    html = _extra_section(section)
+    assert '<pre class="cmd"><code>cellplan.plan(...)</code></pre>' in html
+    assert html.count('class="error"') == 1

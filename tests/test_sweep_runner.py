@@ -327,7 +327,9 @@ def test_discover_reports_missing_broken_and_present_modules(tmp_path, monkeypat
         "import fake_sweep_experiments as f\nEXPERIMENTS = [f.grid('fk_fine.grid')]\n",
     )
     try:
-        found = {f.paper: f for f in ex.discover([missing, broken, bad_import, empty, fine])}
+        names = [missing, broken, bad_import, empty, fine]
+        modules = {name: f"cellplan.{name}.experiments" for name in names}
+        found = {f.paper: f for f in ex.discover(modules)}
     finally:
         for name in (broken, bad_import, empty, fine):
             sys.modules.pop(f"cellplan.{name}.experiments", None)

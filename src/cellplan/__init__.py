@@ -1,14 +1,72 @@
 """cellplan: motion planning for robots in assembly workcells.
 
-The data flow is scenario file -> :class:`cellplan.scenario.Scenario` (validated)
--> :class:`cellplan.workcell.Workcell` (geometry, robot, exact collision checks)
--> :mod:`cellplan.cspace` (configuration-space bitmaps) -> a planner from one of the
-paper packages (:mod:`cellplan.strategies`, :mod:`cellplan.adaptive`,
-:mod:`cellplan.assembly`) -> simulation, metrics, pictures and report.
+The planning API::
+
+    import cellplan
+
+    setup = cellplan.load("strategies_p1")        # validated scenario + workcell
+    result = cellplan.plan(setup, "strategies")   # any registered planner
+    result.status, result.message, result.stats   # one Result for every planner
+    result.trajectory.save("motion.csv")          # the motion, for a controller
+
+:func:`planners` lists every registered planner with its options; :func:`make` builds one
+without running it. Each paper package registers its planners (:mod:`cellplan.strategies`,
+:mod:`cellplan.adaptive`, :mod:`cellplan.assembly`); :func:`simulate` runs a solved
+strategy in the stochastic assembly process and :class:`ExperiencePlanner` answers
+start-to-goal queries against an experience graph.
 """
 
-from cellplan.errors import CellplanError, Problem, ScenarioError
-from cellplan.scenario import Scenario, load_scenario
+from typing import TYPE_CHECKING, Any
 
-__all__ = ["CellplanError", "Problem", "Scenario", "ScenarioError", "load_scenario"]
+from cellplan import units
+from cellplan.api import Planner, load, loads, make, plan, planners
+from cellplan.core import Result, Status
+from cellplan.errors import ArgumentError, CellplanError, PersistenceError, Problem, ScenarioError
+from cellplan.scenario import Scenario, load_scenario
+from cellplan.setup import Setup
+from cellplan.trajectory import Event, Trajectory
+
+if TYPE_CHECKING:
+    from cellplan.adaptive import ExperiencePlanner
+    from cellplan.strategies.simulate import simulate_result as simulate
+
+__all__ = [
+    "ArgumentError",
+    "CellplanError",
+    "Event",
+    "ExperiencePlanner",
+    "PersistenceError",
+    "Planner",
+    "Problem",
+    "Result",
+    "Scenario",
+    "ScenarioError",
+    "Setup",
+    "Status",
+    "Trajectory",
+    "load",
+    "load_scenario",
+    "loads",
+    "make",
+    "plan",
+    "planners",
+    "simulate",
+    "units",
+]
 __version__ = "0.1.0"
+
+# Conveniences that live in a package, imported on first use so that ``import cellplan``
+# does not load numba kernels or OMPL.
+_LAZY = {
+    "simulate": ("cellplan.strategies.simulate", "simulate_result"),
+    "ExperiencePlanner": ("cellplan.adaptive", "ExperiencePlanner"),
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module 'cellplan' has no attribute {name!r}")

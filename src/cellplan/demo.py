@@ -63,8 +63,7 @@ def run_demo(
         pictures = run_showcase(output / "showcase")
         extra.insert(0, pictures)
         console.print(
-            f"ran the showcase ({len(pictures.figures)} pictures) in "
-            f"{time.perf_counter() - t0:.1f} s",
+            f"ran the showcase ({len(pictures.items)} items) in {time.perf_counter() - t0:.1f} s",
             highlight=False,
         )
     return reproduce(
@@ -84,7 +83,7 @@ def run_demo(
 def draw_bundled_workcells(folder: Path) -> Any:
     """Draw every bundled scenario's workcell into ``folder``; return the report section.
 
-    A scenario that cannot be loaded or drawn is listed in the section's notes
+    A scenario that cannot be loaded or drawn is listed in the section's errors
     instead of stopping the demo.
     """
     from cellplan.registry import scenario_names
@@ -96,96 +95,51 @@ def draw_bundled_workcells(folder: Path) -> Any:
         "`cellplan show NAME -o file.png` draws one).",
         anchor="workcells",
     )
-    try:
-        from cellplan.plots import save_workcell
-        from cellplan.workcell import load_workcell
-    except ImportError as exc:
-        section.notes.append(f"workcell drawing is not available yet ({exc})")
-        return section
+    from cellplan.api import load
+    from cellplan.plots import save_workcell
+
     names = scenario_names()
     if not names:
         section.notes.append("no bundled scenarios yet")
     for name in names:
         target = folder / f"{name}.png"
         try:
-            _, cell = load_workcell(name)
-            save_workcell(cell, target)
+            setup = load(name)
+            if not setup.has_robot:
+                section.notes.append(f"{name}: no robot (its discs are drawn in the showcase)")
+                continue
+            save_workcell(setup.workcell, target)
         except Exception as exc:  # one bad scenario must not hide the rest of the demo
-            section.notes.append(f"{name}: {type(exc).__name__}: {exc}")
+            section.errors.append(f"{name}: {type(exc).__name__}: {exc}")
             continue
         section.figures.append(target)
     return section
 
 
-# One run of each planner through its own command, with the files each one writes
-# that the report shows: (command line, pictures relative to the showcase folder).
-SHOWCASE: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
-    (("solve", "strategies_p1", "-o", "{dir}/p1.npz"), ()),
-    (
-        ("plot", "strategies_p1", "--strategy", "{dir}/p1.npz", "--mode", "1,1,1,W",
-         "-o", "{dir}/p1_waiting.png"),
-        ("p1_waiting.png",),
-    ),
-    (
-        ("plot", "strategies_p1", "--strategy", "{dir}/p1.npz", "--mode", "1,1,1,C",
-         "-o", "{dir}/p1_carrying.png"),
-        ("p1_carrying.png",),
-    ),
-    (
-        ("simulate", "strategies_p1", "--strategy", "{dir}/p1.npz", "--stages", "300",
-         "--seed", "3", "-o", "{dir}/p1_simulation"),
-        ("p1_simulation/frames.png", "p1_simulation/simulation.gif"),
-    ),
-    (
-        ("assemble", "discs_seven", "--algorithm", "gradient", "-o", "{dir}/discs_gradient"),
-        ("discs_gradient/sequence.png", "discs_gradient/assembly.gif"),
-    ),
-    (
-        ("assemble", "discs_seven", "--algorithm", "sequential", "-o", "{dir}/discs_sequential"),
-        ("discs_sequential/sequence.png",),
-    ),
-    (
-        ("adapt", "adaptive_fig3", "-o", "{dir}/adaptive_fig3"),
-        ("adaptive_fig3/snapshots.png",),
-    ),
-)
+def run_showcase(folder: Path, packages: Any = None) -> Any:
+    """Run each registered package's showcase through the library API; return the report section.
 
-
-def run_showcase(folder: Path) -> Any:
-    """Run each planner once through its command (:data:`SHOWCASE`); return the report section.
-
-    These are the pictures a person looks at first: the strategy's cost-to-go and
-    actions (Fig. 8), a simulated sample path with its animation (Fig. 9), a disc
-    assembly (Fig. 1-2) and the experience graph of Fig. 3. A command that fails is
-    listed in the section's notes instead of stopping the demo.
+    These are the pictures a person looks at first (each package's
+    :attr:`~cellplan.core.Package.showcase`: the strategy's cost-to-go and a sample path,
+    a disc assembly, the experience graph), each with a caption and the Python lines that
+    make it. A package whose showcase fails is listed as an error in the section instead of
+    stopping the demo.
     """
-    import contextlib
-    import io
-
-    from cellplan.errors import CellplanError
+    from cellplan.registry import packages as registered
     from cellplan.report import ExtraSection
 
     section = ExtraSection(
         "Showcase: one run of each planner",
-        "Each picture comes from the command shown below it in the notes, run on a bundled "
-        "scenario: the problem 1 strategy's cost-to-go and optimal actions while waiting for "
-        "and carrying part 1 (Fig. 8), a sample path with a new frame at each mode change "
-        "(Fig. 9) and its animation, a seven-disc assembly by the gradient flow and by the "
-        "sequential algorithm (Figs. 1-2), and the experience graph of Chen's Fig. 3.",
+        "Each picture comes from the Python shown under it, run on a bundled scenario "
+        "through the planning API (`cellplan.load`, `cellplan.plan`).",
         anchor="showcase",
     )
-    from cellplan.cli import app
-
-    folder.mkdir(parents=True, exist_ok=True)
-    for args, pictures in SHOWCASE:
-        argv = [a.format(dir=folder) for a in args]
-        command = "cellplan " + " ".join(a.replace(str(folder), "showcase") for a in argv)
-        try:
-            with contextlib.redirect_stdout(io.StringIO()):
-                app(argv, standalone_mode=False)
-        except (CellplanError, OSError, ValueError, RuntimeError) as exc:
-            section.notes.append(f"{command}: failed: {type(exc).__name__}: {exc}")
+    pkgs = registered() if packages is None else packages
+    for name, pkg in pkgs.items():
+        if pkg.showcase is None:
             continue
-        section.notes.append(command)
-        section.figures.extend(folder / p for p in pictures if (folder / p).is_file())
+        try:
+            section.items.extend(pkg.showcase(folder / name))
+        except Exception as exc:  # one failing package must not hide the rest of the demo
+            section.errors.append(f"{name}: showcase failed: {type(exc).__name__}: {exc}")
     return section

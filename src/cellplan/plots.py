@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
+from cellplan import units
 from cellplan.fileio import atomic_path
 
 if TYPE_CHECKING:
@@ -23,6 +24,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from cellplan.cspace import Grid
+    from cellplan.trajectory import Trajectory
     from cellplan.workcell import Workcell
 
 COLORS = {
@@ -249,7 +251,7 @@ def _axis_extent(grid: Grid, i: int, robot_axis: str) -> tuple[float, float, str
     lo, hi = float(grid.lower[i]), float(grid.upper[i])
     if robot_axis in ("x", "y"):
         return lo, hi, robot_axis
-    return math.degrees(lo), math.degrees(hi), f"{robot_axis} (deg)"
+    return units.degrees(lo), units.degrees(hi), f"{robot_axis} (deg)"
 
 
 def draw_cspace_slice(
@@ -327,7 +329,7 @@ def save_cspace(
     unit = "" if names[2] in ("x", "y") else " deg"
     for idx, k in enumerate(picks):
         ax = axes[idx // (ncols - 1), 1 + idx % (ncols - 1)]
-        value = third[k] if names[2] in ("x", "y") else math.degrees(third[k])
+        value = third[k] if names[2] in ("x", "y") else units.degrees(third[k])
         draw_cspace_slice(
             ax,
             grid,
@@ -339,3 +341,106 @@ def save_cspace(
         axes[idx // (ncols - 1), 1 + idx % (ncols - 1)].axis("off")
     fig.suptitle(f"free configurations ({title_extra}), {free.mean():.1%} of {grid.size} cells")
     return save_figure(fig, path)
+
+
+# --- trajectories ----------------------------------------------------------------------------
+
+
+def plot_trajectory(
+    traj: Trajectory, path: str | Path | None = None, ax: Axes | None = None
+) -> Any:
+    """Draw a :class:`~cellplan.trajectory.Trajectory`; return the figure (saved to ``path``).
+
+    Columns that come in ``NAME.x`` / ``NAME.y`` pairs (the discs of an assembly) are drawn
+    as planar paths, start (circle) to end (square). Otherwise each configuration column is
+    drawn against ``t`` (angles in degrees for reading), the background shaded by mode, and
+    the events marked as vertical lines, with legends for both.
+    """
+    pairs = _xy_pairs(traj.columns)
+    if pairs:
+        if ax is None:
+            fig, axes = new_figure(size=6.0)
+            ax = axes[0, 0]
+        else:
+            fig = ax.figure
+        for name, (ix, iy) in pairs.items():
+            (line,) = ax.plot(traj.q[:, ix], traj.q[:, iy], lw=1.4, label=name)
+            ax.plot(traj.q[0, ix], traj.q[0, iy], "o", color=line.get_color(), ms=5)
+            ax.plot(traj.q[-1, ix], traj.q[-1, iy], "s", color=line.get_color(), ms=5)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (workcell units)")
+        ax.set_ylabel("y (workcell units)")
+        ax.set_title("paths: start (circle) to end (square)")
+        ax.legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8, frameon=False)
+    else:
+        n = traj.dim
+        if ax is None:
+            fig, axes = new_figure(nrows=n, size=1.0)
+            fig.set_size_inches(9.0, 1.9 * n + 0.6)
+            axs = list(axes[:, 0])
+        else:
+            fig, axs = ax.figure, [ax] * n
+        _shade_modes(axs, traj)
+        for j, a in enumerate(axs[:n]):
+            values = traj.q[:, j]
+            unit = traj.units[j]
+            if unit == "rad":
+                values, unit = units.degrees(values), "deg"
+            a.plot(traj.t, values, color="#1f3b73", lw=1.3)
+            a.set_ylabel(f"{traj.columns[j]}\n({unit})", fontsize=9)
+        _mark_events(axs, traj)
+        axs[-1].set_xlabel(f"t ({traj.time_unit})")
+    return save_figure(fig, path) if path is not None else fig
+
+
+def _xy_pairs(columns: tuple[str, ...]) -> dict[str, tuple[int, int]]:
+    index = {c: i for i, c in enumerate(columns)}
+    pairs = {}
+    for c in columns:
+        if c.endswith(".x") and c[:-2] + ".y" in index:
+            pairs[c[:-2]] = (index[c], index[c[:-2] + ".y"])
+    return pairs if 2 * len(pairs) == len(columns) else {}
+
+
+def _shade_modes(axs: list[Any], traj: Trajectory) -> None:
+    import matplotlib.pyplot as plt
+
+    if len(traj) < 2 or len(traj.modes) < 2:
+        return
+    cmap = plt.get_cmap("tab20")
+    change = np.flatnonzero(np.diff(traj.mode)) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change, [len(traj) - 1]])
+    seen: set[int] = set()
+    for s, e in zip(starts, ends, strict=True):
+        m = int(traj.mode[s])
+        label = traj.modes[m] if m not in seen and len(seen) < 12 else None
+        seen.add(m)
+        for a in axs:
+            a.axvspan(traj.t[s], traj.t[e], color=cmap(m % 20), alpha=0.18, lw=0, label=label)
+            label = None
+    axs[0].legend(
+        title="mode", loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
+    )
+
+
+def _mark_events(axs: list[Any], traj: Trajectory) -> None:
+    kinds = sorted({e.kind for e in traj.events})
+    if not kinds:
+        return
+    styles = dict(zip(kinds, ["-", "--", ":", "-."] * 4, strict=False))
+    for kind in kinds:
+        times = [traj.t[e.index] for e in traj.events if e.kind == kind]
+        for k, t in enumerate(times):
+            for a in axs:
+                a.axvline(
+                    t,
+                    color="#8c1c13",
+                    ls=styles[kind],
+                    lw=0.8,
+                    alpha=0.7,
+                    label=kind if (k == 0 and a is axs[-1]) else None,
+                )
+    axs[-1].legend(
+        title="events", loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
+    )

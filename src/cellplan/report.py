@@ -22,7 +22,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from cellplan.core import Claim, Experiment, ReportPiece, Scalar
+from cellplan.core import Claim, Experiment, ReportPiece, Scalar, ShowcaseItem
 from cellplan.experiments import ExperimentRun, PaperExperiments, SweepResult
 from cellplan.fileio import write_text
 
@@ -62,13 +62,20 @@ def paper_info(name: str) -> PaperInfo:
 
 @dataclass
 class ExtraSection:
-    """A section that is not a paper's (the demo's bundled workcells, for instance)."""
+    """A section that is not a paper's (the demo's showcase and bundled workcells).
+
+    ``notes`` are plain remarks; ``errors`` (something that failed) alone are drawn in
+    red. ``items`` are :class:`~cellplan.core.ShowcaseItem` s: figures with a caption and
+    the code that made them, shown as a code block.
+    """
 
     title: str
     text: str = ""
     figures: list[Path] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     anchor: str = "extra"
+    errors: list[str] = field(default_factory=list)
+    items: list[ShowcaseItem] = field(default_factory=list)
 
 
 @dataclass
@@ -219,8 +226,7 @@ def _summary_table(found: Sequence[PaperExperiments], pieces: Sequence[Experimen
 
 def _toc(found: Sequence[PaperExperiments], extra: Sequence[ExtraSection]) -> str:
     links = [
-        f'<li><a href="#paper-{_e(f.paper)}">'
-        f"{_e(paper_info(f.paper).title)}</a></li>"
+        f'<li><a href="#paper-{_e(f.paper)}">{_e(paper_info(f.paper).title)}</a></li>'
         for f in found
     ]
     links += [f'<li><a href="#{_e(s.anchor)}">{_e(s.title)}</a></li>' for s in extra]
@@ -393,10 +399,22 @@ def _extra_section(section: ExtraSection) -> str:
     parts = [f'<section id="{_e(section.anchor)}"><h2>{_e(section.title)}</h2>']
     if section.text:
         parts.append(_paragraphs(section.text))
-    parts += [f'<p class="error">{_e(note)}</p>' for note in section.notes]
-    parts.append('<div class="gallery">')
-    parts += [_figure(Path(f), Path(f).parent) for f in section.figures]
-    parts.append("</div></section>")
+    parts += [f'<p class="error">{_e(error)}</p>' for error in section.errors]
+    parts += [f'<p class="note">{_e(note)}</p>' for note in section.notes]
+    for item in section.items:
+        parts.append(f'<article class="showcase"><h3>{_e(item.title)}</h3>')
+        parts.append(f"<p>{_e(item.caption)}</p>")
+        parts.append('<div class="gallery">')
+        parts += [_figure(Path(f), Path(f).parent) for f in item.figures]
+        parts.append("</div>")
+        if item.code:
+            parts.append(f'<pre class="cmd"><code>{_e(item.code)}</code></pre>')
+        parts.append("</article>")
+    if section.figures:
+        parts.append('<div class="gallery">')
+        parts += [_figure(Path(f), Path(f).parent) for f in section.figures]
+        parts.append("</div>")
+    parts.append("</section>")
     return "\n".join(parts)
 
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cellplan import units
 from cellplan.geometry import BoolArray, FloatArray, RigidBodies, ShapeSet, wrap_angle
 from cellplan.scenario import PointRobotSpec, RobotSpec, RotatingRobotSpec, TranslatingRobotSpec
 
@@ -349,7 +350,7 @@ def robot_from_spec(spec: RobotSpec, bounds: tuple[float, float, float, float]) 
         return translating_robot(ShapeSet.from_spec(spec.shape), spec.start, bounds)
     if isinstance(spec, RotatingRobotSpec):
         x, y, th = spec.start
-        return rotating_robot(ShapeSet.from_spec(spec.shape), (x, y, math.radians(th)), bounds)
+        return rotating_robot(ShapeSet.from_spec(spec.shape), (x, y, units.radians(th)), bounds)
     eo = spec.end_effector_orientation
     limits = spec.joint_limits
     return planar_arm(
@@ -358,7 +359,7 @@ def robot_from_spec(spec: RobotSpec, bounds: tuple[float, float, float, float]) 
         widths=[link.width for link in spec.links],
         joint_limits=None
         if limits is None
-        else [(math.radians(a), math.radians(b)) for a, b in limits],
-        start=[math.radians(v) for v in spec.start],
-        tool_orientation=None if eo is None else math.radians(eo),
+        else [(units.radians(a), units.radians(b)) for a, b in limits],
+        start=[units.radians(v) for v in spec.start],
+        tool_orientation=None if eo is None else units.radians(eo),
     )

@@ -15,7 +15,6 @@ always counts as an obstacle: robots stay inside the bounds.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import Literal
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
+from cellplan import units
 from cellplan.errors import Problem, ScenarioError
 from cellplan.geometry import (
     BoolArray,
@@ -35,7 +35,7 @@ from cellplan.geometry import (
     complement_within,
     frame_outside,
 )
-from cellplan.robots import PlanarArm, Robot, as_batch, robot_from_spec
+from cellplan.robots import PlanarArm, Robot, robot_from_spec
 from cellplan.scenario import Scenario, load_scenario
 
 AvoidSources = Literal["all", "none"] | Collection[str]
@@ -201,9 +201,18 @@ class Workcell:
 
     # --- batched queries ---------------------------------------------------------------------
 
+    def configurations(self, q: FloatArray, name: str = "q") -> FloatArray:
+        """``q`` as a checked ``(N, dim)`` array: the right shape, finite, angles in radians.
+
+        Every public query calls this first, so a configuration written in degrees (a
+        joint angle of 90) is refused with one line saying angles are radians here
+        (:func:`cellplan.units.check_configurations`) instead of silently wrapping.
+        """
+        return units.check_configurations(q, self.robot.axis_names, name)
+
     def posed_bodies(self, q: FloatArray, carrying: str | None) -> tuple[RigidBodies, FloatArray]:
         """Bodies (robot, then the carried part) and their poses ``(N, B, 3)``."""
-        q = as_batch(q, self.robot.dim)
+        q = self.configurations(q)
         poses = self.robot.body_poses(q)
         bodies = self.robot.bodies
         if carrying is not None:
@@ -231,8 +240,9 @@ class Workcell:
 
         Configurations outside the joint limits count as colliding. ``margin``
         (a number, or one per body with the part last) demands extra clearance.
+        Angles are radians (see :func:`configurations`).
         """
-        q = as_batch(q, self.robot.dim)
+        q = self.configurations(q)
         bodies, poses = self.posed_bodies(q, carrying)
         margins = np.broadcast_to(np.asarray(margin, float), (len(bodies.bodies),))
         hit = (
@@ -252,7 +262,7 @@ class Workcell:
     ) -> FloatArray:
         """``(N,)`` distance from the robot (and carried part) to the nearest obstacle or the
         workcell boundary; 0 on contact and outside the joint limits."""
-        q = as_batch(q, self.robot.dim)
+        q = self.configurations(q)
         bodies, poses = self.posed_bodies(q, carrying)
         gap = body_gaps(bodies, poses, self.prepared_obstacles(avoid_sources), exact=True)
         gap = np.maximum(gap, 0.0)
@@ -276,9 +286,9 @@ class Workcell:
         free is free everywhere along the segment, not only at the samples.
         Periodic axes take the short way round.
         """
-        q0 = as_batch(q0, self.robot.dim)
-        q1 = as_batch(q1, self.robot.dim)
-        if step <= 0:
+        q0 = self.configurations(q0, "q0")
+        q1 = self.configurations(q1, "q1")
+        if not step > 0:
             raise ValueError("step must be positive")
         d = self.robot.difference(q0, q1)
         reach = self.part(carrying).reach() if carrying is not None else 0.0
@@ -309,7 +319,7 @@ class Workcell:
         ``component`` restricts the test to one component.
         """
         region = self.region(name)
-        q = as_batch(q, self.robot.dim)
+        q = self.configurations(q)
         bodies, poses = self._region_bodies(q, carrying)
         indices = range(len(region.components)) if component is None else [component]
         out = np.zeros(len(q), bool)
@@ -368,10 +378,7 @@ def _robot_reach(robot: Robot) -> float:
 
 def _display_config(robot: Robot, q: FloatArray) -> list[float]:
     """Configuration as the user wrote it (degrees for angles)."""
-    out = []
-    for name, v in zip(robot.axis_names, q, strict=True):
-        out.append(math.degrees(v) if name not in ("x", "y") else float(v))
-    return out
+    return [float(v) for v in units.config_to_file(robot.axis_names, q)]
 
 
 def default_cells(robot: Robot) -> tuple[int, ...]:
