@@ -105,3 +105,46 @@ def test_validate_summarises_a_disc_scenario(cellplan):
     assert r.returncode == 0, r.stderr
     assert "discs: 7 generated" in r.stdout
     assert "C-space dimension" not in r.stdout  # no robot in a pure disc problem
+
+
+def test_version_and_short_help(cellplan):
+    from cellplan import __version__
+
+    r = cellplan("--version")
+    assert r.returncode == 0 and r.stdout.strip() == f"cellplan {__version__}"
+    r = cellplan("validate", "-h")
+    assert r.returncode == 0 and "--json" in r.stdout
+
+
+def test_validate_json_is_one_object_on_stdout(cellplan):
+    r = cellplan("validate", "discs_seven", "--json")
+    assert r.returncode == 0, r.stderr
+    payload = json.loads(r.stdout)
+    assert payload["status"] == "valid" and payload["summary"]["sections"] == "discs"
+    assert len(r.stdout.strip().splitlines()) == 1
+
+
+def test_a_bug_exits_70_with_one_line(cellplan, monkeypatch):
+    import cellplan.summary as summary
+
+    def broken(setup):
+        raise KeyError("oops")
+
+    monkeypatch.setattr(summary, "summarize", broken)
+    r = cellplan("validate", "strategies_tiny")
+    assert r.returncode == 70
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "internal error" in lines[0] and "KeyError" in lines[0]
+    assert "Traceback" not in r.stderr
+
+
+def test_summaries_are_not_wrapped_when_piped():
+    r = subprocess.run(
+        [sys.executable, "-m", "cellplan.cli", "validate", "strategies_p1"],
+        capture_output=True,
+        text=True,
+        env={**__import__("os").environ, "COLUMNS": "40"},
+    )
+    assert r.returncode == 0
+    line = next(x for x in r.stdout.splitlines() if "free fraction" in x)
+    assert "conservative)" in line

@@ -3,9 +3,9 @@
 ::
 
     import cellplan
-    setup = cellplan.load("strategies_p1")
-    result = cellplan.plan(setup, "strategies")
-    result.status, result.message, result.trajectory.save("p1.csv")
+    setup = cellplan.load("my_cell.yaml")          # or a bundled scenario's name
+    result = cellplan.plan(setup, "PLANNER")        # any name from cellplan.planners()
+    result.status, result.message, result.trajectory.save("motion.csv")
 
 :func:`plan` runs any registered planner and returns the common
 :class:`~cellplan.core.Result`; :func:`make` builds a :class:`Planner` (a planner bound

@@ -67,8 +67,8 @@ class Result:
         Plain finite numbers (counts, ratios, seconds); benchmarks and reports read them
         without knowing the planner.
     solution
-        The planner's own object: a :class:`~cellplan.strategies.strategy.Strategy`, an
-        assembly run, an experience graph ... (see the planner's documentation).
+        The planner's own object: a strategy to query, an assembly run, an experience
+        graph ... (see the planner's documentation).
     trajectory
         The motion, as a :class:`~cellplan.trajectory.Trajectory`.
     options
@@ -157,7 +157,7 @@ class PlannerSpec:
     Parameters
     ----------
     name
-        Registry key: the package name, or ``<package>.<variant>`` (``assembly.gradient``).
+        Registry key: the package name, or ``<package>.<variant>``.
     package
         Name of the package that registered it.
     summary
@@ -217,7 +217,7 @@ class Package:
     Parameters
     ----------
     name
-        Short name (``strategies``), used in reports, ``cellplan reproduce`` and planner names.
+        Short name, used in reports, ``cellplan reproduce`` and planner names.
     title, citation, summary
         How the report introduces the package's paper.
     section, section_model
@@ -303,9 +303,9 @@ class Experiment:
     Parameters
     ----------
     name
-        ``<paper>.<experiment>``, e.g. ``assembly.ratio_vs_k``.
+        ``<package>.<experiment>``.
     paper
-        ``strategies``, ``adaptive`` or ``assembly``.
+        Name of the package it belongs to.
     title
         Heading in the report.
     make_runs
