@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean install
+.PHONY: demo test lint bench clean install docs
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -26,8 +26,15 @@ lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/mypy
 
+# The API reference, from the docstrings (numpydoc), into build/api; a warning fails it.
+docs: $(STAMP)
+	$(BIN)/pdoc --docformat numpy -o build/api cellplan 2> build-api-warnings.txt; \
+	status=$$?; cat build-api-warnings.txt >&2; \
+	if [ $$status -ne 0 ] || grep -q . build-api-warnings.txt; then rm -f build-api-warnings.txt; exit 1; fi; \
+	rm -f build-api-warnings.txt; echo "API reference: build/api/index.html"
+
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) cellplan-out .pytest_cache .hypothesis
+	rm -rf $(VENV) cellplan-out .pytest_cache .hypothesis build
