@@ -60,7 +60,7 @@ def test_every_code_block_runs(doc, tmp_path, monkeypatch, capsys):
     for i, (lang, info, body) in enumerate(found):
         if lang == "yaml":
             name = TITLE.search(info)
-            assert name, f"{doc} block {i}: a yaml block needs title=\"FILE\""
+            assert name, f'{doc} block {i}: a yaml block needs title="FILE"'
             Path(name.group(1)).write_text(body)
         elif lang == "sh":
             for line in body.splitlines():

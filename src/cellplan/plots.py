@@ -357,12 +357,13 @@ def plot_trajectory(
     the events marked as vertical lines, with legends for both.
     """
     pairs = _xy_pairs(traj.columns)
+    fig: Any
     if pairs:
         if ax is None:
             fig, axes = new_figure(size=6.0)
             ax = axes[0, 0]
         else:
-            fig = ax.figure
+            fig = ax.get_figure()
         for name, (ix, iy) in pairs.items():
             (line,) = ax.plot(traj.q[:, ix], traj.q[:, iy], lw=1.4, label=name)
             ax.plot(traj.q[0, ix], traj.q[0, iy], "o", color=line.get_color(), ms=5)
@@ -379,7 +380,7 @@ def plot_trajectory(
             fig.set_size_inches(9.0, 1.9 * n + 0.6)
             axs = list(axes[:, 0])
         else:
-            fig, axs = ax.figure, [ax] * n
+            fig, axs = ax.get_figure(), [ax] * n
         _shade_modes(axs, traj)
         for j, a in enumerate(axs[:n]):
             values = traj.q[:, j]

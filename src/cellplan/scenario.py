@@ -186,9 +186,7 @@ def build_scenario_model() -> type[ScenarioBase]:
                 pkg.section_model | None,
                 Field(default=None, description=f"{pkg.name}: {pkg.title}"),
             )
-    return create_model(  # type: ignore[call-overload,no-any-return]
-        "Scenario", __base__=ScenarioBase, __doc__=ScenarioBase.__doc__, **fields
-    )
+    return create_model("Scenario", __base__=ScenarioBase, __doc__=ScenarioBase.__doc__, **fields)
 
 
 if TYPE_CHECKING:

@@ -35,6 +35,7 @@ def _workcell_lines(setup: Setup) -> dict[str, str]:
     from cellplan.cspace import Grid, free_bitmap
 
     sc, cell = setup.scenario, setup.workcell
+    assert sc.robot is not None  # a workcell exists only with a robot
     regions = lambda rs: ", ".join(f"{n} ({len(r.components)})" for n, r in rs.items()) or "none"  # noqa: E731
     out = {
         "robot": sc.robot.type,

@@ -316,7 +316,10 @@ class Trajectory:
             raise ValueError("nothing to concatenate")
         first = parts[0]
         modes: list[str] = []
-        ts, qs, ms, events = [], [], [], []
+        ts: list[FloatArray] = []
+        qs: list[FloatArray] = []
+        ms: list[IntArray] = []
+        events: list[Event] = []
         offset, base = 0.0, 0
         for part in parts:
             if part.columns != first.columns or part.time_unit != first.time_unit:
@@ -403,7 +406,10 @@ def _from_csv(text: str) -> Trajectory:
     if not rows or rows[0] != ["t", "mode", *columns, "events"]:
         raise ValueError("header row does not match the columns named in the first line")
     modes = list(header["modes"])
-    t, q, mode, events = [], [], [], []
+    t: list[float] = []
+    q: list[list[float]] = []
+    mode: list[int] = []
+    events: list[dict[str, Any]] = []
     for i, row in enumerate(rows[1:]):
         if len(row) != len(columns) + 3:
             raise ValueError(f"row {i + 1} has {len(row)} fields, expected {len(columns) + 3}")
