@@ -39,7 +39,6 @@ __all__ = [
     "Planner",
     "Problem",
     "Result",
-    "Scenario",
     "ScenarioError",
     "Setup",
     "Status",

@@ -23,14 +23,16 @@ collision, say) is checked when the model is built, in
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import json
+import types
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Union, get_args, get_origin
 
 import yaml
-from pydantic import Field, ValidationError, create_model
+from pydantic import BaseModel, Field, ValidationError, create_model
 
 from cellplan.errors import Problem, ScenarioError
 from cellplan.schema import (
@@ -44,6 +46,9 @@ from cellplan.schema import (
 )
 
 SCHEMA_VERSION = 1
+
+MAX_FILE_BYTES = 10_000_000
+"""Largest scenario file read; a workcell description is kilobytes, so more is a mistake."""
 
 
 # --- core sections ---------------------------------------------------------------------------
@@ -206,6 +211,13 @@ def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: b
     seen: dict[Any, yaml.Node] = {}
     for key_node, _ in node.value:
         key = loader.construct_object(key_node, deep=deep)
+        if not isinstance(key, str | int | float | bool) and key is not None:
+            raise yaml.constructor.ConstructorError(
+                None,
+                None,
+                "a mapping key must be a plain name, not a list or mapping",
+                key_node.start_mark,
+            )
         if key in seen:
             mark = key_node.start_mark
             raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", mark)
@@ -229,6 +241,8 @@ def parse_yaml(text: str, source: str = "<string>") -> Any:
         raise ScenarioError([Problem(where, f"YAML syntax: {exc.problem or exc}")]) from None
     except yaml.YAMLError as exc:
         raise ScenarioError([Problem(source, f"YAML syntax: {exc}")]) from None
+    except RecursionError:
+        raise ScenarioError([Problem(source, "YAML nested too deeply")]) from None
 
 
 def format_location(loc: Iterable[Any], data: Any) -> str:
@@ -264,20 +278,119 @@ def _is_union_tag(item: str, node: Any) -> bool:
     }
 
 
-def problems_from_validation(exc: ValidationError, data: Any) -> list[Problem]:
-    """One :class:`Problem` per pydantic error, with readable field paths and messages."""
+def problems_from_validation(
+    exc: ValidationError, data: Any, root: type[BaseModel] | None = None
+) -> list[Problem]:
+    """One :class:`Problem` per pydantic error, with readable field paths and messages.
+
+    Messages say what is expected in the file's terms (``expected a mapping with xmin,
+    ymin, xmax, ymax``), never pydantic's class names; an unknown key gets a "did you
+    mean" when a close name is allowed there.
+    """
+    root = Scenario if root is None else root
     problems = []
     for err in exc.errors(include_url=False):
         field = format_location(err["loc"], data)
-        msg = err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        elif msg.startswith("Value error, "):
-            msg = msg[len("Value error, ") :]
-        elif msg.startswith("Assertion failed, "):
-            msg = msg[len("Assertion failed, ") :]
-        problems.append(Problem(field, msg))
+        problems.append(Problem(field, _message(err, data, root)))
     return problems
+
+
+_EXPECTED = {
+    "list_type": "expected a list",
+    "tuple_type": "expected a list",
+    "float_type": "expected a number",
+    "float_parsing": "expected a number",
+    "int_type": "expected a whole number",
+    "int_parsing": "expected a whole number",
+    "int_from_float": "expected a whole number",
+    "string_type": "expected text",
+    "bool_type": "expected true or false",
+    "bool_parsing": "expected true or false",
+    "finite_number": "expected a finite number",
+    "missing": "missing (required)",
+}
+
+
+def _message(err: Any, data: Any, root: type[BaseModel]) -> str:
+    kind, msg, loc = err["type"], err["msg"], tuple(err["loc"])
+    if kind == "extra_forbidden":
+        model = _model_at(loc[:-1], data, root)
+        allowed = list(model.model_fields) if model is not None else []
+        close = difflib.get_close_matches(str(loc[-1]), allowed, n=1, cutoff=0.6)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        return f"unknown key{hint}" + (f" (allowed: {', '.join(allowed)})" if allowed else "")
+    if kind in ("model_type", "dict_type", "model_attributes_type"):
+        model = _model_at(loc, data, root)
+        if model is not None:
+            return f"expected a mapping with {', '.join(model.model_fields)}{_got(err)}"
+        return f"expected a mapping{_got(err)}"
+    if kind == "union_tag_invalid":
+        ctx = err.get("ctx", {})
+        return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
+    if kind in _EXPECTED:
+        return _EXPECTED[kind] + ("" if kind == "missing" else _got(err))
+    for prefix in ("Value error, ", "Assertion failed, "):
+        msg = msg.removeprefix(prefix)
+    if msg.startswith("Input should be "):
+        msg = "must be " + msg[len("Input should be ") :] + _got(err)
+    return msg
+
+
+def _got(err: Any) -> str:
+    value = err.get("input")
+    if isinstance(value, dict):
+        return " (got a mapping)"
+    if isinstance(value, list):
+        return " (got a list)"
+    text = repr(value)
+    return f" (got {text[:40]}{'...' if len(text) > 40 else ''})"
+
+
+def _model_at(loc: tuple[Any, ...], data: Any, root: type[BaseModel]) -> type[BaseModel] | None:
+    """The pydantic model that validates the node at ``loc`` of ``data`` (None if unclear)."""
+    tp: Any = root
+    node = data
+    for item in loc:
+        tp = _resolve(tp, node)
+        if isinstance(tp, type) and issubclass(tp, BaseModel):
+            if item not in tp.model_fields:
+                if isinstance(node, dict) and (node.get("type") == item or "-" in str(item)):
+                    continue  # a union tag pydantic puts in the location
+                return None
+            tp = tp.model_fields[item].annotation
+            node = node.get(item) if isinstance(node, dict) else None
+        elif get_origin(tp) is dict:
+            tp = get_args(tp)[1]
+            node = node.get(item) if isinstance(node, dict) else None
+        elif get_origin(tp) in (list, tuple):
+            tp = get_args(tp)[0]
+            ok = isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node)
+            node = node[item] if ok else None
+        else:
+            return None
+    tp = _resolve(tp, node)
+    return tp if isinstance(tp, type) and issubclass(tp, BaseModel) else None
+
+
+def _resolve(tp: Any, node: Any) -> Any:
+    """Unwrap ``Annotated`` and ``Optional``; pick a union member by the node's ``type``."""
+    while get_origin(tp) is Annotated:
+        tp = get_args(tp)[0]
+    if get_origin(tp) in (Union, types.UnionType):
+        members = [a for a in get_args(tp) if a is not type(None)]
+        members = [_resolve(a, node) for a in members]
+        models = [m for m in members if isinstance(m, type) and issubclass(m, BaseModel)]
+        if len(members) == 1:
+            return members[0]
+        if len(models) == 1:
+            return models[0]
+        tag = node.get("type") if isinstance(node, dict) else None
+        for m in models:
+            field = m.model_fields.get("type")
+            if field is not None and tag in get_args(field.annotation):
+                return m
+        return None
+    return tp
 
 
 def scenario_from_data(data: Any, source: str = "<data>") -> Scenario:
@@ -325,9 +438,31 @@ def load_scenario(path: str | Path) -> Scenario:
 
     resolved = resolve_scenario_path(path)
     try:
-        text = resolved.read_text(encoding="utf-8")
+        size = resolved.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise ScenarioError(
+                [
+                    Problem(
+                        str(path),
+                        f"is {size / 1e6:.1f} MB; scenario files are limited to "
+                        f"{MAX_FILE_BYTES / 1e6:.0f} MB",
+                    )
+                ]
+            )
+        raw = resolved.read_bytes()
     except OSError as exc:
         raise ScenarioError([Problem(str(path), f"cannot read: {exc.strerror or exc}")]) from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(
+            [
+                Problem(
+                    str(path),
+                    f"is not UTF-8 text (invalid byte at offset {exc.start}); save it as UTF-8",
+                )
+            ]
+        ) from None
     data = parse_yaml(text, source=str(resolved))
     return scenario_from_data(data, source=str(resolved))
 
