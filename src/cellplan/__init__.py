@@ -22,7 +22,8 @@ from cellplan import units
 from cellplan.api import Planner, load, loads, make, plan, planners
 from cellplan.core import Result, Status
 from cellplan.errors import ArgumentError, CellplanError, PersistenceError, Problem, ScenarioError
-from cellplan.scenario import Scenario, load_scenario
+from cellplan.scenario import Scenario as Scenario  # not in __all__: built at import
+from cellplan.scenario import load_scenario
 from cellplan.setup import Setup
 from cellplan.trajectory import Event, Trajectory
 
