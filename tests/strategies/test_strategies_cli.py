@@ -44,13 +44,22 @@ def test_solve_simulate_plot(cellplan, scenario, tmp_path):
     assert fig.stat().st_size > 0
 
 
-def test_unconverged_solve_saves_nothing(cellplan, scenario, tmp_path):
+def test_unconverged_solve_exits_1_and_saves_nothing(cellplan, scenario, tmp_path):
     text = scenario.read_text() + "  solver: {method: general, max_sweeps: 2}\n"
     scenario.write_text(text)
     npz = tmp_path / "s.npz"
     r = cellplan("solve", str(scenario), "-o", str(npz))
-    assert r.returncode == 2
-    assert "did not converge" in r.stderr and not npz.exists()
+    assert r.returncode == 1
+    first = r.stdout.splitlines()[0]
+    assert first.startswith("not_converged: did not converge within 2 sweeps")
+    assert "nothing saved" in first and not npz.exists()
+    r = cellplan("solve", str(scenario), "-o", str(npz), "--json")
+    assert r.returncode == 1 and not npz.exists()
+    payload = json.loads(r.stdout)
+    assert payload["status"] == "not_converged" and payload["success"] is False
+    assert "did not converge" in payload["message"] and payload["outputs"] == {}
+    r = cellplan("solve", str(scenario), "-o", str(npz), "--save-unconverged")
+    assert r.returncode == 1 and npz.exists()
 
 
 def test_bad_arguments_exit_2(cellplan, scenario, tmp_path):
@@ -84,3 +93,58 @@ def test_no_snap_solve_records_the_transition_law(cellplan, scenario, tmp_path):
     with np.load(npz) as data:
         meta = json.loads(str(data["meta"]))
     assert meta["transitions"] == "no-snap"
+
+
+def test_solve_json_then_simulate_writes_the_trajectory(cellplan, scenario, tmp_path):
+    from cellplan.api import load
+    from cellplan.strategies.simulate import simulate_result
+    from cellplan.strategies.strategy import Strategy
+    from cellplan.trajectory import Trajectory
+
+    npz = tmp_path / "s.npz"
+    r = cellplan("solve", str(scenario), "-o", str(npz), "--json")
+    assert r.returncode == 0, r.stderr
+    payload = json.loads(r.stdout)  # exactly one JSON object, nothing else on stdout
+    assert payload["status"] == "solved" and payload["message"].startswith("gain ")
+    assert payload["outputs"] == {"strategy": str(npz)} and npz.exists()
+    assert payload["stats"]["sweeps"] > 0 and "sim_served" in payload["stats"]
+    assert r.stderr == ""  # no progress bar when piped or with --json
+
+    out = tmp_path / "sim"
+    args = ["simulate", str(scenario), "--strategy", str(npz), "--stages", "150"]
+    r = cellplan(*args, "--seed", "4", "-o", str(out), "--no-gif", "--json")
+    assert r.returncode == 0, r.stderr
+    payload = json.loads(r.stdout)
+    assert payload["status"] == "solved" and payload["stats"]["stages"] == 150
+    assert payload["outputs"]["trajectory"] == str(out / "trajectory.csv")
+    assert "gif" not in payload["outputs"]
+    traj = Trajectory.load(out / "trajectory.csv")
+    setup = load(str(scenario))
+    again = simulate_result(Strategy.load(npz, setup.scenario), 150, 4, cell=setup.workcell)
+    assert traj == again.trajectory
+    assert len(traj) == 151 and traj.events_of("request")
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["status"] == "solved" and metrics["metrics"]["seed"] == 4
+
+    # A run that leaves a request waiting past --max-wait ran but failed: exit 1.
+    r = cellplan(*args, "-o", str(out), "--no-gif", "--max-wait", "1")
+    assert r.returncode == 1
+    assert r.stdout.startswith("failed: request 1 (")
+    r = cellplan(*args, "-o", str(out), "--max-wait", "-1")
+    assert r.returncode == 2 and "--max-wait" in r.stderr
+
+
+def test_cells_are_checked_against_one_range(cellplan, scenario, tmp_path):
+    from cellplan.schema import CELLS_RANGE
+
+    npz = tmp_path / "s.npz"
+    low = CELLS_RANGE[0] - 1
+    r = cellplan("solve", str(scenario), "-o", str(npz), "--cells", f"{low},{low}")
+    assert r.returncode == 2 and r.stderr.count("--cells") == 1
+    assert f"greater than or equal to {CELLS_RANGE[0]}" in r.stderr
+    r = cellplan("solve", str(scenario), "-o", str(npz), "--cells", "12,12,12")
+    assert r.returncode == 2 and "--cells: needs 2 values" in r.stderr
+    r = cellplan("solve", str(scenario), "-o", str(npz), "--cells", "12;12")
+    assert r.returncode == 2 and "--cells" in r.stderr
+    r = cellplan("solve", str(scenario), "-o", str(npz), "--method", "fast")
+    assert r.returncode == 2 and "--method" in r.stderr and not npz.exists()

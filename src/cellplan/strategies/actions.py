@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cellplan import units
+
 
 @dataclass(frozen=True)
 class ActionSet:
@@ -72,18 +74,18 @@ def action_set(
     if robot_type in ("point", "translating"):
         ang = 2.0 * math.pi * np.arange(headings) / headings
         disp = np.stack([step * np.cos(ang), step * np.sin(ang)], axis=1)
-        labels = tuple(f"heading {360.0 * k / headings:g}" for k in range(headings))
+        labels = tuple(f"heading {units.degrees(float(a)):g}" for a in ang)
         return ActionSet(np.ascontiguousarray(disp), -1, labels)
     if robot_type == "rotating":
         if turn_speed_deg is None:
             raise ValueError("a rotating robot needs a turn speed")
-        dth = math.radians(turn_speed_deg) * stage_time * factor
+        dth = units.radians(turn_speed_deg) * stage_time * factor
         disp = np.array(
             [[step, 0.0, 0.0], [-step, 0.0, 0.0], [0.0, 0.0, dth], [0.0, 0.0, -dth]], dtype=float
         )
         return ActionSet(disp, 2, ("forward", "backward", "turn left", "turn right"))
     if robot_type == "arm":
-        dq = math.radians(step)
+        dq = units.radians(step)  # arm speeds are degrees per unit time
         disp = np.zeros((2 * dim, dim))
         names: list[str] = []
         for j in range(dim):

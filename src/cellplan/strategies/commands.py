@@ -1,39 +1,66 @@
-"""CLI commands of the strategies package: ``solve``, ``simulate``, ``plot``."""
+"""CLI commands of the strategies package: ``solve``, ``simulate``, ``plot``.
+
+Each goes through the library API (:func:`cellplan.api.plan`,
+:func:`~cellplan.strategies.simulate.simulate_result`), prints one summary line on
+stdout (or one JSON object with ``--json``) and exits 0 when solved, 1 when it ran but
+did not solve (the status line says why), 2 on bad input. Options the library defaults
+are ``None`` here and passed on only when given, so the CLI holds no default of its own.
+"""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from cellplan.errors import ArgumentError, Problem
+from cellplan.cliutil import JsonOpt, ScenarioArg, finish, progress_enabled, stderr, stdout
+from cellplan.errors import ArgumentError, CellplanError, Problem
 
-ScenarioArg = Annotated[
-    str, typer.Argument(help="scenario file, or the name of a bundled scenario")
+if TYPE_CHECKING:
+    from cellplan.core import Progress
+    from cellplan.setup import Setup
+    from cellplan.strategies.strategy import Strategy
+
+StrategyOpt = Annotated[
+    Path, typer.Option("--strategy", help="strategy file from 'cellplan solve'")
 ]
 
 
-def _load(scenario: str) -> tuple[Any, Any]:
-    from cellplan.errors import ScenarioError
-    from cellplan.workcell import load_workcell
+@contextlib.contextmanager
+def _as_flags() -> Iterator[None]:
+    """Name the library's argument problems as the command-line flags that set them."""
+    try:
+        yield
+    except ArgumentError as exc:
+        flagged = [
+            Problem("--" + p.field.replace("_", "-"), p.message)
+            if p.field and not p.field.startswith("-")
+            else p
+            for p in exc.problems
+        ]
+        raise ArgumentError(list(dict.fromkeys(flagged))) from None
 
-    sc, cell = load_workcell(scenario)
-    if sc.strategy is None:
-        raise ScenarioError([Problem("strategy", "this scenario has no 'strategy:' section")])
-    return sc, cell
+
+def _load(scenario: str) -> Setup:
+    from cellplan.api import load
+
+    setup = load(scenario)
+    setup.section("strategy")
+    return setup
 
 
-def _cells(text: str | None, dim: int) -> list[int] | None:
+def _cells(text: str | None) -> list[int] | None:
     if text is None:
         return None
     try:
-        shape = [int(v) for v in text.split(",")]
+        return [int(v) for v in text.split(",")]
     except ValueError:
-        raise ArgumentError(f"expected comma-separated integers, got {text!r}", "--cells") from None
-    if len(shape) != dim or any(n < 4 or n > 1024 for n in shape):
-        raise ArgumentError(f"needs {dim} values in [4, 1024]", "--cells")
-    return shape
+        raise ArgumentError(
+            f"expected comma-separated integers, e.g. 100,100, got {text!r}", "--cells"
+        ) from None
 
 
 def _check_suffix(path: Path, allowed: tuple[str, ...], option: str) -> None:
@@ -41,147 +68,169 @@ def _check_suffix(path: Path, allowed: tuple[str, ...], option: str) -> None:
         raise ArgumentError(f"expected a {' or '.join(allowed)} file, got {path.name!r}", option)
 
 
+def _load_strategy(path: Path, setup: Setup) -> Strategy:
+    from cellplan.strategies.strategy import Strategy
+
+    return Strategy.load(path, setup.scenario)
+
+
+@contextlib.contextmanager
+def _progress_bar(enabled: bool, title: str) -> Iterator[Progress | None]:
+    """A progress callback drawing a bar on stderr, or None (not a terminal, ``--json``)."""
+    if not enabled:
+        yield None
+        return
+    from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
+    from rich.progress import Progress as Bar
+
+    with Bar(
+        TextColumn(f"[bold]{title}[/]"),
+        BarColumn(),
+        TextColumn("{task.fields[info]}"),
+        TimeElapsedColumn(),
+        console=stderr(),
+        transient=True,
+    ) as bar:
+        task = bar.add_task(title, total=None, info="building the model")
+
+        def update(done: float, total: float | None, text: str) -> None:
+            bar.update(task, completed=done, total=total, info=text)
+
+        yield update
+
+
 def solve_command(
     scenario: ScenarioArg,
     output: Annotated[Path, typer.Option("-o", "--output", help="strategy file (.npz)")] = Path(
         "strategy.npz"
     ),
-    cells: Annotated[str | None, typer.Option(help="grid cells per axis, e.g. 100,100")] = None,
-    method: Annotated[str | None, typer.Option(help="auto, structured or general")] = None,
-    save_unconverged: Annotated[
-        bool, typer.Option(help="save even if the solve did not converge")
-    ] = False,
+    cells: Annotated[
+        str | None, typer.Option(help="grid cells per axis, e.g. 100,100 (default: the scenario's)")
+    ] = None,
+    method: Annotated[
+        str | None,
+        typer.Option(help="auto, structured or general (default: strategy.solver.method)"),
+    ] = None,
     snap: Annotated[
-        bool,
+        bool | None,
         typer.Option(
+            "--snap/--no-snap",
             help="--no-snap drops moves whose interpolation snaps the robot sideways "
-            "(stricter model, docs/strategies.md)"
+            "(stricter model, docs/strategies.md)",
+            show_default=False,
         ),
-    ] = True,
+    ] = None,
+    sample_stages: Annotated[
+        int | None, typer.Option(help="stages of the sample run in the result (default 200)")
+    ] = None,
+    seed: Annotated[int | None, typer.Option(help="seed of the sample run (default 0)")] = None,
+    save_unconverged: Annotated[
+        bool, typer.Option(help="save the strategy even if the solve did not converge")
+    ] = False,
+    as_json: JsonOpt = False,
 ) -> None:
     """Compute the optimal strategy of a scenario (Section IV) and save it as .npz."""
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from cellplan.errors import CellplanError
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.api import plan
+    from cellplan.core import Status
 
     _check_suffix(output, (".npz",), "--output")
-    if method is not None and method not in ("auto", "structured", "general"):
-        raise ArgumentError("must be auto, structured or general", "--method")
-    sc, cell = _load(scenario)
-    shape = _cells(cells, cell.robot.dim)
-    console = Console(stderr=True)
-    with Progress(
-        TextColumn("[bold]solving[/]"),
-        BarColumn(),
-        TextColumn("{task.fields[info]}"),
-        TimeElapsedColumn(),
-        console=console,
-        transient=False,
-    ) as bar:
-        task = bar.add_task("solve", total=None, info="building the model")
-
-        def progress(sweep: int, residual: float, gain: float) -> None:
-            bar.update(task, info=f"sweep {sweep}  residual {residual:.3g}  gain {gain:.6f}")
-
-        strategy, result = solve_scenario(
-            sc, cell, cells=shape, method=method, progress=progress, snap=snap
-        )
-        bar.update(
-            task, info=f"sweeps {result.sweeps}  span {result.span:.3g}  gain {result.gain:.6f}"
-        )
-    out = Console()
-    out.print(
-        f"gain g = {result.gain:.6f} per stage "
-        f"(bounds [{result.gain_lower:.6f}, {result.gain_upper:.6f}], "
-        f"span {result.span:.2e}); method {result.method}, {result.sweeps} sweeps, "
-        f"{result.outer_iterations} outer iterations, {result.seconds:.2f} s; "
-        f"policy {'stable' if result.stable else f'changes at {result.policy_changes} states'}"
+    given: dict[str, Any] = {
+        "cells": _cells(cells),
+        "method": method,
+        "snap": snap,
+        "sample_stages": sample_stages,
+        "seed": seed,
+    }
+    options = {k: v for k, v in given.items() if v is not None}
+    setup = _load(scenario)
+    with _as_flags(), _progress_bar(progress_enabled(as_json), "solving") as progress:
+        result = plan(setup, "strategies", progress=progress, **options)
+    s = result.stats
+    summary = (
+        f"gain g = {s['gain']:.6f} per stage (bounds [{s['gain_lower']:.6f}, "
+        f"{s['gain_upper']:.6f}], span {s['span']:.2e}); method "
+        f"{result.solution.meta['method']}, {int(s['sweeps'])} sweeps, "
+        f"{int(s['outer_iterations'])} outer iterations, {s['seconds']:.2f} s; policy "
+        + ("stable" if s["stable"] else f"changes at {int(s['policy_changes'])} states")
     )
-    if not result.converged and not save_unconverged:
-        raise CellplanError(
-            [
-                Problem(
-                    "solver",
-                    f"did not converge within {sc.strategy.solver.max_sweeps} sweeps "
-                    f"(span {result.span:.3g} >= {sc.strategy.solver.tolerance:g}); nothing saved "
-                    "(use --save-unconverged to keep it)",
-                )
-            ]
-        )
-    strategy.save(output)
-    out.print(f"wrote {output}")
+    outputs: dict[str, Path] = {}
+    if result.status is not Status.NOT_CONVERGED or save_unconverged:
+        result.solution.save(output)
+        outputs["strategy"] = output
+        summary += f"; wrote {output}"
+    else:
+        summary += "; nothing saved (use --save-unconverged to keep it)"
+    finish(result, as_json, summary, outputs)
 
 
 def simulate_command(
     scenario: ScenarioArg,
-    strategy: Annotated[
-        Path, typer.Option("--strategy", help="strategy file from 'cellplan solve'")
-    ],
-    stages: Annotated[int, typer.Option(help="number of stages")] = 400,
-    seed: Annotated[int, typer.Option(help="random seed")] = 0,
+    strategy: StrategyOpt,
+    stages: Annotated[int | None, typer.Option(help="number of stages (default 400)")] = None,
+    seed: Annotated[int | None, typer.Option(help="random seed (default 0)")] = None,
     output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
         "simulation"
     ),
-    policy: Annotated[str, typer.Option(help="optimal, reactive or home")] = "optimal",
+    policy: Annotated[
+        str | None, typer.Option(help="optimal, reactive or home (default optimal)")
+    ] = None,
+    max_wait: Annotated[
+        float | None,
+        typer.Option(help="longest acceptable wait of a request (default: see docs)"),
+    ] = None,
     gif: Annotated[bool, typer.Option(help="write an animated GIF")] = True,
+    as_json: JsonOpt = False,
 ) -> None:
-    """Simulate the assembly process under a strategy: frames, GIF and metrics JSON."""
-    import numpy as np
-    from rich.console import Console
-
+    """Simulate the assembly process under a strategy: trajectory.csv, frames, GIF, metrics."""
     from cellplan.fileio import write_json
     from cellplan.strategies import plots
-    from cellplan.strategies.simulate import POLICIES, simulate
-    from cellplan.strategies.strategy import Strategy
+    from cellplan.strategies.simulate import DEFAULT_SEED, DEFAULT_STAGES, simulate_result
 
-    if stages < 1 or stages > 1_000_000:
-        raise ArgumentError("must be between 1 and 1000000", "--stages")
-    if policy not in POLICIES:
-        raise ArgumentError(f"must be one of {', '.join(POLICIES)}", "--policy")
     if output.exists() and not output.is_dir():
         raise ArgumentError(f"{output} exists and is not a folder", "--output")
-    sc, cell = _load(scenario)
-    strat = Strategy.load(strategy, sc)
-    start = np.array(strat.meta.get("start", cell.robot.start), float)
-    home = np.array(strat.meta.get("home", cell.robot.start), float)
-    sim = simulate(
-        strat,
-        stages,
-        seed,
-        policy=policy,
-        start=start,
-        cell=cell,
-        regions=strat.meta.get("regions", "contact"),
-        home=home,
-    )
+    setup = _load(scenario)
+    strat = _load_strategy(strategy, setup)
+    given: dict[str, Any] = {"policy": policy, "max_wait": max_wait}
+    with _as_flags():
+        result = simulate_result(
+            strat,
+            DEFAULT_STAGES if stages is None else stages,
+            DEFAULT_SEED if seed is None else seed,
+            cell=setup.workcell,
+            **{k: v for k, v in given.items() if v is not None},
+        )
+    sim = result.solution
+    assert result.trajectory is not None
     output.mkdir(parents=True, exist_ok=True)
-    plots.plot_frames(strat, cell, sim, output)
+    outputs: dict[str, Path] = {"trajectory": result.trajectory.save(output / "trajectory.csv")}
+    frames = plots.plot_frames(strat, setup.workcell, sim, output)
+    outputs["frames"] = frames[-1]
     if gif:
-        plots.save_animation(strat, cell, sim, output / "simulation.gif")
+        outputs["gif"] = plots.save_animation(strat, setup.workcell, sim, output / "simulation.gif")
     metrics: dict[str, Any] = dict(sim.metrics())
-    metrics.update(policy=policy, seed=seed, gain=strat.gain)
-    write_json(
+    metrics.update(policy=result.options["policy"], seed=result.options["seed"], gain=strat.gain)
+    outputs["metrics"] = write_json(
         output / "metrics.json",
         {
+            "status": str(result.status),
+            "message": result.message,
             "metrics": metrics,
             "requests": [vars(r) for r in sim.requests],
         },
     )
-    Console().print(
-        f"{int(metrics['served'])} requests served, mean waiting time "
-        f"{metrics['mean_wait']:.2f} (delivered) / {metrics['mean_wait_all']:.2f} (all, open "
-        f"ones at their age), loss per stage {metrics['loss_per_stage']:.3f} "
-        f"(gain {strat.gain:.3f}), idle fraction {metrics['idle_fraction']:.2f}; wrote {output}"
+    m = metrics
+    summary = (
+        f"{int(m['served'])} requests served, mean waiting time {m['mean_wait']:.2f} "
+        f"(delivered) / {m['mean_wait_all']:.2f} (all, open ones at their age), loss per "
+        f"stage {m['loss_per_stage']:.3f} (gain {strat.gain:.3f}), idle fraction "
+        f"{m['idle_fraction']:.2f}; wrote {output}"
     )
+    finish(result, as_json, summary, outputs)
 
 
 def plot_command(
     scenario: ScenarioArg,
-    strategy: Annotated[
-        Path, typer.Option("--strategy", help="strategy file from 'cellplan solve'")
-    ],
+    strategy: StrategyOpt,
     mode: Annotated[
         str, typer.Option(help="mode: NR, 'p,s,d,W|C' (1-based indices or names)")
     ] = "NR",
@@ -190,24 +239,28 @@ def plot_command(
     ),
 ) -> None:
     """Draw the cost-to-go contours and the optimal actions of one mode (Fig. 8)."""
-    from rich.console import Console
-
     from cellplan.strategies import plots
-    from cellplan.strategies.strategy import Strategy
 
     _check_suffix(output, (".png", ".svg", ".pdf"), "--output")
-    sc, cell = _load(scenario)
-    strat = Strategy.load(strategy, sc)
+    setup = _load(scenario)
+    strat = _load_strategy(strategy, setup)
     try:
         m = strat.mode_index(mode)
-    except Exception as exc:  # PersistenceError names the option already
+    except CellplanError as exc:  # names the option already
         raise ArgumentError(str(exc).split(": ", 1)[-1], "--mode") from None
+    cell = setup.workcell
     plots.plot_mode(strat, cell, m, output, fixed=cell.robot.start)
-    Console().print(f"wrote {output}")
+    stdout().print(f"wrote {output}", markup=False)
+
+
+COMMANDS: tuple[tuple[str, Callable[..., None]], ...] = (
+    ("solve", solve_command),
+    ("simulate", simulate_command),
+    ("plot", plot_command),
+)
 
 
 def register(app: typer.Typer) -> None:
     """Add this package's commands to the ``cellplan`` app."""
-    app.command("solve")(solve_command)
-    app.command("simulate")(simulate_command)
-    app.command("plot")(plot_command)
+    for name, command in COMMANDS:
+        app.command(name)(command)

@@ -1,55 +1,143 @@
-"""Planners of the strategies package, for the registry (CLI, benchmarks, conformance test)."""
+"""The ``strategies`` planner: solve a scenario for its optimal strategy, then run it once.
+
+Registered in :mod:`cellplan.strategies.plugin`; ``cellplan.plan(setup, "strategies")``
+calls :func:`run_strategies`. The planner computes the stationary optimal strategy of
+Section IV (average-cost dynamic programming on the layered MDP, equation (9)) and, so
+that the result carries a motion like every planner's, simulates that strategy from the
+robot's start for ``sample_stages`` stages of the stochastic assembly process (Section
+III-B): the result's trajectory is that sample run; its ``solution`` is the
+:class:`~cellplan.strategies.strategy.Strategy`, which answers ``action(q, mode)`` at any
+real-valued state.
+
+This module is imported whenever a scenario is loaded: it imports the algorithm modules
+only inside :func:`run_strategies`.
+"""
 
 from __future__ import annotations
 
-from cellplan.core import PlannerEntry, PlanResult, Status
-from cellplan.scenario import Scenario
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Annotated, Literal
+
+from pydantic import Field
+
+from cellplan.core import Options, Progress, Result, Status
+from cellplan.errors import ArgumentError, Problem
+from cellplan.schema import Cells
+
+if TYPE_CHECKING:
+    from cellplan.setup import Setup
+
+Method = Literal["auto", "structured", "general"]
 
 
-def _smoke(method: str, seed: int) -> PlanResult:
-    from cellplan.scenario import load_scenario
-    from cellplan.strategies.simulate import simulate
+class StrategiesOptions(Options):
+    """Options of the ``strategies`` planner (each default is the one source of it)."""
+
+    method: Method | None = Field(
+        None,
+        description="solver: auto, structured (layered, Sec. IV) or general (relative value "
+        "iteration); None: the scenario's strategy.solver.method",
+    )
+    cells: tuple[Cells, ...] | None = Field(
+        None,
+        description="grid cells per C-space axis; None: strategy.cells, else cspace.cells, "
+        "else the robot kind's default",
+    )
+    snap: bool = Field(
+        True,
+        description="False drops the moves whose interpolation snaps the robot sideways "
+        "(stricter transition law, docs/strategies.md)",
+    )
+    sample_stages: Annotated[int, Field(ge=1, le=1_000_000)] = Field(
+        200, description="stages of the sample run from the robot's start (the trajectory)"
+    )
+    seed: Annotated[int, Field(ge=0)] = Field(0, description="seed of the sample run")
+
+
+def check_cells(cells: Sequence[int] | None, dim: int, field: str = "cells") -> None:
+    """An :class:`ArgumentError` unless ``cells`` is None or has one entry per C-space axis."""
+    if cells is not None and len(cells) != dim:
+        raise ArgumentError(
+            [
+                Problem(
+                    field,
+                    f"needs {dim} values (one per C-space axis), got {len(cells)}",
+                )
+            ]
+        )
+
+
+def run_strategies(
+    setup: Setup, options: StrategiesOptions, progress: Progress | None = None
+) -> Result:
+    """Solve ``setup``'s strategy section (Section IV) and simulate the strategy once.
+
+    Returns
+    -------
+    Result
+        ``SOLVED`` when the solver's span test passed (the gain is certified to the
+        scenario's tolerance) and the sample run served its requests;
+        ``NOT_CONVERGED`` when the solver stopped at ``strategy.solver.max_sweeps``;
+        ``FAILED`` when the solve converged but the sample run left a request waiting
+        longer than its bound (see :func:`~cellplan.strategies.simulate.simulate_result`).
+        ``stats`` holds the solve's figures (gain and its bracket, span, sweeps,
+        seconds ...) and the sample run's metrics prefixed ``sim_``.
+    """
+    from cellplan.strategies.simulate import simulate_result
     from cellplan.strategies.strategy import solve_scenario
-    from cellplan.workcell import Workcell
 
-    sc = with_solver(load_scenario("strategies_tiny"), method)
-    cell = Workcell.from_scenario(sc)
-    strategy, result = solve_scenario(sc, cell)
-    sim = simulate(strategy, 300, seed, start=cell.robot.start)
-    stats = {**result.stats(), **{f"sim_{k}": v for k, v in sim.metrics().items() if v == v}}
-    status = Status.SOLVED if result.converged else Status.NOT_CONVERGED
-    return PlanResult(status, stats, strategy)
+    section = setup.section("strategy")
+    cell = setup.workcell
+    check_cells(options.cells, cell.robot.dim)
 
+    def report(sweep: int, residual: float, gain: float) -> None:
+        assert progress is not None
+        progress(float(sweep), None, f"sweep {sweep}  residual {residual:.3g}  gain {gain:.6f}")
 
-def with_solver(sc: Scenario, method: str) -> Scenario:
-    """The scenario with its ``strategy.solver.method`` replaced."""
-    assert sc.strategy is not None
-    solver = sc.strategy.solver.model_copy(update={"method": method})
-    return sc.model_copy(update={"strategy": sc.strategy.model_copy(update={"solver": solver})})
-
-
-def smoke_structured(seed: int) -> PlanResult:
-    """Structured average-cost DP on the bundled ``strategies_tiny`` cell (12 x 12), then a
-    300-stage simulation."""
-    return _smoke("structured", seed)
-
-
-def smoke_general(seed: int) -> PlanResult:
-    """General relative value iteration on the same cell, then a 300-stage simulation."""
-    return _smoke("general", seed)
-
-
-PLANNERS: list[PlannerEntry] = [
-    PlannerEntry(
-        "strategies.structured",
-        "strategies",
-        "optimal assembly strategy: layered shortest paths + NR fixed point (Sec. IV)",
-        smoke_structured,
-    ),
-    PlannerEntry(
-        "strategies.general",
-        "strategies",
-        "optimal assembly strategy: relative value iteration over all states (Sec. IV)",
-        smoke_general,
-    ),
-]
+    strategy, solved = solve_scenario(
+        setup.scenario,
+        cell,
+        cells=list(options.cells) if options.cells is not None else None,
+        method=options.method,
+        progress=report if progress is not None else None,
+        snap=options.snap,
+    )
+    # The axis names travel with the strategy (and its file), so a run without the
+    # workcell still labels its trajectory's columns and units.
+    strategy.meta["axes"] = list(cell.robot.axis_names)
+    if progress is not None:
+        progress(float(solved.sweeps), float(solved.sweeps), "sample run")
+    sample = simulate_result(
+        strategy,
+        options.sample_stages,
+        options.seed,
+        cell=cell,
+        regions=section.regions,
+    )
+    stats = dict(solved.stats())
+    stats.update({f"sim_{k}": v for k, v in sample.stats.items()})
+    bracket = f"[{solved.gain_lower:.4f}, {solved.gain_upper:.4f}]"
+    if not solved.converged:
+        status = Status.NOT_CONVERGED
+        message = (
+            f"did not converge within {section.solver.max_sweeps} sweeps (span "
+            f"{solved.span:.3g} >= tolerance {section.solver.tolerance:g}; gain bracket "
+            f"{bracket})"
+        )
+    elif not sample.success:
+        status = Status.FAILED
+        message = f"gain {solved.gain:.4f} per stage, but the sample run failed: {sample.message}"
+    else:
+        status = Status.SOLVED
+        message = (
+            f"gain {solved.gain:.4f} per stage (bracket {bracket}), {solved.method}, "
+            f"{solved.sweeps} sweeps"
+        )
+    assert sample.trajectory is not None
+    return Result(
+        status,
+        message,
+        stats=stats,
+        solution=strategy,
+        trajectory=sample.trajectory,
+    )

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from cellplan import plots as base
+from cellplan import units
 from cellplan.strategies.simulate import Simulation
 from cellplan.strategies.strategy import FMP, STAY, Strategy
 
@@ -37,8 +38,9 @@ def _slice(
 
 
 def _axes_labels(strategy: Strategy, cell: Any) -> tuple[str, str, bool]:
-    names = getattr(cell.robot, "axis_names", ("q1", "q2"))
-    angular = cell.robot.kind == "arm"
+    """Names of the two plotted axes, and whether they are angles (drawn in degrees)."""
+    names = tuple(cell.robot.axis_names)
+    angular = all(units.angular_axes(names[:2]))
     return str(names[0]), str(names[1]), angular
 
 
@@ -61,7 +63,7 @@ def plot_mode(
     xs = mdp.lower[0] + (np.arange(mdp.shape[0]) + 0.5) * mdp.spacing[0]
     ys = mdp.lower[1] + (np.arange(mdp.shape[1]) + 0.5) * mdp.spacing[1]
     xl, yl, angular = _axes_labels(strategy, cell)
-    scale = np.degrees if angular else (lambda v: v)
+    scale = units.degrees if angular else (lambda v: v)
     X, Y = np.meshgrid(scale(xs), scale(ys), indexing="ij")
     ax = axes[0, 0]
     masked = np.ma.masked_invalid(h2)

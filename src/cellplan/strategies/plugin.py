@@ -10,7 +10,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
-from cellplan.core import Package
+from cellplan.core import Package, PlannerSpec
+from cellplan.strategies.planners import StrategiesOptions, run_strategies
 from cellplan.strategies.section import StrategySection
 
 TITLE = "Optimal motion strategies under a stochastic assembly process"
@@ -31,6 +32,9 @@ SUMMARY = (
 )
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
+    from cellplan.core import ShowcaseItem
     from cellplan.setup import Setup
 
 
@@ -40,6 +44,24 @@ def describe(setup: Setup) -> Mapping[str, str]:
     return {"assembly modes": str(2 * len(sc.parts) * len(sc.sources) * len(sc.destinations) + 1)}
 
 
+def showcase(folder: Path) -> list[ShowcaseItem]:
+    """The demo's pictures of this package (Figs. 8 and 9), made through the API."""
+    from cellplan.strategies.showcase import showcase as make
+
+    return make(folder)
+
+
+STRATEGIES = PlannerSpec(
+    name="strategies",
+    package="strategies",
+    summary="optimal assembly strategy under the stochastic assembly process (Sec. IV), "
+    "then a sample run of it",
+    options=StrategiesOptions,
+    run=run_strategies,
+    section="strategy",
+    smoke=("strategies_tiny", {}),
+)
+
 PACKAGE = Package(
     name="strategies",
     title=TITLE,
@@ -47,9 +69,10 @@ PACKAGE = Package(
     summary=SUMMARY,
     section="strategy",
     section_model=StrategySection,
-    planners=(),
+    planners=(STRATEGIES,),
     experiments="cellplan.strategies.experiments",
     commands="cellplan.strategies.commands",
     paper_runs=10,
     describe=describe,
+    showcase=showcase,
 )

@@ -16,15 +16,19 @@ stage is one of the robot's own motions, a stay, or FMP.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from cellplan import units
+from cellplan.core import Result, Status
 from cellplan.strategies.baselines import home_values, per_request_values
 from cellplan.strategies.execution import Executor
 from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
+from cellplan.trajectory import Event, Trajectory
 
 Policy = Literal["optimal", "reactive", "home"]
 POLICIES: tuple[str, ...] = ("optimal", "reactive", "home")
@@ -57,6 +61,10 @@ class Simulation:
     fmp_refused: int = 0
     corrections: int = 0
     raised: float = 0.0
+    events: list[tuple[int, str, str]] = field(default_factory=list)
+    """``(sample, kind, detail)``: ``request`` (at the first W sample), ``pick`` (first C
+    sample), ``place`` (first NR sample after delivery), ``fmp_refused`` (the stage whose
+    FMP the exact region test refused), ``source_change`` / ``destination_change``."""
 
     def metrics(self) -> dict[str, float]:
         """Loss per stage, waiting time per request (delivered only and all), counts.
@@ -241,12 +249,14 @@ def simulate(
     losses = np.empty(stages)
     qs[0], ms[0] = q, m
     requests: list[Request] = []
+    events: list[tuple[int, str, str]] = []
     current: Request | None = None
     refused = 0
     if m != 0:
         mode = mdp.modes[m]
         current = Request(mode.part, mode.source, mode.destination, 0)
         requests.append(current)
+        events.append((0, "request", _request_detail(current)))
     for k in range(stages):
         fmp_allowed = None
         if (
@@ -261,6 +271,7 @@ def simulate(
             # robot does not wait beside the region for ever).
             fmp_allowed = False
             refused += 1
+            events.append((k, "fmp_refused", mdp.modes[m].label))
         u = rules.action(policy, q, m, fmp_allowed)
         # Loss (7).
         if m == 0:
@@ -274,12 +285,13 @@ def simulate(
         # Transition.
         if u == FMP:
             m_next = int(mdp.fmp_next[m])
+            assert current is not None
             if mdp.modes[m].kind == "W":
-                assert current is not None
                 current.pickup = k + 1
+                events.append((k + 1, "pick", f"{current.part} at {current.source}"))
             else:
-                assert current is not None
                 current.delivery = k + 1
+                events.append((k + 1, "place", f"{current.part} at {current.destination}"))
                 current = None
         else:
             if u != STAY:
@@ -293,14 +305,31 @@ def simulate(
                 if m == 0:
                     current = Request(mode.part, mode.source, mode.destination, k + 1)
                     requests.append(current)
+                    events.append((k + 1, "request", _request_detail(current)))
                 elif current is not None:
+                    if mode.destination != current.destination:
+                        events.append(
+                            (
+                                k + 1,
+                                "destination_change",
+                                f"{current.destination} to {mode.destination}",
+                            )
+                        )
+                    if mode.source != current.source:
+                        events.append(
+                            (k + 1, "source_change", f"{current.source} to {mode.source}")
+                        )
                     current.source, current.destination = mode.source, mode.destination
                     current.changes += 1
         m = m_next
         acts[k], losses[k] = u, loss
         qs[k + 1], ms[k + 1] = q, m
     fixes, raised = rules.corrections
-    return Simulation(qs, ms, acts, losses, requests, policy, refused, fixes, raised)
+    return Simulation(qs, ms, acts, losses, requests, policy, refused, fixes, raised, events)
+
+
+def _request_detail(r: Request) -> str:
+    return f"{r.part} from {r.source} to {r.destination}"
 
 
 def default_start(strategy: Strategy) -> np.ndarray:
@@ -342,3 +371,250 @@ def compare_policies(
         p: [simulate(strategy, stages, s, policy=p, **kw).metrics() for s in seeds]
         for p in POLICIES
     }
+
+
+# --- the simulation as a Result ---------------------------------------------------------------
+
+#: A request that waits longer than this many crossings of the C-space box (at the slowest
+#: speed, plus a pick and a place) counts as starved; see :func:`wait_bound`.
+WAIT_CROSSINGS = 10.0
+#: Largest number of stages :func:`simulate_result` accepts.
+MAX_STAGES = 1_000_000
+#: The CLI's default run length and seed (the library takes both explicitly).
+DEFAULT_STAGES = 400
+DEFAULT_SEED = 0
+
+
+def wait_bound(strategy: Strategy) -> float:
+    """The default bound on a request's waiting time (time units) in :func:`simulate_result`.
+
+    ``WAIT_CROSSINGS`` times the time the robot needs to cross the C-space box once along
+    every axis at its slowest speed (its step per stage in each mode's action set), plus
+    the largest fine-motion time twice (a pick and a place). A served request under the
+    optimal strategy waits for a path between two regions and two FMPs (Section III-C), so
+    a wait beyond this bound means that the strategy (or its execution) is not serving it.
+    """
+    mdp = strategy.mdp
+    dim = len(mdp.shape)
+    step = np.abs(np.asarray(mdp.disp, float))  # (classes, actions, dim)
+    if mdp.heading_axis >= 0:
+        # Robot-frame translation: a step along the heading moves either workcell axis.
+        planar = np.linalg.norm(step[:, :, :2], axis=2)
+        step[:, :, 0] = planar
+        step[:, :, 1] = planar
+    per_axis = step.max(axis=1).min(axis=0)  # the slowest class's largest step per axis
+    extent = np.asarray(mdp.upper, float) - np.asarray(mdp.lower, float)
+    stages = float(sum(extent[j] / per_axis[j] for j in range(dim) if per_axis[j] > 0))
+    tf = np.asarray(mdp.tf, float)
+    finite = tf[np.isfinite(tf)]
+    tf_max = float(finite.max()) if finite.size else 0.0
+    return WAIT_CROSSINGS * stages * float(mdp.stage_time) + 2.0 * tf_max
+
+
+def axis_names(strategy: Strategy, cell: Any = None) -> tuple[str, ...]:
+    """Names of the configuration axes: the workcell's, else those the strategy records.
+
+    A strategy file written before the planner recorded them falls back on the layout of
+    its grid: ``x, y, theta`` for a robot-frame action set, else ``x, y`` for a 2-D box
+    beyond two full turns, else ``q1 ... qn``.
+    """
+    if cell is not None:
+        return tuple(cell.robot.axis_names)
+    axes = strategy.meta.get("axes")
+    dim = len(strategy.mdp.shape)
+    if isinstance(axes, list) and len(axes) == dim:
+        return tuple(str(a) for a in axes)
+    mdp = strategy.mdp
+    if mdp.heading_axis >= 0 and dim == 3:
+        return ("x", "y", "theta")
+    extent = np.asarray(mdp.upper, float) - np.asarray(mdp.lower, float)
+    if dim == 2 and np.any(extent > 2.0 * units.ANGLE_LIMIT):
+        return ("x", "y")
+    return tuple(f"q{j + 1}" for j in range(dim))
+
+
+def to_trajectory(
+    strategy: Strategy,
+    sim: Simulation,
+    cell: Any = None,
+    meta: Mapping[str, str | int | float | bool] | None = None,
+) -> Trajectory:
+    """A simulated run as a :class:`~cellplan.trajectory.Trajectory`.
+
+    ``t`` is the stage, ``q`` the configuration (radians for angles), ``mode`` the
+    assembly mode of each stage (``NR``, ``<P1,S1,D1,W>`` ...), and the events are the
+    simulation's (:attr:`Simulation.events`).
+    """
+    names = axis_names(strategy, cell)
+    return Trajectory(
+        t=np.arange(len(sim.modes), dtype=float),
+        q=sim.q,
+        mode=sim.modes,
+        modes=tuple(m.label for m in strategy.mdp.modes),
+        columns=names,
+        units=units.axis_units(names),
+        time_unit="stage",
+        events=tuple(Event(k, kind, detail) for k, kind, detail in sim.events),
+        meta=dict(meta or {}),
+    )
+
+
+def simulate_result(
+    strategy: Strategy,
+    stages: int,
+    seed: int,
+    *,
+    policy: str = "optimal",
+    cell: Any = None,
+    start: ArrayLike | None = None,
+    start_mode: int = 0,
+    regions: str | None = None,
+    home: ArrayLike | None = None,
+    learn: bool = True,
+    max_wait: float | None = None,
+) -> Result:
+    """Run a strategy in the stochastic assembly process and return the run as a Result.
+
+    This is ``cellplan.simulate``: :func:`simulate` (Sections III-B and V) wrapped in the
+    common :class:`~cellplan.core.Result`.
+
+    Parameters
+    ----------
+    strategy
+        A solved strategy (``cellplan.plan(setup, "strategies").solution`` or
+        :meth:`Strategy.load <cellplan.strategies.strategy.Strategy.load>`).
+    stages, seed
+        Length of the run (1 to :data:`MAX_STAGES`) and the seed of its random stream.
+    policy
+        ``optimal`` (the strategy), ``reactive`` or ``home`` (the baselines of Section V-C).
+    cell
+        The :class:`~cellplan.workcell.Workcell`: with it every FMP is confirmed by the
+        exact region test, and the trajectory's columns take the robot's axis names.
+    start, start_mode
+        Where the run starts (radians for angles); ``start`` defaults to the start
+        configuration recorded in the strategy (the robot's ``start``), ``start_mode`` to NR.
+    regions
+        ``contact`` or ``enclosure`` for the exact region test (default: the strategy's).
+    home
+        Home configuration of the ``home`` policy (default: the strategy's).
+    learn
+        Keep the executor's LRTA* correction (see :func:`simulate`).
+    max_wait
+        Bound on any request's waiting time (time units); default :func:`wait_bound`.
+
+    Returns
+    -------
+    Result
+        ``trajectory``: the run (see :func:`to_trajectory`); ``solution``: the
+        :class:`Simulation`; ``stats``: the finite entries of
+        :meth:`Simulation.metrics` plus ``wait_bound``. ``status`` is ``SOLVED`` unless a
+        request (delivered or still open at the end) waited longer than ``max_wait``,
+        which is ``FAILED`` (docs/strategies.md, "Simulation status"). A run in which no
+        request arrives is solved: nothing was left waiting.
+
+    Raises
+    ------
+    ArgumentError
+        ``stages`` or ``seed`` out of range, an unknown ``policy``, a start that is not a
+        configuration of the strategy's C-space or lies outside its domain.
+    """
+    from cellplan.errors import ArgumentError, Problem
+
+    problems = []
+    if not isinstance(stages, int | np.integer) or not 1 <= int(stages) <= MAX_STAGES:
+        problems.append(
+            Problem("stages", f"must be an integer in [1, {MAX_STAGES}], got {stages!r}")
+        )
+    if not isinstance(seed, int | np.integer) or int(seed) < 0:
+        problems.append(Problem("seed", f"must be a non-negative integer, got {seed!r}"))
+    if policy not in POLICIES:
+        problems.append(Problem("policy", f"must be one of {', '.join(POLICIES)}, got {policy!r}"))
+    if max_wait is not None and not (np.isfinite(max_wait) and max_wait > 0):
+        problems.append(Problem("max_wait", f"must be a positive number, got {max_wait!r}"))
+    mdp = strategy.mdp
+    if not 0 <= start_mode < mdp.n_modes:
+        problems.append(Problem("start_mode", f"must be in [0, {mdp.n_modes - 1}]"))
+    if problems:
+        raise ArgumentError(problems)
+    names = axis_names(strategy, cell)
+    q0 = _configuration(start, strategy.meta.get("start"), names, "start")
+    if q0 is None:
+        q0 = default_start(strategy)
+    if not mdp.live[start_mode, strategy.cell_of(q0)]:
+        raise ArgumentError(
+            [Problem("start", "lies outside the strategy's domain (no live state there)")]
+        )
+    home_q = _configuration(home, strategy.meta.get("home"), names, "home")
+    sim = simulate(
+        strategy,
+        int(stages),
+        int(seed),
+        policy=policy,
+        start=q0,
+        start_mode=start_mode,
+        cell=cell,
+        regions=regions or str(strategy.meta.get("regions", "contact")),
+        home=home_q,
+        learn=learn,
+    )
+    bound = float(max_wait) if max_wait is not None else wait_bound(strategy)
+    metrics = sim.metrics()
+    stats = {k: v for k, v in metrics.items() if np.isfinite(v)}
+    stats["wait_bound"] = bound
+    status, message = _verdict(strategy, sim, metrics, bound)
+    meta: dict[str, str | int | float | bool] = {
+        "scenario": str(strategy.meta.get("scenario_name", "")),
+        "policy": policy,
+        "seed": int(seed),
+        "stages": int(stages),
+        "gain": strategy.gain,
+    }
+    return Result(
+        status,
+        message,
+        planner="strategies.simulate",
+        stats=stats,
+        solution=sim,
+        trajectory=to_trajectory(strategy, sim, cell, meta),
+        options={"stages": int(stages), "seed": int(seed), "policy": policy, "max_wait": bound},
+    )
+
+
+def _configuration(
+    given: ArrayLike | None, recorded: Any, names: tuple[str, ...], field: str
+) -> np.ndarray | None:
+    if given is not None:
+        return units.check_configurations(given, names, field)[0]
+    if recorded is not None:
+        return np.asarray(recorded, dtype=float)
+    return None
+
+
+def _verdict(
+    strategy: Strategy, sim: Simulation, metrics: Mapping[str, float], bound: float
+) -> tuple[Status, str]:
+    stages = len(sim.actions)
+    if not sim.requests:
+        return Status.SOLVED, f"no request arrived in {stages} stages"
+    late = [(i, r) for i, r in enumerate(sim.requests) if r.waiting > bound]
+    if late:
+        i, r = late[0]
+        state = "still open" if r.delivery < 0 else f"delivered at stage {r.delivery}"
+        return (
+            Status.FAILED,
+            f"request {i + 1} (<{r.part},{r.source},{r.destination}>, arrived at stage "
+            f"{r.arrival}) waited {r.waiting:g} > {bound:g} ({state}); "
+            f"{len(late)} request(s) over the bound",
+        )
+    served = int(metrics["served"])
+    open_part = (
+        f" ({int(metrics['open_requests'])} open after {metrics['open_wait']:g})"
+        if metrics["open_requests"]
+        else ""
+    )
+    wait = f"mean wait {metrics['mean_wait']:.2f}, " if served else ""
+    return (
+        Status.SOLVED,
+        f"served {served} of {len(sim.requests)} requests{open_part}, {wait}"
+        f"loss {metrics['loss_per_stage']:.3f} per stage (gain {strategy.gain:.3f})",
+    )

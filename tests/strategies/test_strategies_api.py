@@ -1,0 +1,176 @@
+"""The strategies planner through ``cellplan.plan`` and the simulation as a Result."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from strategies_helpers import TINY
+
+import cellplan
+from cellplan.core import Status, check_stats
+from cellplan.errors import ArgumentError
+from cellplan.strategies.simulate import simulate_result, wait_bound
+from cellplan.strategies.strategy import FMP, STAY
+from cellplan.trajectory import Trajectory
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return cellplan.load("strategies_tiny")
+
+
+@pytest.fixture(scope="module")
+def result(setup):
+    return cellplan.plan(setup, "strategies")
+
+
+def test_plan_solves_the_smoke_problem(result):
+    assert result.status is Status.SOLVED and result.success
+    assert result.planner == "strategies"
+    assert result.options["method"] is None and result.options["sample_stages"] == 200
+    assert check_stats(result.stats) == []
+    assert result.stats["gain"] == pytest.approx(result.solution.gain)
+    assert result.stats["span"] < 1e-6
+    assert result.stats["sim_stages"] == 200
+    assert result.message.startswith(f"gain {result.solution.gain:.4f} per stage")
+    assert "\n" not in result.message
+
+
+def test_solution_answers_queries_at_real_states(result, setup):
+    strategy = result.solution
+    start = setup.workcell.robot.start
+    waiting = strategy.mode_index("1,1,1,W")
+    for mode in (0, waiting):
+        u = strategy.action(start, mode)
+        assert u in (FMP, STAY) or 0 <= u < strategy.mdp.disp.shape[1]
+    # The axis names travel with the strategy (and its file).
+    assert strategy.meta["axes"] == ["x", "y"]
+
+
+def test_trajectory_is_the_sample_run_with_its_events(result, setup):
+    traj = result.trajectory
+    assert len(traj) == 201 and traj.time_unit == "stage"
+    np.testing.assert_array_equal(traj.t, np.arange(201.0))
+    np.testing.assert_array_equal(traj.q[0], setup.workcell.robot.start)
+    assert traj.columns == ("x", "y") and traj.units == ("workcell", "workcell")
+    assert traj.modes == tuple(m.label for m in result.solution.modes)
+    kinds = {e.kind for e in traj.events}
+    assert {"request", "pick", "place"} <= kinds
+    names = traj.mode_names()
+    for e in traj.events_of("request"):
+        assert names[e.index].endswith(",W>") and names[e.index - 1] == "NR"
+    for e in traj.events_of("pick"):
+        assert names[e.index].endswith(",C>") and names[e.index - 1].endswith(",W>")
+    for e in traj.events_of("place"):
+        assert names[e.index] == "NR" and names[e.index - 1].endswith(",C>")
+    assert len(traj.events_of("place")) == result.stats["sim_served"]
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".json", ".npz"])
+def test_trajectory_round_trips(result, tmp_path, suffix):
+    path = result.trajectory.save(tmp_path / f"run{suffix}")
+    back = Trajectory.load(path)
+    assert back == result.trajectory
+    assert back.events == result.trajectory.events
+
+
+def test_same_seed_same_run_other_seed_other_run(setup, result):
+    again = cellplan.plan(setup, "strategies", seed=0)
+    assert again.trajectory == result.trajectory
+    other = cellplan.plan(setup, "strategies", seed=5, sample_stages=50)
+    assert len(other.trajectory) == 51
+    assert not np.array_equal(other.trajectory.q, result.trajectory.q[:51])
+
+
+def test_general_method_agrees_with_structured(setup, result):
+    general = cellplan.plan(setup, "strategies", method="general", sample_stages=5)
+    assert general.success and general.solution.meta["method"] == "general"
+    assert general.stats["gain"] == pytest.approx(result.stats["gain"], abs=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("options", "named"),
+    [
+        ({"sample_stage": 10}, "did you mean 'sample_stages'"),
+        ({"method": "fast"}, "method"),
+        ({"cells": [2, 2]}, "cells"),
+        ({"cells": [12, 12, 12]}, "cells: needs 2 values"),
+        ({"sample_stages": 0}, "sample_stages"),
+        ({"seed": -1}, "seed"),
+    ],
+)
+def test_bad_options_are_one_line_naming_them(setup, options, named):
+    with pytest.raises(ArgumentError) as info:
+        cellplan.plan(setup, "strategies", **options)
+    assert named in str(info.value)
+    assert all("\n" not in str(p) for p in info.value.problems)
+
+
+def test_unconverged_solve_is_reported_not_raised():
+    setup = cellplan.loads(
+        TINY.replace("CELLS", "12") + "  solver: {method: general, max_sweeps: 2}\n"
+    )
+    result = cellplan.plan(setup, "strategies", sample_stages=10)
+    assert result.status is Status.NOT_CONVERGED and not result.success
+    assert result.message.startswith("did not converge within 2 sweeps")
+    assert len(result.trajectory) == 11 and check_stats(result.stats) == []
+
+
+# --- simulate_result ---------------------------------------------------------------------------
+
+
+def test_cellplan_simulate_is_simulate_result():
+    assert cellplan.simulate is simulate_result
+
+
+def test_simulation_result_matches_its_simulation(result, setup):
+    run = cellplan.simulate(result.solution, 400, 3, cell=setup.workcell)
+    sim = run.solution
+    assert run.success and check_stats(run.stats) == []
+    np.testing.assert_array_equal(run.trajectory.q, sim.q)
+    np.testing.assert_array_equal(run.trajectory.mode, sim.modes)
+    events = {(e.kind, e.index) for e in run.trajectory.events}
+    for r in sim.requests:
+        assert ("request", r.arrival) in events
+        if r.pickup >= 0:
+            assert ("pick", r.pickup) in events
+        if r.delivery >= 0:
+            assert ("place", r.delivery) in events
+    assert run.stats["served"] == sum(r.delivery >= 0 for r in sim.requests) > 0
+    assert run.stats["wait_bound"] == pytest.approx(wait_bound(result.solution))
+    assert f"served {int(run.stats['served'])} of {len(sim.requests)} requests" in run.message
+    # Without the workcell the columns come from the strategy's record of its axes.
+    bare = cellplan.simulate(result.solution, 400, 3)
+    assert bare.trajectory.columns == ("x", "y")
+
+
+def test_a_request_waiting_past_the_bound_fails_the_run(result):
+    run = simulate_result(result.solution, 400, 3, max_wait=2.0)
+    assert run.status is Status.FAILED
+    assert "waited" in run.message and "> 2" in run.message
+    assert run.trajectory is not None and len(run.trajectory) == 401
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "named"),
+    [
+        ({"stages": 0}, "stages"),
+        ({"seed": -3}, "seed"),
+        ({"policy": "greedy"}, "policy"),
+        ({"start": [1e3, 1e3]}, "start"),
+        ({"start": [1.0, 2.0, 3.0]}, "start"),
+    ],
+)
+def test_bad_simulation_arguments(result, kwargs, named):
+    args = {"stages": 10, "seed": 0, **kwargs}
+    stages, seed = args.pop("stages"), args.pop("seed")
+    with pytest.raises(ArgumentError) as info:
+        simulate_result(result.solution, stages, seed, **args)
+    assert info.value.problems[0].field == named
+
+
+def test_summary_is_json(result):
+    payload = json.loads(json.dumps(result.summary(), allow_nan=False))
+    assert payload["status"] == "solved" and payload["options"]["cells"] is None
