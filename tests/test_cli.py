@@ -148,3 +148,16 @@ def test_summaries_are_not_wrapped_when_piped():
     assert r.returncode == 0
     line = next(x for x in r.stdout.splitlines() if "free fraction" in x)
     assert "conservative)" in line
+
+
+def test_output_paths_that_cannot_be_written_are_one_line(cellplan, tmp_path):
+    folder = tmp_path / "cell.png"
+    folder.mkdir()
+    r = cellplan("show", "strategies_tiny", "-o", str(folder))
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"error: {folder}: is a folder; give a file name"
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    r = cellplan("show", "strategies_tiny", "-o", str(blocker / "cell.png"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert str(blocker) in r.stderr

@@ -237,6 +237,14 @@ def main() -> None:
     except (typer.Abort, KeyboardInterrupt):
         console.print("interrupted")
         sys.exit(EXIT_INTERRUPTED)
+    except OSError as exc:
+        # A path the user named cannot be read or written (a folder where a file is
+        # expected, a missing parent, no permission): their input, not a bug.
+        where = exc.filename if exc.filename is not None else "output"
+        console.print(
+            f"[bold red]error[/]: {where}: {exc.strerror or exc}", highlight=False, soft_wrap=True
+        )
+        sys.exit(EXIT_BAD_INPUT)
     except Exception as exc:
         # Usage errors (unknown option, missing argument) arrive here in non-standalone
         # mode; recent typer versions raise their own copy of click's exceptions.

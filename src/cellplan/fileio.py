@@ -23,6 +23,9 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
     format from the extension (matplotlib, numpy) behave the same.
     """
     target = Path(target)
+    if target.is_dir():
+        # Checked first so the error names the target, not the temporary file.
+        raise IsADirectoryError(21, "is a folder; give a file name", str(target))
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(
         prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}", dir=target.parent
