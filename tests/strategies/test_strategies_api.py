@@ -174,3 +174,20 @@ def test_bad_simulation_arguments(result, kwargs, named):
 def test_summary_is_json(result):
     payload = json.loads(json.dumps(result.summary(), allow_nan=False))
     assert payload["status"] == "solved" and payload["options"]["cells"] is None
+
+
+def test_showcase_makes_its_pictures_through_the_api_silently(tmp_path, monkeypatch, capsys):
+    from cellplan.registry import packages
+    from cellplan.strategies import showcase
+
+    # The demo's recipe on the tiny cell (same modes, shorter run), to keep the suite fast.
+    monkeypatch.setattr(showcase, "SCENARIO", "strategies_tiny")
+    monkeypatch.setattr(showcase, "STAGES", 40)
+    items = packages()["strategies"].showcase(tmp_path)
+    assert len(items) == 2
+    for item in items:
+        assert item.figures and all(p.is_file() and p.stat().st_size > 0 for p in item.figures)
+        assert item.caption.startswith("solved: ") and "cellplan" in item.code
+    assert Trajectory.load(tmp_path / "p1_simulation" / "trajectory.csv").events
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""
