@@ -18,6 +18,7 @@ import typer
 
 from cellplan.cliutil import JsonOpt, ScenarioArg, finish, progress_enabled, stderr, stdout
 from cellplan.errors import ArgumentError, CellplanError, Problem
+from cellplan.strategies.planners import SIMULATE_SEED, SIMULATE_STAGES, StrategiesOptions
 
 if TYPE_CHECKING:
     from cellplan.core import Progress
@@ -42,6 +43,11 @@ def _as_flags() -> Iterator[None]:
             for p in exc.problems
         ]
         raise ArgumentError(list(dict.fromkeys(flagged))) from None
+
+
+def _default(option: str) -> object:
+    """The library's default of a planner option, for the help text."""
+    return StrategiesOptions.model_fields[option].default
 
 
 def _load(scenario: str) -> Setup:
@@ -121,9 +127,14 @@ def solve_command(
         ),
     ] = None,
     sample_stages: Annotated[
-        int | None, typer.Option(help="stages of the sample run in the result (default 200)")
+        int | None,
+        typer.Option(
+            help=f"stages of the sample run in the result (default {_default('sample_stages')})"
+        ),
     ] = None,
-    seed: Annotated[int | None, typer.Option(help="seed of the sample run (default 0)")] = None,
+    seed: Annotated[
+        int | None, typer.Option(help=f"seed of the sample run (default {_default('seed')})")
+    ] = None,
     save_unconverged: Annotated[
         bool, typer.Option(help="save the strategy even if the solve did not converge")
     ] = False,
@@ -166,8 +177,10 @@ def solve_command(
 def simulate_command(
     scenario: ScenarioArg,
     strategy: StrategyOpt,
-    stages: Annotated[int | None, typer.Option(help="number of stages (default 400)")] = None,
-    seed: Annotated[int | None, typer.Option(help="random seed (default 0)")] = None,
+    stages: Annotated[
+        int | None, typer.Option(help=f"number of stages (default {SIMULATE_STAGES})")
+    ] = None,
+    seed: Annotated[int | None, typer.Option(help=f"random seed (default {SIMULATE_SEED})")] = None,
     output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
         "simulation"
     ),
@@ -176,7 +189,10 @@ def simulate_command(
     ] = None,
     max_wait: Annotated[
         float | None,
-        typer.Option(help="longest acceptable wait of a request (default: see docs)"),
+        typer.Option(
+            help="longest acceptable wait of a request, in time units (default: ten crossings "
+            "of the C-space box, docs/strategies.md)"
+        ),
     ] = None,
     gif: Annotated[bool, typer.Option(help="write an animated GIF")] = True,
     as_json: JsonOpt = False,
@@ -184,7 +200,7 @@ def simulate_command(
     """Simulate the assembly process under a strategy: trajectory.csv, frames, GIF, metrics."""
     from cellplan.fileio import write_json
     from cellplan.strategies import plots
-    from cellplan.strategies.simulate import DEFAULT_SEED, DEFAULT_STAGES, simulate_result
+    from cellplan.strategies.simulate import simulate_result
 
     if output.exists() and not output.is_dir():
         raise ArgumentError(f"{output} exists and is not a folder", "--output")
@@ -194,8 +210,8 @@ def simulate_command(
     with _as_flags():
         result = simulate_result(
             strat,
-            DEFAULT_STAGES if stages is None else stages,
-            DEFAULT_SEED if seed is None else seed,
+            SIMULATE_STAGES if stages is None else stages,
+            SIMULATE_SEED if seed is None else seed,
             cell=setup.workcell,
             **{k: v for k, v in given.items() if v is not None},
         )

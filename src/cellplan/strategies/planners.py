@@ -29,6 +29,12 @@ if TYPE_CHECKING:
 
 Method = Literal["auto", "structured", "general"]
 
+#: ``cellplan simulate``'s run length and seed when not given (``cellplan.simulate`` takes
+#: both explicitly), and the longest run it accepts.
+SIMULATE_STAGES = 400
+SIMULATE_SEED = 0
+MAX_STAGES = 1_000_000
+
 
 class StrategiesOptions(Options):
     """Options of the ``strategies`` planner (each default is the one source of it)."""
@@ -48,7 +54,7 @@ class StrategiesOptions(Options):
         description="False drops the moves whose interpolation snaps the robot sideways "
         "(stricter transition law, docs/strategies.md)",
     )
-    sample_stages: Annotated[int, Field(ge=1, le=1_000_000)] = Field(
+    sample_stages: Annotated[int, Field(ge=1, le=MAX_STAGES)] = Field(
         200, description="stages of the sample run from the robot's start (the trajectory)"
     )
     seed: Annotated[int, Field(ge=0)] = Field(0, description="seed of the sample run")

@@ -12,6 +12,12 @@ Three policies run in the same simulator: ``optimal`` (the strategy), ``reactive
 its action through an :class:`~cellplan.strategies.execution.Executor` (equation (9)
 with a lookahead and the LRTA* correction, so that no request waits for ever); every
 stage is one of the robot's own motions, a stay, or FMP.
+
+:func:`simulate` returns the raw :class:`Simulation`; :func:`simulate_result` (the
+library's ``cellplan.simulate``) wraps it in the common :class:`~cellplan.core.Result`,
+with the run as a :class:`~cellplan.trajectory.Trajectory` (stage, configuration, mode,
+request / pick / place events) and a status that says whether every request was served
+within a bound (:func:`wait_bound`; docs/strategies.md, "Simulation status").
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from cellplan import units
 from cellplan.core import Result, Status
 from cellplan.strategies.baselines import home_values, per_request_values
 from cellplan.strategies.execution import Executor
+from cellplan.strategies.planners import MAX_STAGES
 from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
 from cellplan.trajectory import Event, Trajectory
 
@@ -378,11 +385,6 @@ def compare_policies(
 #: A request that waits longer than this many crossings of the C-space box (at the slowest
 #: speed, plus a pick and a place) counts as starved; see :func:`wait_bound`.
 WAIT_CROSSINGS = 10.0
-#: Largest number of stages :func:`simulate_result` accepts.
-MAX_STAGES = 1_000_000
-#: The CLI's default run length and seed (the library takes both explicitly).
-DEFAULT_STAGES = 400
-DEFAULT_SEED = 0
 
 
 def wait_bound(strategy: Strategy) -> float:
