@@ -1,23 +1,37 @@
 """CLI commands of the adaptive package, registered on the main app by :func:`register`.
 
-``cellplan adapt FILE --repair A3 --tasks 80 --seed 0 --db exp.sqlite -o DIR`` runs
-Adapt over the scenario's tasks with a progress bar and writes, into DIR:
-``tasks.csv`` (per-task costs with the R/T/S/Abstract split and the Solve-only
-baseline), ``ratio.png`` (the cumulative cost ratio), ``costs.png``,
-``graph.png`` and ``snapshots.png`` (G over the workcell), ``graph.graphml`` and
-``summary.json``.
+``cellplan adapt FILE --repair A3 --tasks 80 --seed 0 --db exp.sqlite -o DIR`` runs the
+``adaptive`` planner through :func:`cellplan.api.plan` (a progress bar on stderr when
+it is a terminal) and writes, into DIR:
+
+* ``paths.csv``: the executed paths of every task run in this call as one trajectory
+  (:class:`~cellplan.trajectory.Trajectory`; mode = the task's goal, events ``task``,
+  ``arrive``, ``fail``, ``change``; radians for joint angles);
+* ``tasks.csv``: per-task costs with the R/T/S/Abstract split and the Solve-only baseline
+  (every task of the database when continuing);
+* ``ratio.png`` (the cumulative cost ratio, Figure 5), ``costs.png``, ``graph.png`` and
+  ``snapshots.png`` (G over the workcell, Figure 3 style), ``graph.graphml`` and
+  ``summary.json``.
+
+It prints one summary line on stdout (or one JSON object with ``--json``) and exits 0
+when every task reached its goal, 1 when some failed (the line names them), 2 on bad
+input. Options are ``None`` unless given, so the defaults are the scenario section's.
 """
 
 from __future__ import annotations
 
-import csv
-import io
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from cellplan.errors import ArgumentError
+from cellplan.cliutil import JsonOpt, ScenarioArg, finish, progress_enabled, stderr
+from cellplan.errors import ArgumentError, Problem
+
+if TYPE_CHECKING:
+    from cellplan.core import Progress, Result
 
 
 def register(app: typer.Typer) -> None:
@@ -25,9 +39,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command()
     def adapt(
-        scenario: Annotated[
-            str, typer.Argument(help="scenario file with an adaptive section, or a bundled name")
-        ],
+        scenario: ScenarioArg,
         repair: Annotated[
             str | None,
             typer.Option(help="repair strategy A0, A1, A2 or A3 (default: the scenario's)"),
@@ -36,7 +48,8 @@ def register(app: typer.Typer) -> None:
             int | None, typer.Option(help="number of tasks (default: the scenario's)")
         ] = None,
         seed: Annotated[
-            int | None, typer.Option(help="seed of the task sequence and of Solve")
+            int | None,
+            typer.Option(help="seed of the task sequence and of Solve (default: the scenario's)"),
         ] = None,
         db: Annotated[
             Path | None, typer.Option(help="experience database (SQLite); continued if it exists")
@@ -45,11 +58,57 @@ def register(app: typer.Typer) -> None:
             "adapt-out"
         ),
         baseline: Annotated[
-            bool, typer.Option(help="also run Solve alone on every task (for the ratio)")
-        ] = True,
+            bool | None,
+            typer.Option(
+                "--baseline/--no-baseline",
+                help="also run Solve alone on every task, for the ratio (default: yes)",
+                show_default=False,
+            ),
+        ] = None,
+        as_json: JsonOpt = False,
     ) -> None:
         """Adaptive experience-graph planning (Chen 1994) over a task sequence."""
-        run_adapt_command(scenario, repair, tasks, seed, db, output, baseline)
+        run_adapt_command(scenario, repair, tasks, seed, db, output, baseline, as_json)
+
+
+@contextlib.contextmanager
+def _as_flags() -> Iterator[None]:
+    """Name the library's option problems as the command-line flags that set them."""
+    try:
+        yield
+    except ArgumentError as exc:
+        flagged = [
+            Problem("--" + p.field.replace("_", "-"), p.message)
+            if p.field and not p.field.startswith("-")
+            else p
+            for p in exc.problems
+        ]
+        raise ArgumentError(flagged) from None
+
+
+@contextlib.contextmanager
+def _progress_bar(enabled: bool) -> Iterator[Progress | None]:
+    if not enabled:
+        yield None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
+    from rich.progress import Progress as Bar
+
+    with Bar(
+        TextColumn("[bold]adapt[/]"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.description}"),
+        TimeElapsedColumn(),
+        console=stderr(),
+        transient=True,
+    ) as bar:
+        task = bar.add_task("", total=None)
+
+        def update(done: float, total: float | None, text: str) -> None:
+            bar.update(task, completed=done, total=total, description=text)
+
+        yield update
 
 
 def run_adapt_command(
@@ -59,104 +118,91 @@ def run_adapt_command(
     seed: int | None,
     db: Path | None,
     output: Path,
-    baseline: bool,
+    baseline: bool | None,
+    as_json: bool = False,
 ) -> None:
-    """The body of ``cellplan adapt`` (importable for tests)."""
-    import gc
+    """The body of ``cellplan adapt`` (importable for tests); exits through ``finish``."""
+    from cellplan.api import load, plan
+    from cellplan.registry import parse_options, planner
 
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from cellplan.adaptive import plots
-    from cellplan.adaptive.repair import STRATEGIES
-    from cellplan.adaptive.runner import cumulative_ratio, run_adaptive, task_count
-    from cellplan.adaptive.store import ExperienceStore, export_graphml
-    from cellplan.fileio import write_json, write_text
-    from cellplan.scenario import load_scenario
-
-    if repair is not None and repair not in STRATEGIES:
-        raise ArgumentError(
-            f"unknown repair strategy {repair!r}; choose one of {', '.join(STRATEGIES)}", "--repair"
-        )
+    given: dict[str, Any] = {
+        k: v
+        for k, v in {
+            "repair": repair,
+            "tasks": tasks,
+            "seed": seed,
+            "db": None if db is None else str(db),
+            "baseline": baseline,
+        }.items()
+        if v is not None
+    }
+    with _as_flags():
+        parse_options(planner("adaptive"), given)
     if output.exists() and not output.is_dir():
         raise ArgumentError(f"{output} exists and is not a folder", "--output")
-    sc = load_scenario(scenario_arg)
-    n_tasks = task_count(sc, tasks)
-    console = Console(stderr=True)
-    store = ExperienceStore(db, sc) if db is not None else None
-    try:
-        with Progress(
-            TextColumn("[bold]adapt[/]"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("{task.description}"),
-            TimeElapsedColumn(),
-            console=console,
-            transient=False,
-        ) as progress:
-            bar = progress.add_task("", total=n_tasks)
-
-            def on_task(done: int, total: int, row: dict[str, object]) -> None:
-                progress.update(
-                    bar, completed=done, description=f"{row['goal']} |V|={row['vertices']}"
-                )
-
-            change_tasks = (
-                sorted({c.after_task for c in sc.adaptive.changes}) if sc.adaptive else []
-            )
-            marks = {0, n_tasks, *change_tasks, *(t + 1 for t in change_tasks)}
-            outcome = run_adaptive(
-                sc,
-                repair,
-                tasks,
-                seed,
-                store,
-                baseline,
-                on_task=on_task,
-                snapshot_at=lambda t: t in marks or t <= 4,
-            )
-        adapter = outcome.adapter
-        assert adapter is not None
-        rows = outcome.rows
-        output.mkdir(parents=True, exist_ok=True)
-        buf = io.StringIO()
-        if rows:
-            writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
-        write_text(output / "tasks.csv", buf.getvalue())
-        export_graphml(adapter.graph, output / "graph.graphml")
-        summary: dict[str, object] = {
-            "scenario": sc.name,
-            "repair": adapter.settings.repair,
-            "seed": adapter.settings.seed,
-            "tasks": len(rows),
-            "successes": sum(int(r["success"]) for r in rows),
-            "paths_ok_at_4x": sum(int(r["path_ok"]) for r in rows),
-            "vertices": len(adapter.graph),
-            "edges": len(adapter.graph.usable_edges()),
-            "adapt_checks": sum(float(r["adapt"]) for r in rows),
-            "solve_only_checks": sum(float(r["baseline"]) for r in rows),
-        }
-        if rows and baseline:
-            ratio = cumulative_ratio(rows)
-            summary["final_ratio"] = float(ratio[-1])
-            plots.save_ratio_curves(
-                {adapter.settings.repair: ratio}, output / "ratio.png", change_tasks
-            )
-        if rows:
-            plots.save_cost_split(rows, output / "costs.png")
-        if outcome.snapshots:
-            plots.save_snapshots(outcome.snapshots[-1:], output / "graph.png", ncols=1)
-            plots.save_snapshots(outcome.snapshots[:12], output / "snapshots.png")
-        write_json(output / "summary.json", summary)
-    finally:
-        if store is not None:
-            store.close()
-        gc.collect()
-    console.print(
-        f"{summary['tasks']} tasks, {summary['successes']} solved, "
-        f"G: {summary['vertices']} vertices; "
-        + (f"cumulative ratio {summary['final_ratio']:.3f}; " if "final_ratio" in summary else "")
-        + f"wrote {output}"
+    setup = load(scenario_arg)
+    with _progress_bar(progress_enabled(as_json)) as progress, _as_flags():
+        result = plan(setup, "adaptive", progress=progress, **given)
+    outputs = write_outputs(result, output)
+    summary = (
+        f"{result.message}; wrote {output}"
+        if result.success
+        else f"{int(result.stats['solved'])} of {int(result.stats['tasks'])} solved; wrote {output}"
     )
+    finish(result, as_json, summary, outputs)
+
+
+def write_outputs(result: Result, output: Path) -> dict[str, Path]:
+    """Write the run's files into ``output`` (see the module docstring); their paths by name."""
+    import csv
+    import gc
+    import io
+
+    from cellplan.adaptive import plots
+    from cellplan.adaptive.runner import cumulative_ratio
+    from cellplan.adaptive.store import export_graphml
+    from cellplan.fileio import write_json, write_text
+
+    ep = result.solution
+    rows = ep.tasks
+    output.mkdir(parents=True, exist_ok=True)
+    files: dict[str, Path] = {}
+    assert result.trajectory is not None
+    files["paths"] = result.trajectory.save(output / "paths.csv")
+    buf = io.StringIO()
+    if rows:
+        writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    files["tasks"] = write_text(output / "tasks.csv", buf.getvalue())
+    files["graph"] = export_graphml(ep.graph, output / "graph.graphml")
+    section = ep.scenario.adaptive if ep.scenario is not None else None
+    change_tasks = sorted({c.after_task for c in section.changes}) if section else []
+    if rows and result.options.get("baseline", True):
+        files["ratio_plot"] = plots.save_ratio_curves(
+            {ep.settings.repair: cumulative_ratio(rows)}, output / "ratio.png", change_tasks
+        )
+    if rows:
+        files["costs_plot"] = plots.save_cost_split(rows, output / "costs.png")
+    if ep.snapshots:
+        files["graph_plot"] = plots.save_snapshots(ep.snapshots[-1:], output / "graph.png", ncols=1)
+        files["snapshots_plot"] = plots.save_snapshots(ep.snapshots[:12], output / "snapshots.png")
+    summary: dict[str, object] = {
+        "scenario": ep.name,
+        "status": str(result.status),
+        "message": result.message,
+        "repair": ep.settings.repair,
+        "seed": ep.settings.seed,
+        "tasks": len(rows),
+        "successes": sum(int(r["success"]) for r in rows),
+        "paths_ok_at_4x": sum(int(r["path_ok"]) for r in rows),
+        "vertices": len(ep.graph),
+        "edges": len(ep.graph.usable_edges()),
+        "adapt_checks": sum(float(r["adapt"]) for r in rows),
+        "solve_only_checks": sum(float(r["baseline"]) for r in rows),
+    }
+    if "ratio" in result.stats:
+        summary["final_ratio"] = float(result.stats["ratio"])
+    files["summary"] = write_json(output / "summary.json", summary)
+    gc.collect()
+    return files

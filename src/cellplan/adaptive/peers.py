@@ -13,21 +13,36 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellplan.adaptive.adapt import derive_seed
+from cellplan.adaptive.adapt import TaskResult, derive_seed
 from cellplan.adaptive.counters import CheckCounter
-from cellplan.adaptive.runner import choose_goal, settings_for, task_count
+from cellplan.adaptive.runner import (
+    TaskPath,
+    choose_goal,
+    describe_change,
+    settings_for,
+    task_count,
+)
 from cellplan.adaptive.solve import PRMSession, solve_rrtconnect
 from cellplan.adaptive.space import PlanSpace
 from cellplan.adaptive.world import World, preflight
+from cellplan.core import Progress
 from cellplan.scenario import Scenario
 
 PEERS = ("prm", "rrtconnect")
 
 
 def run_peer(
-    scenario: Scenario, peer: str, tasks: int | None = None, seed: int | None = None
+    scenario: Scenario,
+    peer: str,
+    tasks: int | None = None,
+    seed: int | None = None,
+    paths: list[TaskPath] | None = None,
+    progress: Progress | None = None,
 ) -> list[dict[str, float]]:
-    """Per-task checks of a peer planner over the scenario's task sequence."""
+    """Per-task checks of a peer planner over the scenario's task sequence.
+
+    With ``paths``, each task's executed path (Solve's waypoints) is appended to it.
+    """
     if peer not in PEERS:
         raise ValueError(f"unknown peer {peer!r}; known: {PEERS}")
     assert scenario.adaptive is not None
@@ -47,11 +62,11 @@ def run_peer(
     rows = []
     try:
         for t in range(n):
-            changed = False
+            changed = []
             for _, change in changes:
                 if change.after_task == t:
                     world.apply(change)
-                    changed = True
+                    changed.append(describe_change(change))
             if changed and prm is not None:
                 prm.close()
                 prm = None
@@ -59,6 +74,7 @@ def run_peer(
             w = world.goal_config(goal)
             assert w is not None
             before = counter.total
+            u_before = u.copy()
             if peer == "prm":
                 if prm is None:
                     prm = PRMSession(space, derive_seed(settings.seed, t, 77))
@@ -69,6 +85,11 @@ def run_peer(
                 )
             if path is not None:
                 u, current = w, goal
+            if paths is not None:
+                res = TaskResult(goal, path is not None, path=path)
+                paths.append(TaskPath(t + 1, goal, u_before, res, changed))
+            if progress is not None:
+                progress(t + 1, n, goal)
             rows.append(
                 {
                     "task": t + 1,

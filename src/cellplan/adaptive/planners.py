@@ -1,112 +1,235 @@
-"""Planners of the adaptive package, listed for the registry (CLI, benchmarks, conformance test)."""
+"""The adaptive package's planners behind :func:`cellplan.plan` (light to import).
+
+* ``adaptive``: Adapt (Chen 1994, Figure 1) over the scenario's task list, driving an
+  :class:`~.experience.ExperiencePlanner` task by task, with the scheduled workcell
+  changes and repair A0-A3 (Section 2.5), and optionally Solve alone on the same tasks
+  for the cumulative cost ratio of Figure 5.
+* ``adaptive.rrtconnect``: Solve alone (OMPL RRTConnect from scratch per task), the
+  denominator of Figure 5's ratio.
+* ``adaptive.prm``: OMPL PRM with its roadmap kept across tasks (rebuilt after a change),
+  the modern multi-query peer.
+
+Every run returns the common :class:`~cellplan.core.Result`: ``solved`` when every task
+reached its goal, ``failed`` with the failed tasks named otherwise; the trajectory is the
+executed paths of all tasks end to end (``t`` = cumulative joint-space path length, mode =
+the task's goal, events ``task``, ``arrive``, ``fail``, ``change``).
+"""
 
 from __future__ import annotations
 
 import gc
-import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import numpy as np
+from pydantic import Field
 
-from cellplan.core import PlannerEntry, PlanResult, Status
-from cellplan.scenario import Scenario
+from cellplan.core import Options, Progress, Result, Status
+
+if TYPE_CHECKING:
+    from cellplan.adaptive.runner import TaskPath
+    from cellplan.setup import Setup
+    from cellplan.trajectory import Trajectory
+
+Repair = Literal["A0", "A1", "A2", "A3"]
+TaskCount = Annotated[int, Field(ge=1, le=1_000_000)]
 
 
-def _fig4() -> Scenario:
-    from cellplan.registry import scenario_path
-    from cellplan.scenario import load_scenario
+class AdaptiveOptions(Options):
+    """Options of the ``adaptive`` planner (``None``: the scenario section's value)."""
 
-    return load_scenario(scenario_path("adaptive_fig4"))
+    repair: Repair | None = Field(
+        None,
+        description="repair strategy after a workcell change: A0 forget, A1 verify all, "
+        "A2 repair actively, A3 on demand (Section 2.5)",
+    )
+    tasks: TaskCount | None = Field(None, description="number of tasks (a prefix of the list)")
+    seed: int | None = Field(
+        None, description="seed of the random task sequence and of Solve (OMPL's RNG)"
+    )
+    db: str | None = Field(
+        None,
+        description="SQLite experience database; a run continues from it if it exists "
+        "(None: in memory)",
+    )
+    baseline: bool = Field(
+        True, description="also run Solve alone on every task (for the cost ratio of Fig. 5)"
+    )
 
 
-def smoke_adapt(seed: int) -> PlanResult:
-    """Adapt (A3) over 6 tasks of the Figure 4 workcell."""
-    from cellplan.adaptive.runner import cumulative_ratio, run_adaptive
+class PeerOptions(Options):
+    """Options of the Solve-only peers (``None``: the scenario section's value)."""
 
-    out = run_adaptive(_fig4(), "A3", tasks=6, seed=seed)
+    tasks: TaskCount | None = Field(None, description="number of tasks (a prefix of the list)")
+    seed: int | None = Field(None, description="seed of the random task sequence and of OMPL")
+
+
+def run_adaptive_planner(
+    setup: Setup, options: AdaptiveOptions, progress: Progress | None = None
+) -> Result:
+    """Adapt over the scenario's tasks (see the module docstring)."""
+    from cellplan.adaptive.runner import cumulative_ratio, run_adaptive, task_count
+    from cellplan.adaptive.store import ExperienceStore
+
+    sc = setup.scenario
+    n_tasks = task_count(sc, options.tasks)
+    store = ExperienceStore(options.db, sc) if options.db is not None else None
+
+    def on_task(done: int, total: int, row: dict[str, Any]) -> None:
+        if progress is not None:
+            progress(done, total, f"{row['goal']} |V|={row['vertices']}")
+
+    sec = setup.section("adaptive")
+    change_tasks = sorted({c.after_task for c in sec.changes})
+    marks = {0, n_tasks, *change_tasks, *(t + 1 for t in change_tasks)}
+
+    def snapshot_at(t: int) -> bool:
+        # Figure 3's frames: the first tasks, around each change, the last.
+        return t in marks or t <= 4
+
+    try:
+        out = run_adaptive(
+            sc,
+            options.repair,
+            options.tasks,
+            options.seed,
+            store,
+            options.baseline,
+            on_task,
+            snapshot_at=snapshot_at,
+        )
+    finally:
+        if store is not None:
+            store.close()
     rows = out.rows
-    assert out.adapter is not None
-    stats = {
+    planner = out.planner
+    assert planner is not None
+    traj = paths_trajectory(
+        out.paths, planner.world.robot.axis_names, _meta(setup, planner), planner.position
+    )
+    stats: dict[str, float] = {
         "tasks": float(len(rows)),
-        "solved": float(sum(r["success"] for r in rows)),
-        "checks": float(sum(r["adapt"] for r in rows)),
-        "solve_only_checks": float(sum(r["baseline"] for r in rows)),
-        "ratio": float(cumulative_ratio(rows)[-1]),
-        "vertices": float(len(out.adapter.graph)),
-        "seconds": float(sum(r["seconds"] for r in rows)),
+        "solved": float(sum(int(r["success"]) for r in rows)),
+        "paths_ok": float(sum(int(r["path_ok"]) for r in rows)),
+        "checks": float(sum(float(r["adapt"]) for r in rows)),
+        "solve_calls": float(sum(int(r["solve_calls"]) for r in rows)),
+        "vertices": float(len(planner.graph)),
+        "edges": float(len(planner.graph.usable_edges())),
+        "generation": float(planner.world.gen),
+        "path_length": float(traj.duration),
+        "seconds": float(sum(float(r["seconds"]) for r in rows)),
     }
+    if options.baseline:
+        stats["solve_only_checks"] = float(sum(float(r["baseline"]) for r in rows))
+        if stats["solve_only_checks"] > 0:
+            stats["ratio"] = float(cumulative_ratio(rows)[-1])
+    failed = [(int(r["task"]), str(r["goal"])) for r in rows if not (r["success"] and r["path_ok"])]
     gc.collect()
-    ok = all(r["success"] and r["path_ok"] for r in rows)
-    return PlanResult(Status.SOLVED if ok else Status.STUCK, stats, rows)
+    ratio = f", cumulative cost ratio {stats['ratio']:.3f}" if "ratio" in stats else ""
+    if failed:
+        return Result(
+            Status.FAILED,
+            f"{len(failed)} of {len(rows)} tasks failed: {_task_list(failed)}",
+            stats=stats,
+            solution=planner,
+            trajectory=traj,
+        )
+    return Result(
+        Status.SOLVED,
+        f"{len(rows)} of {n_tasks} tasks solved with {int(stats['checks'])} collision checks, "
+        f"G has {len(planner.graph)} vertices{ratio}",
+        stats=stats,
+        solution=planner,
+        trajectory=traj,
+    )
 
 
-def _peer(peer: str, seed: int) -> PlanResult:
+def _run_peer(setup: Setup, options: PeerOptions, progress: Progress | None, peer: str) -> Result:
     from cellplan.adaptive.peers import run_peer
 
-    rows = run_peer(_fig4(), peer, tasks=3, seed=seed)
+    paths: list[TaskPath] = []
+    rows = run_peer(setup.scenario, peer, options.tasks, options.seed, paths, progress)
     gc.collect()
+    robot = setup.workcell.robot
+    traj = paths_trajectory(paths, robot.axis_names, {"scenario": setup.name}, robot.start)
     # PRM's counts depend on its threads' timing, so they carry the timing marker.
     key = "checks_time_dependent" if peer == "prm" else "checks"
     stats = {
         "tasks": float(len(rows)),
-        "solved": sum(r["success"] for r in rows),
-        key: sum(r["checks"] for r in rows),
+        "solved": float(sum(r["success"] for r in rows)),
+        key: float(sum(r["checks"] for r in rows)),
+        "path_length": float(traj.duration),
     }
-    ok = all(r["success"] for r in rows)
-    return PlanResult(Status.SOLVED if ok else Status.TIMEOUT, stats, rows)
-
-
-def smoke_rrtconnect(seed: int) -> PlanResult:
-    """OMPL RRTConnect from scratch on 3 tasks of the Figure 4 workcell."""
-    return _peer("rrtconnect", seed)
-
-
-def smoke_prm(seed: int) -> PlanResult:
-    """OMPL PRM with its roadmap kept, on 3 tasks of the Figure 4 workcell."""
-    return _peer("prm", seed)
-
-
-def smoke_reach(seed: int) -> PlanResult:
-    """Straight-line Reach between random goal configurations (counted)."""
-    from cellplan.adaptive.reach import reach
-    from cellplan.adaptive.space import PlanSpace
-    from cellplan.adaptive.world import World
-
-    world = World(_fig4(), math.radians(1.0))
-    space = PlanSpace(world.is_free, world.robot.lower, world.robot.upper, math.radians(1.0))
-    rng = np.random.default_rng(seed)
-    names = sorted(world.goals)
-    hits = 0
-    for _ in range(10):
-        a, b = rng.choice(len(names), 2, replace=False)
-        qa, qb = world.goal_config(names[a]), world.goal_config(names[b])
-        assert qa is not None and qb is not None
-        hits += reach(space, qa, qb)
-    return PlanResult(
+    failed = [
+        (int(r["task"]), p.goal) for r, p in zip(rows, paths, strict=True) if not r["success"]
+    ]
+    if failed:
+        return Result(
+            Status.FAILED,
+            f"{len(failed)} of {len(rows)} tasks failed: {_task_list(failed)}",
+            stats=stats,
+            trajectory=traj,
+        )
+    return Result(
         Status.SOLVED,
-        {"queries": 10.0, "successes": float(hits), "checks": float(space.counter.total)},
+        f"{len(rows)} tasks solved by {peer} with {int(stats[key])} collision checks",
+        stats=stats,
+        trajectory=traj,
     )
 
 
-PLANNERS: list[PlannerEntry] = [
-    PlannerEntry(
-        "adaptive.adapt",
-        "adaptive",
-        "Adapt with the experience graph, repair A0-A3 (Chen 1994)",
-        smoke_adapt,
-    ),
-    PlannerEntry(
-        "adaptive.reach",
-        "adaptive",
-        "Reach: straight joint-space line, bisection-order checks",
-        smoke_reach,
-    ),
-    PlannerEntry(
-        "adaptive.rrtconnect",
-        "adaptive",
-        "OMPL RRTConnect from scratch per task (Solve only)",
-        smoke_rrtconnect,
-    ),
-    PlannerEntry(
-        "adaptive.prm", "adaptive", "OMPL PRM with its roadmap kept across tasks", smoke_prm
-    ),
-]
+def run_rrtconnect(setup: Setup, options: PeerOptions, progress: Progress | None = None) -> Result:
+    """Solve alone: OMPL RRTConnect from scratch on every task."""
+    return _run_peer(setup, options, progress, "rrtconnect")
+
+
+def run_prm(setup: Setup, options: PeerOptions, progress: Progress | None = None) -> Result:
+    """OMPL PRM with its roadmap kept across the tasks (rebuilt after a change)."""
+    return _run_peer(setup, options, progress, "prm")
+
+
+def paths_trajectory(
+    paths: Sequence[TaskPath],
+    axis_names: Sequence[str],
+    meta: dict[str, Any],
+    position: Any,
+) -> Trajectory:
+    """The tasks' executed paths end to end, one mode per goal (see the module docstring).
+
+    With no task run in this call (a database that already holds every task), the
+    trajectory is one sample at the robot's ``position`` in mode ``idle``.
+    """
+    import numpy as np
+
+    from cellplan import units
+    from cellplan.adaptive.experience import task_trajectory
+    from cellplan.trajectory import Trajectory
+
+    if not paths:
+        q = np.asarray(position, dtype=float)[None, :]
+        return Trajectory(
+            np.zeros(1),
+            q,
+            np.zeros(1, dtype=np.int64),
+            ("idle",),
+            tuple(axis_names),
+            units.axis_units(axis_names),
+            "path",
+            (),
+            meta,
+        )
+    parts = [task_trajectory(axis_names, p.u, p.result, p.goal, p.changes, meta) for p in paths]
+    return Trajectory.concatenate(parts)
+
+
+def _meta(setup: Setup, planner: Any) -> dict[str, Any]:
+    return {
+        "scenario": setup.name,
+        "repair": planner.settings.repair,
+        "seed": int(planner.settings.seed),
+    }
+
+
+def _task_list(failed: Sequence[tuple[int, str]], shown: int = 8) -> str:
+    """``12 (g4), 40 (g7) ...``: the first failed tasks with their goals."""
+    text = ", ".join(f"{t} ({g})" for t, g in failed[:shown])
+    return text + (" ..." if len(failed) > shown else "")

@@ -7,8 +7,18 @@ their algorithm modules when they run.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
+from cellplan.adaptive.planners import (
+    AdaptiveOptions,
+    PeerOptions,
+    run_adaptive_planner,
+    run_prm,
+    run_rrtconnect,
+)
 from cellplan.adaptive.section import AdaptiveSection
-from cellplan.core import Package
+from cellplan.core import Package, PlannerSpec, ShowcaseItem
 
 TITLE = "Adaptive experience-graph planning in changing workcells"
 CITATION = (
@@ -23,6 +33,13 @@ SUMMARY = (
     "on-demand repair A3 is best, then A1, then A0, while A2 jumps and then approaches A3."
 )
 
+
+def _showcase(folder: Any) -> Sequence[ShowcaseItem]:
+    from cellplan.adaptive.showcase import showcase
+
+    return showcase(folder)
+
+
 PACKAGE = Package(
     name="adaptive",
     title=TITLE,
@@ -30,7 +47,37 @@ PACKAGE = Package(
     summary=SUMMARY,
     section="adaptive",
     section_model=AdaptiveSection,
-    planners=(),
+    planners=(
+        PlannerSpec(
+            name="adaptive",
+            package="adaptive",
+            summary="Adapt: experience graph with Reach, Solve (OMPL) and repair A0-A3 over "
+            "the scenario's tasks (Chen 1994)",
+            options=AdaptiveOptions,
+            run=run_adaptive_planner,
+            section="adaptive",
+            smoke=("adaptive_fig4", {"tasks": 6, "seed": 0}),
+        ),
+        PlannerSpec(
+            name="adaptive.rrtconnect",
+            package="adaptive",
+            summary="Solve only: OMPL RRTConnect from scratch on every task",
+            options=PeerOptions,
+            run=run_rrtconnect,
+            section="adaptive",
+            smoke=("adaptive_fig4", {"tasks": 3, "seed": 0}),
+        ),
+        PlannerSpec(
+            name="adaptive.prm",
+            package="adaptive",
+            summary="OMPL PRM with its roadmap kept across tasks (rebuilt after a change)",
+            options=PeerOptions,
+            run=run_prm,
+            section="adaptive",
+            smoke=("adaptive_fig4", {"tasks": 3, "seed": 0}),
+        ),
+    ),
+    showcase=_showcase,
     experiments="cellplan.adaptive.experiments",
     commands="cellplan.adaptive.commands",
     paper_runs=100,

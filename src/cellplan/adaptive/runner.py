@@ -12,18 +12,18 @@ continues from the saved state.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from cellplan import units
 from cellplan.adaptive.adapt import Adapter, Hook, Settings, TaskResult, derive_seed
-from cellplan.adaptive.counters import CheckCounter
+from cellplan.adaptive.experience import ExperiencePlanner
 from cellplan.adaptive.graph import ExperienceGraph
-from cellplan.adaptive.repair import STRATEGIES, repair
-from cellplan.adaptive.section import AdaptiveSection, RandomTasks
+from cellplan.adaptive.repair import STRATEGIES
+from cellplan.adaptive.section import AdaptiveSection, Change, RandomTasks
 from cellplan.adaptive.solve import solve_rrtconnect, solve_two_segment
 from cellplan.adaptive.store import ExperienceStore
 from cellplan.adaptive.world import World, preflight
@@ -42,19 +42,23 @@ def settings_for(scenario: Scenario, repair: str | None, seed: int | None) -> Se
         raise ArgumentError(
             f"unknown repair strategy {repair!r}; choose one of {', '.join(STRATEGIES)}", "--repair"
         )
-    resolution = sec.resolution
-    if scenario.robot is not None and scenario.robot.type == "arm":
-        resolution = math.radians(resolution)
     return Settings(
         repair=repair or sec.repair,
         solve=sec.solve,
         reach=sec.reach,
-        resolution=resolution,
+        resolution=resolution_in_code(scenario, sec.resolution),
         corner_cutting=sec.corner_cutting,
         max_chain=sec.max_chain,
         max_solve_checks=sec.max_solve_checks,
         seed=_task_seed(sec) if seed is None else seed,
     )
+
+
+def resolution_in_code(scenario: Scenario, resolution: float) -> float:
+    """The section's Reach step in code units: degrees become radians for an arm."""
+    if scenario.robot is not None and scenario.robot.type == "arm":
+        return float(units.radians(resolution))
+    return float(resolution)
 
 
 def _section(scenario: Scenario) -> AdaptiveSection:
@@ -91,12 +95,32 @@ def choose_goal(
 
 
 @dataclass
+class TaskPath:
+    """What the robot did in one task: from ``u``, the executed path (``None``: failed)."""
+
+    task: int
+    goal: str
+    u: np.ndarray
+    result: TaskResult
+    changes: list[str] = field(default_factory=list)
+
+
+@dataclass
 class RunOutcome:
-    """Rows of every task (saved ones included when continuing) and the final adapter."""
+    """Rows of every task (saved ones included when continuing) and the final planner.
+
+    ``paths`` holds the tasks run in this call (not those of a continued database).
+    """
 
     rows: list[Row] = field(default_factory=list)
-    adapter: Adapter | None = None
+    planner: ExperiencePlanner | None = None
     snapshots: list[Snapshot] = field(default_factory=list)
+    paths: list[TaskPath] = field(default_factory=list)
+
+    @property
+    def adapter(self) -> Adapter | None:
+        """Adapt's final state (``planner.adapter``)."""
+        return None if self.planner is None else self.planner.adapter
 
 
 def run_adaptive(
@@ -112,6 +136,10 @@ def run_adaptive(
 ) -> RunOutcome:
     """Run Adapt over the scenario's tasks; see the module docstring.
 
+    The tasks drive an :class:`~.experience.ExperiencePlanner`: each is a query from
+    where the robot stands to the task's named goal, after the changes scheduled
+    before it.
+
     Parameters
     ----------
     snapshot_at
@@ -122,43 +150,36 @@ def run_adaptive(
     settings = settings_for(scenario, repair_strategy, seed)
     n_tasks = task_count(scenario, tasks)
     preflight(scenario, settings.resolution)
-    world = World(scenario, settings.resolution)
-    counter = CheckCounter()
-    adapter = Adapter(world, settings, counter, hook)
+    planner = ExperiencePlanner(scenario, settings.repair, seed=settings.seed, hook=hook)
+    world, adapter, counter = planner.world, planner.adapter, planner.counter
     changes = sec.ordered_changes()
-    outcome = RunOutcome(adapter=adapter)
+    outcome = RunOutcome(planner=planner)
     u_base = adapter.u.copy()
     start_t = 0
     if store is not None:
+        if store.planner_state() is not None:
+            raise PersistenceError(
+                [
+                    Problem(
+                        str(store.path),
+                        "was continued by an ExperiencePlanner (its workcell no longer follows "
+                        "the scenario's schedule); use a new --db file",
+                    )
+                ]
+            )
         outcome.rows = store.task_rows()
         saved = store.state()
         if saved is not None:
             _check_resume(saved, settings)
+            restore_run(planner, store, saved)
             start_t = int(saved["tasks_done"])
-            for _, change in changes:
-                if change.after_task < start_t:
-                    world.apply(change)
-            if world.gen != int(saved["generation"]):
-                raise PersistenceError(
-                    [Problem(str(store.path), "generation does not match the scenario's changes")]
-                )
-            adapter.graph = store.load_graph()
-            links, links_gen = store.load_links()
-            if links_gen is not None:
-                adapter.goal_links, adapter._links_gen = links, links_gen
-            adapter.u = np.array(saved["u"], float)
-            adapter.u_hat = int(saved["u_hat"])
-            adapter.link_gen = int(saved["link_gen"])
-            adapter.repaired_gen = int(saved["repaired_gen"])
-            adapter.current_goal = saved["current_goal"]
-            adapter.tasks_done = start_t
-            adapter._solve_calls = int(saved["solve_calls"])
             u_base = np.array(saved["u_base"], float)
     for t in range(start_t, n_tasks):
-        before = counter.snapshot()
+        applied = []
         for i, change in changes:
             if change.after_task == t:
                 moved = world.apply(change)
+                applied.append(describe_change(change))
                 if not adapter.space.free(adapter.u[None, :])[0]:
                     raise ScenarioError(
                         [
@@ -169,19 +190,19 @@ def run_adaptive(
                         ]
                     )
                 adapter.follow_objects(moved)
-        repair(adapter, settings.repair)
         goal = choose_goal(sec, list(world.goals), t, adapter.current_goal, settings.seed)
         w = world.goal_config(goal)
         assert w is not None  # preflight checked every goal at every stage
-        res = adapter.task(goal, w)
-        after = counter.snapshot()
-        res.costs = {k: after[k] - before[k] for k in after}  # changes and repair included
+        u = adapter.u.copy()
+        res = planner.run_task(goal, w)  # changes and repair included in its costs
         adapter.tasks_done = t + 1
+        outcome.paths.append(TaskPath(t + 1, goal, u, res, applied))
         base_cost = 0
         if baseline:
             base_cost, ok = _baseline(adapter, settings, u_base, w, t)
             if ok:
                 u_base = w.copy()
+        planner._mark = counter.snapshot()
         row = _row(t, res, base_cost, world.gen)
         outcome.rows.append(row)
         if snapshot_at is not None and snapshot_at(t + 1):
@@ -212,7 +233,44 @@ def run_adaptive(
             store.commit_task(adapter.graph, state, row, adapter.links())
         if on_task is not None:
             on_task(t + 1, n_tasks, row)
+    planner.queries = n_tasks
+    planner.tasks = outcome.rows
+    planner.snapshots = outcome.snapshots
     return outcome
+
+
+def restore_run(planner: ExperiencePlanner, store: ExperienceStore, saved: dict[str, Any]) -> None:
+    """Bring a planner to the state a run saved: the scheduled changes up to the last task
+    done, then G, the remembered Reach answers and the pointers from the database."""
+    assert planner.scenario is not None
+    sec = _section(planner.scenario)
+    world, adapter = planner.world, planner.adapter
+    done = int(saved["tasks_done"])
+    for _, change in sec.ordered_changes():
+        if change.after_task < done:
+            world.apply(change)
+    if world.gen != int(saved["generation"]):
+        raise PersistenceError(
+            [Problem(str(store.path), "generation does not match the scenario's changes")]
+        )
+    adapter.graph = store.load_graph()
+    links, links_gen = store.load_links()
+    if links_gen is not None:
+        adapter.goal_links, adapter._links_gen = links, links_gen
+    adapter.u = np.array(saved["u"], float)
+    adapter.u_hat = int(saved["u_hat"])
+    adapter.link_gen = int(saved["link_gen"])
+    adapter.repaired_gen = int(saved["repaired_gen"])
+    adapter.current_goal = saved["current_goal"]
+    adapter.tasks_done = done
+    adapter._solve_calls = int(saved["solve_calls"])
+    planner.queries = done
+
+
+def describe_change(change: Change) -> str:
+    """``add_object O6``, ``move_object B``, ``remove_goal w3`` ... (an event's detail)."""
+    target = getattr(change, "object", None) or getattr(change, "goal", "")
+    return f"{change.type} {target}"
 
 
 def _goal_points(world: World) -> dict[str, tuple[float, float]]:

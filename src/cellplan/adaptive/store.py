@@ -14,6 +14,23 @@ Tables
 ``tasks(task, goal, success, ...)``
     One row of costs per task (for the CSV and continued runs).
 
+What a database is keyed on
+---------------------------
+A database belongs to one problem: ``robot_signature`` (the robot's spec) and
+``scenario_signature`` (workcell, robot, and the ``adaptive:`` section without the
+task list and the repair strategy). An :class:`~.experience.ExperiencePlanner` built
+on a bare :class:`~cellplan.workcell.Workcell` keys it on the workcell's own numbers
+instead (:func:`workcell_signatures`). Two kinds of state live in ``meta``:
+
+* ``state``: a scenario run (``cellplan adapt``, the ``adaptive`` planner): tasks done,
+  robot position, pointers, seed and repair strategy. A continued run replays the
+  scenario's scheduled changes up to ``tasks_done``.
+* ``planner``: an :class:`~.experience.ExperiencePlanner` session: the same pointers,
+  plus the objects of the changed world (shapes and poses) and the named goals, because
+  its changes (``add``, ``remove``, ``move``) are not in any file. A planner can open a
+  run's database (it continues from the graph and world after the last task); a run
+  refuses a database a planner has written to.
+
 Every task is committed in one transaction (:meth:`ExperienceStore.commit_task`),
 so a process killed mid-task leaves the database exactly as after the previous
 task. Opening checks the format and the signatures and refuses a file made for
@@ -35,7 +52,9 @@ import numpy as np
 from cellplan.adaptive.graph import EDGE_STATUSES, ExperienceGraph
 from cellplan.errors import PersistenceError, Problem
 from cellplan.fileio import atomic_path
+from cellplan.geometry import ShapeSet
 from cellplan.scenario import Scenario
+from cellplan.workcell import Workcell
 
 FORMAT = "cellplan-adaptive"
 SCHEMA_VERSION = 1
@@ -89,25 +108,76 @@ def signatures(scenario: Scenario) -> dict[str, str]:
     adaptive.pop("tasks", None)
     adaptive.pop("repair", None)
 
-    def digest(obj: Any) -> str:
-        return hashlib.sha256(
-            json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()
-        ).hexdigest()
-
     return {
-        "robot_signature": digest(data["robot"]),
-        "scenario_signature": digest(
+        "robot_signature": _digest(data["robot"]),
+        "scenario_signature": _digest(
             {"workcell": data["workcell"], "robot": data["robot"], "adaptive": adaptive}
         ),
     }
 
 
-class ExperienceStore:
-    """An open experience database."""
+def _digest(obj: Any) -> str:
+    return hashlib.sha256(
+        json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()
+    ).hexdigest()
 
-    def __init__(self, path: str | Path, scenario: Scenario) -> None:
+
+def workcell_signatures(cell: Workcell) -> dict[str, str]:
+    """Robot and workcell signatures of a bare workcell model (from its numbers)."""
+    robot = cell.robot
+    robot_data = {
+        "kind": robot.kind,
+        "axes": list(robot.axis_names),
+        "lower": robot.lower.tolist(),
+        "upper": robot.upper.tolist(),
+        "start": robot.start.tolist(),
+        "bodies": [shape_to_json(b) for b in robot.bodies.bodies],
+    }
+    return {
+        "robot_signature": _digest(robot_data),
+        "scenario_signature": _digest(
+            {
+                "bounds": list(cell.bounds),
+                "robot": robot_data,
+                "obstacles": {n: shape_to_json(s) for n, s in sorted(cell.obstacles.items())},
+            }
+        ),
+    }
+
+
+def shape_to_json(shape: ShapeSet) -> dict[str, Any]:
+    """A shape set as plain lists (exact: floats survive JSON)."""
+    return {
+        "verts": shape.verts.tolist(),
+        "counts": shape.counts.tolist(),
+        "centres": shape.centres.tolist(),
+        "radii": shape.radii.tolist(),
+    }
+
+
+def shape_from_json(data: Mapping[str, Any]) -> ShapeSet:
+    """The inverse of :func:`shape_to_json`."""
+    verts = np.asarray(data["verts"], dtype=float)
+    if verts.size == 0:
+        verts = np.zeros((0, 3, 2))
+    return ShapeSet(
+        verts,
+        np.asarray(data["counts"], dtype=np.int64),
+        np.asarray(data["centres"], dtype=float).reshape(-1, 2),
+        np.asarray(data["radii"], dtype=float),
+    )
+
+
+class ExperienceStore:
+    """An open experience database.
+
+    ``problem`` is the scenario the database belongs to, or the signatures to key it on
+    (:func:`signatures`, :func:`workcell_signatures`).
+    """
+
+    def __init__(self, path: str | Path, problem: Scenario | Mapping[str, str]) -> None:
         self.path = Path(path)
-        self._sig = signatures(scenario)
+        self._sig = dict(problem) if isinstance(problem, Mapping) else signatures(problem)
         fresh = not self.path.exists() or self.path.stat().st_size == 0
         if self.path.is_dir():
             raise PersistenceError([Problem(str(self.path), "is a folder, not a database file")])
@@ -241,6 +311,11 @@ class ExperienceStore:
             return None
         return dict(json.loads(raw["state"]))
 
+    def planner_state(self) -> dict[str, Any] | None:
+        """The saved :class:`~.experience.ExperiencePlanner` state, or ``None``."""
+        raw = self.meta().get("planner")
+        return None if raw is None else dict(json.loads(raw))
+
     def load_graph(self) -> ExperienceGraph:
         """The saved experience graph."""
         g = ExperienceGraph()
@@ -279,8 +354,9 @@ class ExperienceStore:
         state: Mapping[str, Any],
         row: Mapping[str, Any] | None,
         links: Mapping[tuple[int, str], bool] | None = None,
+        key: str = "state",
     ) -> None:
-        """Write G, the run state and one task row in a single transaction."""
+        """Write G, the run state (meta ``key``) and one task row in a single transaction."""
         with self.transaction() as c:
             c.execute("DELETE FROM vertices")
             c.execute("DELETE FROM edges")
@@ -316,7 +392,7 @@ class ExperienceStore:
             c.executemany(
                 "INSERT OR REPLACE INTO meta VALUES (?, ?)",
                 [
-                    ("state", json.dumps(dict(state))),
+                    (key, json.dumps(dict(state))),
                     ("next_id", str(graph.next_id)),
                     ("tasks_done", str(int(state["tasks_done"]))),
                 ],

@@ -12,12 +12,14 @@ environment generation that edge verification is stamped with.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from cellplan import units
 from cellplan.adaptive.section import (
     AdaptiveSection,
     AddGoal,
@@ -34,7 +36,6 @@ from cellplan.errors import Problem, ScenarioError
 from cellplan.geometry import ShapeSet
 from cellplan.robots import PlanarArm, Robot
 from cellplan.scenario import Scenario
-from cellplan.schema import Shape
 from cellplan.workcell import Workcell
 
 Pose = tuple[float, float, float]
@@ -63,7 +64,9 @@ class Tag:
 
 @dataclass
 class ObjectState:
-    shape: Shape
+    """An object's shape in its own coordinates and the pose that places it in the world."""
+
+    shape: ShapeSet
     pose: Pose = (0.0, 0.0, 0.0)
 
 
@@ -81,34 +84,57 @@ def certified_margin(robot: Robot, resolution: float) -> float:
 
 
 class World:
-    """Objects, goals and robot of one adaptive scenario, changing over the tasks.
+    """Objects, goals and robot of one adaptive problem, changing over the tasks.
 
     With ``resolution`` (the Reach step, radians or units), configurations are
-    tested with the :func:`certified_margin` clearance.
+    tested with the :func:`certified_margin` clearance. A scenario without an
+    ``adaptive:`` section (or a bare workcell, :meth:`from_workcell`) gives a world
+    with no named goals whose subgoals attach to the nearest object.
     """
 
+    attach_radius: float | None
+    """Subgoals attach to the nearest object within this distance (``None``: always)."""
+
     def __init__(self, scenario: Scenario, resolution: float | None = None) -> None:
-        if scenario.adaptive is None:
-            raise ScenarioError([Problem("adaptive", "the scenario has no adaptive section")])
-        self.scenario = scenario
-        self.section: AdaptiveSection = scenario.adaptive
-        self.base_cell = Workcell.from_scenario(scenario)
-        self.robot: Robot = self.base_cell.robot
+        self.scenario: Scenario | None = scenario
+        self.section: AdaptiveSection | None = scenario.adaptive
+        cell = Workcell.from_scenario(scenario)
+        objects = {n: ShapeSet.from_spec(s) for n, s in scenario.workcell.obstacles.items()}
+        self._init(cell, objects, resolution)
+        if self.section is not None:
+            self.attach_radius = self.section.attach_radius
+            for name, goal in self.section.goals.items():
+                self.goals[name] = self._goal_tag(goal)
+
+    @classmethod
+    def from_workcell(
+        cls, cell: Workcell, resolution: float | None = None, attach_radius: float | None = None
+    ) -> World:
+        """A world over a workcell model alone: its obstacles become the objects, no goals."""
+        world = cls.__new__(cls)
+        world.scenario = None
+        world.section = None
+        world._init(cell, dict(cell.obstacles), resolution)
+        world.attach_radius = attach_radius
+        return world
+
+    def _init(self, cell: Workcell, objects: dict[str, ShapeSet], resolution: float | None) -> None:
+        self.base_cell = cell
+        self.robot: Robot = cell.robot
         self.margin = 0.0 if resolution is None else certified_margin(self.robot, resolution)
-        self.objects = {n: ObjectState(s) for n, s in scenario.workcell.obstacles.items()}
+        self.objects = {n: ObjectState(s) for n, s in objects.items()}
         self.goals: dict[str, Tag] = {}
+        self.attach_radius = None
         self.gen = 0
         self._cell: Workcell | None = None
         self._geoms: dict[str, BaseGeometry] | None = None
-        for name, goal in self.section.goals.items():
-            self.goals[name] = self._goal_tag(goal)
 
     # --- geometry -------------------------------------------------------------------------
 
     def world_shape(self, name: str) -> ShapeSet:
         """An object's shape set in the world."""
         st = self.objects[name]
-        return ShapeSet.from_spec(st.shape).transformed(st.pose)
+        return st.shape.transformed(st.pose)
 
     def geometries(self) -> dict[str, BaseGeometry]:
         """Shapely geometry of every object in the world (for distances and drawing)."""
@@ -155,7 +181,7 @@ class World:
         """Attach a configuration to the nearest object (within ``attach_radius``), Section 2.3."""
         pose = self.tool(q)
         obj, dist = self.nearest_object(pose[0], pose[1])
-        radius = self.section.attach_radius
+        radius = self.attach_radius
         if obj is None or (radius is not None and dist > radius):
             return Tag(None, pose, self.branch(q))
         return Tag(obj, compose(inverse(self.objects[obj].pose), pose), self.branch(q))
@@ -182,7 +208,7 @@ class World:
         return q if bool(robot.within_limits(q[None, :])[0]) else None
 
     def _goal_tag(self, goal: GoalSpec) -> Tag:
-        phi = math.radians(goal.orientation) if goal.orientation is not None else 0.0
+        phi = units.radians(goal.orientation) if goal.orientation is not None else 0.0
         pose: Pose = (float(goal.at[0]), float(goal.at[1]), phi)
         if goal.object is None:
             return Tag(None, pose, goal.elbow)
@@ -210,16 +236,16 @@ class World:
     # --- changes --------------------------------------------------------------------------
 
     def apply(self, change: Change) -> set[str]:
-        """Apply one change; the names of objects whose pose changed (their tags move)."""
-        moved: set[str] = set()
+        """Apply one scheduled change; the names of objects whose pose changed (tags move)."""
         if isinstance(change, AddObject):
-            self.objects[change.object] = ObjectState(change.shape)
+            self.add_object(change.object, ShapeSet.from_spec(change.shape))
         elif isinstance(change, RemoveObject):
-            del self.objects[change.object]
+            self.remove_object(change.object)
         elif isinstance(change, MoveObject):
             st = self.objects[change.object]
-            st.pose = (st.pose[0] + change.by[0], st.pose[1] + change.by[1], st.pose[2])
-            moved.add(change.object)
+            return self.set_pose(
+                change.object, (st.pose[0] + change.by[0], st.pose[1] + change.by[1], st.pose[2])
+            )
         elif isinstance(change, RotateObject):
             st = self.objects[change.object]
             if change.about is None:
@@ -227,19 +253,50 @@ class World:
                 cx, cy = float(c.x), float(c.y)
             else:
                 cx, cy = change.about
-            turn: Pose = (0.0, 0.0, math.radians(change.degrees))
-            st.pose = compose((cx, cy, 0.0), compose(turn, compose((-cx, -cy, 0.0), st.pose)))
-            moved.add(change.object)
+            turn: Pose = (0.0, 0.0, units.radians(change.degrees))
+            return self.set_pose(
+                change.object,
+                compose((cx, cy, 0.0), compose(turn, compose((-cx, -cy, 0.0), st.pose))),
+            )
         elif isinstance(change, AddGoal):
             self.goals[change.goal] = self._goal_tag(change.spec())
         elif isinstance(change, RemoveGoal):
             del self.goals[change.goal]
-        if isinstance(change, AddObject | RemoveObject | MoveObject | RotateObject):
-            self.gen += 1
-            self._collider = None
-            self._cell = None
-            self._geoms = None
-        return moved
+        return set()
+
+    # The three primitives every environment change goes through (scheduled changes and
+    # ExperiencePlanner.add / remove / move alike); each starts a new generation.
+
+    def add_object(self, name: str, shape: ShapeSet, pose: Pose = (0.0, 0.0, 0.0)) -> None:
+        """Add an object: ``shape`` in its own coordinates, placed at ``pose``."""
+        self.objects[name] = ObjectState(shape, pose)
+        self._changed()
+
+    def remove_object(self, name: str) -> None:
+        """Remove an object (subgoals attached to it stay where they are)."""
+        del self.objects[name]
+        self._changed()
+
+    def set_pose(self, name: str, pose: Pose) -> set[str]:
+        """Place an object at ``pose``; returns ``{name}`` (its attached tags move with it)."""
+        self.objects[name].pose = (float(pose[0]), float(pose[1]), float(pose[2]))
+        self._changed()
+        return {name}
+
+    def restore(
+        self, objects: Mapping[str, tuple[ShapeSet, Pose]], goals: Mapping[str, Tag], gen: int
+    ) -> None:
+        """Replace the objects, goals and generation (a saved world being reopened)."""
+        self.objects = {n: ObjectState(shape, pose) for n, (shape, pose) in objects.items()}
+        self.goals = dict(goals)
+        self.gen = gen
+        self._cell = None
+        self._geoms = None
+
+    def _changed(self) -> None:
+        self.gen += 1
+        self._cell = None
+        self._geoms = None
 
 
 def preflight(scenario: Scenario, resolution: float | None = None) -> None:
@@ -252,6 +309,7 @@ def preflight(scenario: Scenario, resolution: float | None = None) -> None:
     """
     world = World(scenario, resolution)
     problems = world.goal_problems("adaptive.goals")
+    assert world.section is not None
     for i, change in world.section.ordered_changes():
         world.apply(change)
         for p in world.goal_problems(

@@ -1,0 +1,573 @@
+"""Plan once, query cheaply: Adapt (Chen 1994, Figure 1) as a query planner.
+
+:class:`ExperiencePlanner` keeps the experience graph G of one workcell and answers
+``plan(start, goal)`` against it, in the spirit of OMPL's Lightning and Thunder
+frameworks (which the pip bindings of OMPL do not offer):
+
+1. the robot is put at ``start``: if it is not where the last query ended, the first
+   vertex of G by h that Reach connects to ``start`` becomes the pointer û, or
+   ``start`` becomes a new vertex (T's step 2 then connects it with Solve);
+2. Repair(G) for the chosen strategy (A0-A3, Section 2.5) if the workcell changed;
+3. one pass of Figure 1's loop: R(u, w), else S(u, w) with Solve, Abstract and
+   Augment, then T(u, w) and corner cutting (Section 2.6);
+4. the executed path ``u, û, Γ, ŵ, w`` comes back as the Result's trajectory.
+
+Environment changes (:meth:`~ExperiencePlanner.add`, :meth:`~ExperiencePlanner.remove`,
+:meth:`~ExperiencePlanner.move`) go through the same :class:`~.world.World` primitives
+as a scenario's scheduled ``changes:``; subgoals attached to a moved object follow it
+(Section 2.3) and the next query repairs G. With ``db`` the graph, the pointers and
+the changed world are written to the SQLite experience database after every query and
+change (one transaction each), so a later session continues with the same graph.
+
+The scenario task list (:func:`~.runner.run_adaptive`) drives the same object: each
+task is a query from where the robot stands to a named goal.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from pydantic import TypeAdapter, ValidationError
+
+from cellplan import units
+from cellplan.adaptive.adapt import Adapter, Hook, Settings, TaskResult
+from cellplan.adaptive.counters import CheckCounter
+from cellplan.adaptive.graph import ExperienceGraph
+from cellplan.adaptive.repair import STRATEGIES, repair
+from cellplan.adaptive.section import AdaptiveSection
+from cellplan.adaptive.space import FloatArray
+from cellplan.adaptive.world import Pose, Tag, World
+from cellplan.core import Result, Status
+from cellplan.errors import ArgumentError, PersistenceError, Problem
+from cellplan.geometry import ShapeSet
+from cellplan.scenario import Scenario
+from cellplan.schema import Shape
+from cellplan.setup import Setup, as_setup
+from cellplan.trajectory import Event, Trajectory
+from cellplan.workcell import Workcell
+
+if TYPE_CHECKING:
+    from cellplan.adaptive.runner import Snapshot
+
+PLANNER_STATE = "planner"
+
+
+def default_settings(is_arm: bool, repair_strategy: str, seed: int) -> Settings:
+    """Settings for a problem without an ``adaptive:`` section: the section's defaults."""
+    fields = AdaptiveSection.model_fields
+
+    def default(name: str) -> Any:
+        return fields[name].default
+
+    resolution = float(default("resolution"))
+    return Settings(
+        repair=repair_strategy,
+        solve=default("solve"),
+        reach=default("reach"),
+        resolution=float(units.radians(resolution)) if is_arm else resolution,
+        corner_cutting=default("corner_cutting"),
+        max_chain=default("max_chain"),
+        max_solve_checks=default("max_solve_checks"),
+        seed=seed,
+    )
+
+
+class ExperiencePlanner:
+    """Adapt's experience graph as a multi-query planner (Chen 1994, Figure 1).
+
+    Parameters
+    ----------
+    problem
+        A :class:`~cellplan.setup.Setup` (what :func:`cellplan.load` returns), a
+        scenario, a scenario path or bundled name, or a bare
+        :class:`~cellplan.workcell.Workcell`. The scenario's ``adaptive:`` section, if
+        any, supplies the named goals, ``attach_radius`` and the planner settings;
+        otherwise the section's defaults apply.
+    repair
+        Repair strategy after a workcell change: ``A0`` forget, ``A1`` verify every
+        edge, ``A2`` repair actively, ``A3`` repair on demand (Section 2.5).
+    db
+        Path of the SQLite experience database; continued if it exists (see
+        :mod:`.store` for what it is keyed on). ``None``: in memory.
+    resolution
+        Reach step in code units (radians for an arm, workcell units for a point
+        robot); ``None``: the section's value (its ``resolution`` is in degrees for an
+        arm and converted here).
+    seed
+        Seed of Solve (OMPL's RNG is reseeded from it before every call).
+
+    Attributes
+    ----------
+    world
+        The current workcell: objects with poses, named goals, generation.
+    adapter
+        Adapt's state: G (``adapter.graph``), the robot position, the pointers.
+    counter
+        Collision checks per category (the paper's cost measure).
+    tasks
+        When a scenario run drove the planner (the ``adaptive`` planner, ``cellplan
+        adapt``): one row per task (goal, success, the cost split, the Solve-only
+        baseline, |V| ...); empty otherwise.
+    snapshots
+        Copies of G with the workcell after selected tasks of such a run (for pictures).
+    """
+
+    def __init__(
+        self,
+        problem: Setup | Scenario | Workcell | str | Path,
+        repair: str = "A3",
+        db: str | Path | None = None,
+        resolution: float | None = None,
+        seed: int | None = 0,
+        *,
+        hook: Hook | None = None,
+    ) -> None:
+        from cellplan.adaptive.runner import settings_for
+        from cellplan.adaptive.store import ExperienceStore, signatures, workcell_signatures
+
+        if repair not in STRATEGIES:
+            raise ArgumentError(
+                f"unknown repair strategy {repair!r}; choose one of {', '.join(STRATEGIES)}",
+                "repair",
+            )
+        if resolution is not None and not (np.isfinite(resolution) and resolution > 0):
+            raise ArgumentError(f"must be a positive number, got {resolution!r}", "resolution")
+        if isinstance(problem, Workcell):
+            self.scenario: Scenario | None = None
+            is_arm = problem.robot.kind == "arm"
+            settings = default_settings(is_arm, repair, seed or 0)
+            if resolution is not None:
+                settings.resolution = float(resolution)
+            self.world = World.from_workcell(problem, settings.resolution)
+            sig = workcell_signatures(problem)
+            self.name = problem.name
+        else:
+            setup = as_setup(problem)
+            sc = setup.scenario
+            self.scenario = sc
+            if sc.adaptive is not None:
+                settings = settings_for(sc, repair, seed)
+            else:
+                settings = default_settings(
+                    sc.robot is not None and sc.robot.type == "arm", repair, seed or 0
+                )
+            if resolution is not None:
+                settings.resolution = float(resolution)
+            self.world = World(sc, settings.resolution)
+            sig = signatures(sc)
+            self.name = setup.name
+        self.settings = settings
+        self.counter = CheckCounter()
+        self.adapter = Adapter(self.world, settings, self.counter, hook)
+        self.queries = 0
+        self.tasks: list[dict[str, Any]] = []
+        self.snapshots: list[Snapshot] = []
+        self._mark = self.counter.snapshot()
+        self.store: ExperienceStore | None = None
+        if db is not None:
+            self.store = ExperienceStore(db, sig)
+            try:
+                self._restore()
+            except BaseException:
+                self.store.close()
+                raise
+
+    # --- the graph -------------------------------------------------------------------------
+
+    @property
+    def graph(self) -> ExperienceGraph:
+        """The experience graph G (vertices: subgoals; edges: verified Reach segments)."""
+        return self.adapter.graph
+
+    @property
+    def position(self) -> FloatArray:
+        """Where the robot is: the end of the last successful query (radians for angles)."""
+        return self.adapter.u.copy()
+
+    @property
+    def goals(self) -> dict[str, FloatArray | None]:
+        """The named goals' configurations in the current workcell (``None``: no IK)."""
+        return {n: self.world.goal_config(n) for n in sorted(self.world.goals)}
+
+    def stats(self) -> dict[str, float]:
+        """G's size, the checks made so far, Solve calls, queries and the generation."""
+        return {**self.adapter.stats(), "queries": float(self.queries)}
+
+    def __repr__(self) -> str:
+        g = self.graph
+        return (
+            f"ExperiencePlanner({self.name!r}, repair={self.settings.repair!r}, "
+            f"|V|={len(g)}, |E|={len(g.usable_edges())}, queries={self.queries})"
+        )
+
+    # --- queries ---------------------------------------------------------------------------
+
+    def plan(self, start: ArrayLike | None, goal: ArrayLike | str) -> Result:
+        """A path from ``start`` to ``goal`` through the experience graph.
+
+        Parameters
+        ----------
+        start
+            Configuration (radians for angles), or ``None`` for :attr:`position`.
+        goal
+            Configuration, or the name of a goal of the scenario's ``adaptive:``
+            section (then it follows its object, Section 2.3).
+
+        Returns
+        -------
+        Result
+            ``solved`` with the executed path as the trajectory (``t`` the cumulative
+            joint-space path length), or ``failed`` (Solve found no path within its
+            check budget) with a one-sample trajectory at ``start``. ``stats`` counts
+            this query's collision checks (changes and repair since the last query
+            included), Solve calls, G's size and the wall time.
+
+        Raises
+        ------
+        ArgumentError
+            A malformed configuration, an angle in degrees, a configuration outside
+            the joint limits or in collision (naming the obstacle), an unknown goal.
+        """
+        w, key, label = self._goal(goal)
+        u = self.position if start is None else self._configuration(start, "start")
+        res = self.run_task(key, w, start=u)
+        self.adapter.tasks_done += 1  # Solve's seeds derive from (seed, task, call)
+        result = self._result(res, u, label)
+        self.save()
+        return result
+
+    def run_task(self, key: str, w: FloatArray, start: FloatArray | None = None) -> TaskResult:
+        """One task of Figure 1's loop: robot to ``start``, Repair(G), R / S, T, execute.
+
+        ``key`` names the goal for R's memory of Reach(v, goal) answers within a
+        generation (a goal name, or the exact configuration). The costs of the
+        returned :class:`~.adapt.TaskResult` include the changes and the repair made
+        since the previous task.
+        """
+        t0 = time.perf_counter()
+        if start is not None:
+            self._put_robot(start)
+        repair(self.adapter, self.settings.repair)
+        res = self.adapter.task(key, w)
+        after = self.counter.snapshot()
+        res.costs = {k: after[k] - self._mark[k] for k in after}
+        res.seconds = time.perf_counter() - t0
+        self._mark = after
+        self.queries += 1
+        return res
+
+    def _put_robot(self, q: FloatArray) -> None:
+        """Move the robot to ``q``; û becomes a vertex Reach connects to it, or ``q`` itself."""
+        ad = self.adapter
+        if np.array_equal(q, ad.u):
+            return
+        ad.u = q.copy()
+        found = ad.plan_r(q)
+        ad.u_hat = found if found is not None else ad.new_vertex(q)
+        ad.link_gen = ad.gen
+
+    def _result(self, res: TaskResult, u: FloatArray, label: str) -> Result:
+        ok = res.success and res.path_ok
+        traj = task_trajectory(self.world.robot.axis_names, u, res, label, meta=self._meta())
+        checks = sum(v for k, v in res.costs.items() if k != "baseline")
+        stats = {
+            "checks": float(checks),
+            **{f"{k}_checks": float(v) for k, v in res.costs.items() if k != "baseline"},
+            "solve_calls": float(res.solve_calls),
+            "vertices": float(res.vertices),
+            "edges": float(res.edges),
+            "path_length": float(traj.t[-1] - traj.t[0]),
+            "generation": float(self.world.gen),
+            "seconds": float(res.seconds),
+        }
+        if ok:
+            message = (
+                f"reached {label} along {len(traj) - 1} straight segment"
+                f"{'' if len(traj) == 2 else 's'} "
+                f"({checks} collision checks, {res.solve_calls} Solve calls, |V|={res.vertices})"
+            )
+            status = Status.SOLVED
+        elif res.success:
+            message = f"reached {label}, but the executed path failed the 4x finer re-check"
+            status = Status.FAILED
+        else:
+            message = (
+                f"no path to {label}: {res.note} within {self.settings.max_solve_checks} "
+                "checks per Solve call"
+            )
+            status = Status.FAILED
+        return Result(status, message, "", stats, self, traj)
+
+    def _meta(self) -> dict[str, str | int | float | bool]:
+        return {
+            "scenario": self.name,
+            "repair": self.settings.repair,
+            "seed": int(self.settings.seed),
+        }
+
+    # --- configurations ---------------------------------------------------------------------
+
+    def _goal(self, goal: ArrayLike | str) -> tuple[FloatArray, str, str]:
+        if isinstance(goal, str):
+            if goal not in self.world.goals:
+                known = ", ".join(sorted(self.world.goals)) or "none"
+                raise ArgumentError(f"unknown goal {goal!r} (goals: {known})", "goal")
+            w = self.world.goal_config(goal)
+            if w is None:
+                raise ArgumentError(
+                    f"goal {goal!r} has no inverse-kinematics solution on its elbow branch now",
+                    "goal",
+                )
+            self._check_free(w, "goal")
+            return w, goal, goal
+        w = self._configuration(goal, "goal")
+        # Reach(v, w) answers are remembered per goal key; the exact bytes make a sound key.
+        key = "q=" + ",".join(repr(float(x)) for x in w)
+        return w, key, "the goal"
+
+    def _configuration(self, q: ArrayLike, name: str) -> FloatArray:
+        arr = units.check_configurations(q, self.world.robot.axis_names, name)
+        if arr.shape[0] != 1:
+            raise ArgumentError(f"expected one configuration, got {arr.shape[0]}", name)
+        out = np.asarray(arr[0], dtype=float)
+        self._check_free(out, name)
+        return out
+
+    def _check_free(self, q: FloatArray, name: str) -> None:
+        """One clear line when ``q`` is outside the limits, the bounds, or in collision."""
+        world, robot = self.world, self.world.robot
+        shown = "(" + ", ".join(f"{v:.4g}" for v in q) + ")"
+        if not robot.within_limits(q[None, :])[0]:
+            lim = ", ".join(
+                f"{a} [{lo:.4g}, {hi:.4g}]"
+                for a, lo, hi in zip(robot.axis_names, robot.lower, robot.upper, strict=True)
+            )
+            raise ArgumentError(f"configuration {shown} is outside the joint limits: {lim}", name)
+        empty = world.base_cell.with_obstacles({})
+        if empty.collides(q[None, :], avoid_sources="none")[0]:
+            raise ArgumentError(f"configuration {shown} leaves the workcell bounds", name)
+        for margin, how in ((0.0, "collides with"), (world.margin, "is within the clearance")):
+            hits = [
+                n
+                for n in sorted(world.objects)
+                if world.base_cell.with_obstacles({n: world.world_shape(n)}).collides(
+                    q[None, :], avoid_sources="none", margin=margin
+                )[0]
+            ]
+            if hits and margin == 0.0:
+                names = ", ".join(repr(h) for h in hits)
+                raise ArgumentError(f"configuration {shown} {how} obstacle {names}", name)
+            if hits:
+                raise ArgumentError(
+                    f"configuration {shown} {how} margin {margin:.3g} of obstacle {hits[0]!r} "
+                    "(Reach certifies its segments with this clearance; a finer resolution "
+                    "shrinks it)",
+                    name,
+                )
+        if not world.is_free(q[None, :])[0]:
+            raise ArgumentError(
+                f"configuration {shown} is within the clearance margin of the workcell bounds",
+                name,
+            )
+
+    # --- environment changes ----------------------------------------------------------------
+
+    def add(self, name: str, shape: Any, pose: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+        """Add an object: ``shape`` as in a scenario file (``{"type": "box", "min": ...,
+        "max": ...}``, a polygon or a disc) or a :class:`~cellplan.geometry.ShapeSet`,
+        placed at ``pose = (x, y, theta)`` (theta in radians) from its own coordinates."""
+        if name in self.world.objects:
+            raise ArgumentError(f"object {name!r} already exists", "name")
+        shape_set = _shape_set(shape)
+        self.world.add_object(name, shape_set, _pose(pose))
+        self._changed(set())
+
+    def remove(self, name: str) -> None:
+        """Remove an object (subgoals attached to it stay where they are, in the world)."""
+        self._known_object(name)
+        attached = sorted(g for g, tag in self.world.goals.items() if tag.obj == name)
+        if attached:
+            raise ArgumentError(
+                f"goals {', '.join(attached)} are attached to {name!r}; it cannot be removed",
+                "name",
+            )
+        self.world.remove_object(name)
+        self._changed(set())
+
+    def move(self, name: str, pose: Sequence[float]) -> None:
+        """Place object ``name`` at ``pose = (x, y, theta)`` relative to its original
+        coordinates (``(0, 0, 0)``: where the scenario put it); theta in radians.
+        Subgoals and goals attached to it move with it (Section 2.3)."""
+        self._known_object(name)
+        moved = self.world.set_pose(name, _pose(pose))
+        self._changed(moved)
+
+    def pose(self, name: str) -> Pose:
+        """The current pose of an object (relative to its original coordinates)."""
+        self._known_object(name)
+        return self.world.objects[name].pose
+
+    def _known_object(self, name: str) -> None:
+        if name not in self.world.objects:
+            known = ", ".join(sorted(self.world.objects)) or "none"
+            raise ArgumentError(f"unknown object {name!r} (objects: {known})", "name")
+
+    def _changed(self, moved: set[str]) -> None:
+        self.adapter.follow_objects(moved)
+        self.save()
+
+    # --- persistence ------------------------------------------------------------------------
+
+    def state(self) -> dict[str, Any]:
+        """The session state written to the database (JSON values)."""
+        from cellplan.adaptive.store import shape_to_json
+
+        ad, world = self.adapter, self.world
+        return {
+            "tasks_done": self.queries,
+            "generation": world.gen,
+            "u": [float(x) for x in ad.u],
+            "u_hat": ad.u_hat,
+            "link_gen": ad.link_gen,
+            "repaired_gen": ad.repaired_gen,
+            "current_goal": ad.current_goal,
+            "solve_calls": ad._solve_calls,
+            "resolution": self.settings.resolution,
+            "counts": dict(self.counter.counts),
+            "objects": {
+                n: {"shape": shape_to_json(st.shape), "pose": list(st.pose)}
+                for n, st in sorted(world.objects.items())
+            },
+            "goals": {n: [t.obj, list(t.rel), t.branch] for n, t in sorted(world.goals.items())},
+        }
+
+    def save(self) -> None:
+        """Write G and the session state to the database (no-op without ``db``)."""
+        if self.store is not None:
+            self.store.commit_task(
+                self.graph, self.state(), None, self.adapter.links(), key=PLANNER_STATE
+            )
+
+    def close(self) -> None:
+        """Save and close the database (idempotent)."""
+        if self.store is not None:
+            self.save()
+            self.store.close()
+            self.store = None
+
+    def __enter__(self) -> ExperiencePlanner:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _restore(self) -> None:
+        from cellplan.adaptive.runner import restore_run
+        from cellplan.adaptive.store import shape_from_json
+
+        store = self.store
+        assert store is not None
+        saved = store.planner_state()
+        if saved is None:
+            run = store.state()
+            if run is not None and self.scenario is not None:
+                restore_run(self, store, run)
+            return
+        if not np.isclose(float(saved["resolution"]), self.settings.resolution, rtol=1e-12):
+            raise ArgumentError(
+                f"the database was built with resolution {saved['resolution']:g}, "
+                f"not {self.settings.resolution:g}",
+                "resolution",
+            )
+        world, ad = self.world, self.adapter
+        world.restore(
+            {
+                n: (shape_from_json(o["shape"]), _pose(o["pose"]))
+                for n, o in saved["objects"].items()
+            },
+            {
+                n: Tag(obj, (float(r[0]), float(r[1]), float(r[2])), branch)
+                for n, (obj, r, branch) in saved["goals"].items()
+            },
+            int(saved["generation"]),
+        )
+        ad.graph = store.load_graph()
+        links, links_gen = store.load_links()
+        if links_gen is not None:
+            ad.goal_links, ad._links_gen = links, links_gen
+        else:
+            ad.goal_links, ad._links_gen = {}, world.gen
+        ad.u = np.array(saved["u"], float)
+        ad.u_hat = int(saved["u_hat"])
+        ad.link_gen = int(saved["link_gen"])
+        ad.repaired_gen = int(saved["repaired_gen"])
+        ad.current_goal = saved["current_goal"]
+        ad._solve_calls = int(saved["solve_calls"])
+        self.queries = int(saved["tasks_done"])
+        ad.tasks_done = self.queries
+        self.counter.counts.update({k: int(v) for k, v in saved["counts"].items()})
+        self._mark = self.counter.snapshot()
+        if ad.u_hat not in ad.graph.vertices:
+            raise PersistenceError([Problem(str(store.path), "is damaged: û is not a vertex")])
+
+
+def task_trajectory(
+    axis_names: Sequence[str],
+    u: FloatArray,
+    res: TaskResult,
+    label: str,
+    changes: Sequence[str] = (),
+    meta: Mapping[str, str | int | float | bool] | None = None,
+) -> Trajectory:
+    """One task's executed path as a trajectory (mode = the goal).
+
+    ``t`` is the cumulative joint-space path length; events: ``change`` (the workcell
+    changes applied before the task), ``task`` at the start, ``arrive`` at the end, or
+    ``fail`` (then the robot stays at ``u``: one sample).
+    """
+    path = res.path if res.success and res.path is not None else np.asarray(u, float)[None, :]
+    steps = np.linalg.norm(np.diff(path, axis=0), axis=1) if len(path) > 1 else np.zeros(0)
+    t = np.concatenate([[0.0], np.cumsum(steps)])
+    events = [Event(0, "change", c) for c in changes]
+    events.append(Event(0, "task", label))
+    events.append(Event(len(path) - 1, "arrive" if res.success else "fail", label))
+    return Trajectory(
+        t,
+        path,
+        np.zeros(len(path), dtype=np.int64),
+        (label,),
+        tuple(axis_names),
+        units.axis_units(axis_names),
+        "path",
+        tuple(events),
+        dict(meta or {}),
+    )
+
+
+def _pose(pose: Sequence[float]) -> Pose:
+    try:
+        values = [float(v) for v in pose]
+    except (TypeError, ValueError):
+        raise ArgumentError("expected (x, y, theta) numbers", "pose") from None
+    if len(values) != 3 or not all(np.isfinite(values)):
+        raise ArgumentError(f"expected three finite numbers (x, y, theta), got {pose!r}", "pose")
+    return (values[0], values[1], values[2])
+
+
+def _shape_set(shape: Any) -> ShapeSet:
+    if isinstance(shape, ShapeSet):
+        return shape
+    try:
+        spec = TypeAdapter(Shape).validate_python(shape)
+    except ValidationError as exc:
+        first = exc.errors(include_url=False)[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise ArgumentError(
+            f"{where}: {first['msg']}" if where else first["msg"], "shape"
+        ) from None
+    return ShapeSet.from_spec(spec)
