@@ -11,9 +11,12 @@ The planning API::
 
 :func:`planners` lists every registered planner with its options; :func:`make` builds one
 without running it. Each paper package registers its planners (:mod:`cellplan.strategies`,
-:mod:`cellplan.adaptive`, :mod:`cellplan.assembly`); :func:`simulate` runs a solved
-strategy in the stochastic assembly process and :class:`ExperiencePlanner` answers
-start-to-goal queries against an experience graph.
+:mod:`cellplan.adaptive`, :mod:`cellplan.assembly`). Two conveniences are imported on
+first use, so that ``import cellplan`` loads no numba kernel or OMPL:
+``cellplan.simulate`` (:func:`cellplan.strategies.simulate.simulate_result`) runs a solved
+strategy in the stochastic assembly process, and ``cellplan.ExperiencePlanner``
+(:class:`cellplan.adaptive.ExperiencePlanner`) answers start-to-goal queries against an
+experience graph.
 """
 
 from typing import TYPE_CHECKING, Any
@@ -28,14 +31,13 @@ from cellplan.setup import Setup
 from cellplan.trajectory import Event, Trajectory
 
 if TYPE_CHECKING:
-    from cellplan.adaptive import ExperiencePlanner
+    from cellplan.adaptive import ExperiencePlanner as ExperiencePlanner
     from cellplan.strategies.simulate import simulate_result as simulate
 
 __all__ = [
     "ArgumentError",
     "CellplanError",
     "Event",
-    "ExperiencePlanner",
     "PersistenceError",
     "Planner",
     "Problem",
@@ -50,7 +52,6 @@ __all__ = [
     "make",
     "plan",
     "planners",
-    "simulate",
     "units",
 ]
 __version__ = "0.1.0"

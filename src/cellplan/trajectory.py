@@ -44,6 +44,8 @@ EVENT_KINDS = (
     "pick",  # FMP that picks a part up (strategies)
     "place",  # FMP that delivers a part (strategies)
     "fmp_refused",  # the exact region test refused an FMP the grid allowed (strategies)
+    "source_change",  # a waiting request's source changes (strategies, type 3)
+    "destination_change",  # a carried part's destination changes (strategies, type 2)
     "grasp",  # the robot grasps a disc (sequential assembly)
     "switch",  # the moving disc changes (sequential assembly)
     "escape",  # k lowered after a stuck stage (assembly)
