@@ -8,6 +8,8 @@ from pathlib import Path
 
 from adaptive_scenarios import POINT_SCENARIO  # type: ignore[import-not-found]
 
+from cellplan.trajectory import Trajectory
+
 
 def _cellplan(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
@@ -34,7 +36,9 @@ def test_adapt_command_writes_csv_pictures_and_continues(tmp_path: Path) -> None
         str(out),
     )
     assert first.returncode == 0, first.stderr
+    assert first.stdout.startswith("3 of 3 tasks solved") and first.stdout.count("\n") == 1
     for name in (
+        "paths.csv",
         "tasks.csv",
         "ratio.png",
         "costs.png",
@@ -46,12 +50,31 @@ def test_adapt_command_writes_csv_pictures_and_continues(tmp_path: Path) -> None
         assert (out / name).stat().st_size > 0, name
     rows = list(csv.DictReader((out / "tasks.csv").open(encoding="utf-8")))
     assert len(rows) == 3 and {"reach", "trace", "solve", "abstract", "baseline"} <= set(rows[0])
+    paths = Trajectory.load(out / "paths.csv")
+    assert [e.detail for e in paths.events_of("arrive")] == ["g1", "home", "g1"]
     second = _cellplan(
-        "adapt", str(scenario), "--tasks", "7", "--seed", "0", "--db", str(db), "-o", str(out)
+        "adapt",
+        str(scenario),
+        "--tasks",
+        "7",
+        "--seed",
+        "0",
+        "--db",
+        str(db),
+        "-o",
+        str(out),
+        "--json",
     )
     assert second.returncode == 0, second.stderr
+    payload = json.loads(second.stdout)
+    assert payload["status"] == "solved" and payload["stats"]["tasks"] == 7
+    assert payload["options"]["db"] == str(db)
     summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
     assert summary["tasks"] == 7 and summary["paths_ok_at_4x"] == 7
+    # the continued run's paths are the tasks it ran: 4 to 7, the change before task 5
+    paths = Trajectory.load(out / "paths.csv")
+    assert [e.detail for e in paths.events_of("task")] == ["g2", "home", "g1", "home"]
+    assert [e.detail for e in paths.events_of("change")] == ["add_object C"]
 
 
 def test_adapt_command_reports_user_errors(tmp_path: Path) -> None:

@@ -213,7 +213,8 @@ class ExperiencePlanner:
         Parameters
         ----------
         start
-            Configuration (radians for angles), or ``None`` for :attr:`position`.
+            Configuration (radians for angles), or ``None`` for :attr:`position` (refused
+            like any start if a change has put an object there).
         goal
             Configuration, or the name of a goal of the scenario's ``adaptive:``
             section (then it follows its object, Section 2.3).
@@ -234,7 +235,8 @@ class ExperiencePlanner:
             the joint limits or in collision (naming the obstacle), an unknown goal.
         """
         w, key, label = self._goal(goal)
-        u = self.position if start is None else self._configuration(start, "start")
+        # The robot's own position is checked too: a change may have put an object on it.
+        u = self._configuration(self.position if start is None else start, "start")
         res = self.run_task(key, w, start=u)
         self.adapter.tasks_done += 1  # Solve's seeds derive from (seed, task, call)
         result = self._result(res, u, label)

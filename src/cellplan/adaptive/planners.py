@@ -9,6 +9,10 @@
 * ``adaptive.prm``: OMPL PRM with its roadmap kept across tasks (rebuilt after a change),
   the modern multi-query peer.
 
+The ``adaptive`` planner's ``solution`` is the :class:`~.experience.ExperiencePlanner`
+the task list drove (query it further with ``plan(start, goal)``); the peers' is the
+list of per-task rows (``task``, ``checks``, ``success``).
+
 Every run returns the common :class:`~cellplan.core.Result`: ``solved`` when every task
 reached its goal, ``failed`` with the failed tasks named otherwise; the trajectory is the
 executed paths of all tasks end to end (``t`` = cumulative joint-space path length, mode =
@@ -167,12 +171,14 @@ def _run_peer(setup: Setup, options: PeerOptions, progress: Progress | None, pee
             Status.FAILED,
             f"{len(failed)} of {len(rows)} tasks failed: {_task_list(failed)}",
             stats=stats,
+            solution=rows,
             trajectory=traj,
         )
     return Result(
         Status.SOLVED,
         f"{len(rows)} tasks solved by {peer} with {int(stats[key])} collision checks",
         stats=stats,
+        solution=rows,
         trajectory=traj,
     )
 
