@@ -32,7 +32,9 @@ from cellplan.trajectory import Event, Trajectory
 
 if TYPE_CHECKING:
     from cellplan.adaptive import ExperiencePlanner as ExperiencePlanner
-    from cellplan.strategies.simulate import simulate_result as simulate
+    from cellplan.strategies.simulate import simulate_result
+
+    simulate = simulate_result
 
 __all__ = [
     "ArgumentError",
