@@ -5,25 +5,26 @@
    go-straight that checks the points one by one from the start (baseline, same
    process, same answers).
 2. The cost of Adapt (A3) against Solve alone over 80 tasks (collision checks,
-   the paper's measure), for a few seeds.
+   the paper's measure), for a few seeds, through ``cellplan.plan(setup, "adaptive")``.
 """
 
 from __future__ import annotations
 
 import gc
-import math
 import statistics
 import sys
 import time
 
 import numpy as np
 
+import cellplan.api as api
+from cellplan import units
 from cellplan.adaptive.reach import reach, segment_points
-from cellplan.adaptive.runner import cumulative_ratio, run_adaptive
+from cellplan.adaptive.runner import cumulative_ratio
 from cellplan.adaptive.space import PlanSpace
 from cellplan.adaptive.world import World
-from cellplan.registry import scenario_path
-from cellplan.scenario import load_scenario
+
+RESOLUTION = units.radians(1.0)
 
 
 def sequential_reach(space: PlanSpace, a: np.ndarray, b: np.ndarray) -> bool:
@@ -35,14 +36,13 @@ def sequential_reach(space: PlanSpace, a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def bench_reach(n_queries: int = 400) -> None:
-    sc = load_scenario(scenario_path("adaptive_fig4"))
-    world = World(sc, math.radians(1.0))
+    world = World(api.load("adaptive_fig4").scenario, RESOLUTION)
     names = sorted(world.goals)
     goals = np.array([world.goal_config(n) for n in names])
     pairs = np.random.default_rng(0).integers(len(goals), size=(n_queries, 2))
     results = {}
     for label, planner in (("bisection", reach), ("sequential", sequential_reach)):
-        space = PlanSpace(world.is_free, world.robot.lower, world.robot.upper, math.radians(1.0))
+        space = PlanSpace(world.is_free, world.robot.lower, world.robot.upper, RESOLUTION)
         planner(space, goals[0], goals[1])  # warm caches and compiled kernels
         warm_checks = space.counter.total
         times, answers = [], []
@@ -64,12 +64,14 @@ def bench_reach(n_queries: int = 400) -> None:
 
 
 def bench_adapt(seeds: tuple[int, ...] = (0, 1, 2)) -> None:
-    sc = load_scenario(scenario_path("adaptive_fig4"))
+    setup = api.load("adaptive_fig4")
     r40, r80, walls = [], [], []
     for seed in seeds:
         t0 = time.perf_counter()
-        rows = run_adaptive(sc, "A3", seed=seed).rows
+        result = api.plan(setup, "adaptive", repair="A3", seed=seed)
         walls.append(time.perf_counter() - t0)
+        assert result.success, result.message
+        rows = result.solution.tasks
         ratio = cumulative_ratio(rows)
         r40.append(ratio[39])
         r80.append(ratio[79])

@@ -113,3 +113,19 @@ def test_an_unreachable_goal_fails_the_run_and_names_the_task(tmp_path: Path) ->
     payload = json.loads(as_json.stdout)
     assert payload["status"] == "failed" and "2 (g3)" in payload["message"]
     assert Path(payload["outputs"]["paths"]).is_file()
+
+
+def test_the_python_examples_of_the_docs_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import re
+
+    doc = Path(__file__).resolve().parents[2] / "docs" / "adaptive.md"
+    blocks = re.findall(r"```python\n(.*?)```", doc.read_text(encoding="utf-8"), re.S)
+    assert len(blocks) >= 2
+    monkeypatch.chdir(tmp_path)
+    for block in blocks:
+        namespace: dict[str, object] = {}
+        exec(compile(block, str(doc), "exec"), namespace)
+    assert Trajectory.load(tmp_path / "paths.csv").events_of("arrive")
+    assert (tmp_path / "exp.sqlite").is_file()

@@ -49,24 +49,28 @@ def make_runs(runs: int, quick: bool) -> list[RunSpec]:
 
 
 def run(spec: RunSpec) -> dict[str, Scalar]:
-    """Cumulative costs after every task (``a###`` planner, ``b###`` Solve only)."""
+    """Cumulative costs after every task (``a###`` planner, ``b###`` Solve only).
+
+    Runs the registered planners through :func:`cellplan.api.plan`: ``adaptive`` with
+    the run's repair strategy, or the peer ``adaptive.prm``.
+    """
+    from cellplan.api import plan
+    from cellplan.setup import Setup
+
     tasks, change_after = int(spec.params["tasks"]), int(spec.params["change_after"])
     planner = str(spec.params["planner"])
-    sc = _scenario(tasks, change_after, spec.seed)
+    setup = Setup(_scenario(tasks, change_after, spec.seed), "adaptive_fig4")
     row: dict[str, Scalar] = {"planner": planner, "seed": spec.seed}
     if planner in STRATEGIES:
-        from cellplan.adaptive.runner import run_adaptive
-
-        rows = run_adaptive(sc, planner, seed=spec.seed).rows
+        result = plan(setup, "adaptive", repair=planner, seed=spec.seed)
+        rows = result.solution.tasks
         adapt = np.cumsum([float(r["adapt"]) for r in rows])
         base = np.cumsum([float(r["baseline"]) for r in rows])
         row["solved"] = sum(int(r["success"]) for r in rows)
         row["paths_ok"] = sum(int(r["path_ok"]) for r in rows)
         row["solve_calls"] = sum(int(r["solve_calls"]) for r in rows)
     else:
-        from cellplan.adaptive.peers import run_peer
-
-        prow = run_peer(sc, planner, seed=spec.seed)
+        prow = plan(setup, f"adaptive.{planner}", seed=spec.seed).solution
         adapt = np.cumsum([r["checks"] for r in prow])
         base = np.full(len(prow), np.nan)
         row["solved"] = int(sum(r["success"] for r in prow))
