@@ -42,7 +42,7 @@ def _matrix(kind: str, m: int, seed: int, exponent: float) -> np.ndarray:
         b = rng.standard_normal((m, rng.integers(0, m)))
         h = b @ b.T - 0.5 * (b[:, :1] @ b[:, :1].T if b.shape[1] else 0.0)
     elif kind == "scaled":
-        h = rng.standard_normal((m, m)) * 10.0 ** exponent
+        h = rng.standard_normal((m, m)) * 10.0**exponent
     elif kind == "graded":
         # entries from about 1e-12 to 1e12
         s = 10.0 ** rng.uniform(-6, 6, m)
@@ -54,8 +54,13 @@ def _matrix(kind: str, m: int, seed: int, exponent: float) -> np.ndarray:
     return np.ascontiguousarray(0.5 * (h + h.T))
 
 
-matrices = st.builds(_matrix, st.sampled_from(KINDS), st.integers(1, 40),
-                     st.integers(0, 2**32 - 1), st.floats(-12.0, 12.0))
+matrices = st.builds(
+    _matrix,
+    st.sampled_from(KINDS),
+    st.integers(1, 40),
+    st.integers(0, 2**32 - 1),
+    st.floats(-12.0, 12.0),
+)
 
 
 @settings(max_examples=250, deadline=None)
@@ -134,9 +139,12 @@ def test_implicit_step_equals_the_lapack_step_on_real_hessians(n: int) -> None:
                 # one disc alone (the low-level flow's 2 x 2 block)
                 sel = np.array([0, 1])
                 sub = hess[np.ix_(sel, sel)]
-                np.testing.assert_allclose(implicit_step(g[sel], sub, 0.01),
-                                           implicit_step(g[sel], sub, 0.01, lapack=True),
-                                           rtol=1e-9, atol=0.0)
+                np.testing.assert_allclose(
+                    implicit_step(g[sel], sub, 0.01),
+                    implicit_step(g[sel], sub, 0.01, lapack=True),
+                    rtol=1e-9,
+                    atol=0.0,
+                )
     assert checked == 4 * 2 * 2 * 4
 
 

@@ -10,8 +10,9 @@ from cellplan.core import RunSpec, Scalar
 
 def _rows(specs: list[RunSpec]) -> list[dict[str, Scalar]]:
     # what the runner stores per run: the parameters, the seed, the run's own row
-    return [{**spec.params, "seed": spec.seed, "run_status": "ok", **ex.run(spec)}
-            for spec in specs]
+    return [
+        {**spec.params, "seed": spec.seed, "run_status": "ok", **ex.run(spec)} for spec in specs
+    ]
 
 
 def test_sensitivity_spreads_the_starts_and_reports_per_fill(tmp_path: Path) -> None:
@@ -22,15 +23,16 @@ def test_sensitivity_spreads_the_starts_and_reports_per_fill(tmp_path: Path) -> 
     assert all(r["solved"] for r in rows)
 
     def straight(fill: float, seed: int) -> float:
-        (r,) = [r for r in rows if r["fill"] == fill and r["start_gap"] == 0.05
-                and r["seed"] == seed]
+        (r,) = [
+            r for r in rows if r["fill"] == fill and r["start_gap"] == 0.05 and r["seed"] == seed
+        ]
         return float(r["length"]) / float(r["ratio"])
 
     # a quarter of the fill is a workspace twice as wide: the same seed starts about
     # twice as far out
     assert all(straight(0.0125, s) > 1.5 * straight(0.05, s) for s in (0, 1))
     piece = ex._report_sensitivity(rows, tmp_path)
-    (_, table), = piece.tables
+    ((_, table),) = piece.tables
     assert len(table) == 3 and all("solved at k" in row for row in table)
     assert all(Path(f).is_file() for f in piece.figures)
     assert len(piece.claims) == 1
@@ -43,7 +45,7 @@ def test_ratio_vs_k_reports_the_flow_at_k_beside_the_escape(tmp_path: Path) -> N
     labels = [c.claim for c in piece.claims]
     assert any("the flow at k alone" in c for c in labels)
     assert any("k lowered when stuck" in c for c in labels)
-    (_, table), = piece.tables
+    ((_, table),) = piece.tables
     assert {"solved", "solved at k", "mean (solved at k)"} <= set(table[0])
 
 

@@ -25,14 +25,21 @@ from cellplan.assembly.section import GeneratorSpec
 
 
 def _problem(seed: int, n: int, box: bool = False) -> DiscProblem:
-    ws = BoxWorkspace(np.array([-8.0, -8.0]), np.array([8.0, 8.0])) if box else CircleWorkspace(
-        np.zeros(2), 8.0)
+    ws = (
+        BoxWorkspace(np.array([-8.0, -8.0]), np.array([8.0, 8.0]))
+        if box
+        else CircleWorkspace(np.zeros(2), 8.0)
+    )
     return generate_problem(GeneratorSpec(n=n, seed=seed, gap=0.3, min_start_gap=0.3), ws)
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 10_000), n=st.integers(2, 5), k=st.sampled_from([1.0, 2.0, 5.0, 12.0]),
-       box=st.booleans())
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(2, 5),
+    k=st.sampled_from([1.0, 2.0, 5.0, 12.0]),
+    box=st.booleans(),
+)
 def test_gradient_matches_finite_differences(seed: int, n: int, k: float, box: bool) -> None:
     p = _problem(seed, n, box)
     b = p.start
@@ -48,8 +55,12 @@ def test_gradient_matches_finite_differences(seed: int, n: int, k: float, box: b
 
 
 @settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 10_000), n=st.integers(2, 4), k=st.sampled_from([1.0, 2.0, 4.0]),
-       box=st.booleans())
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(2, 4),
+    k=st.sampled_from([1.0, 2.0, 4.0]),
+    box=st.booleans(),
+)
 def test_log_space_agrees_with_linear_space(seed: int, n: int, k: float, box: bool) -> None:
     p = _problem(seed, n, box)
     b = p.start
@@ -58,8 +69,9 @@ def test_log_space_agrees_with_linear_space(seed: int, n: int, k: float, box: bo
     lin_grad = grad_linear(b, p, k)
     assert lin_phi > 0 and np.all(np.isfinite(lin_grad)) and np.any(lin_grad != 0)
     assert np.isclose(np.exp(ev.log_phi), lin_phi, rtol=1e-10)
-    assert np.allclose(np.exp(ev.log_scale) * ev.v, lin_grad, rtol=1e-8,
-                       atol=1e-12 * np.abs(lin_grad).max())
+    assert np.allclose(
+        np.exp(ev.log_scale) * ev.v, lin_grad, rtol=1e-8, atol=1e-12 * np.abs(lin_grad).max()
+    )
 
 
 def test_phi_is_zero_at_goal_and_tends_to_one_at_contact() -> None:
@@ -94,13 +106,20 @@ def test_log_space_survives_where_linear_space_underflows() -> None:
 
 
 @settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 10_000), n=st.integers(1, 12), k=st.sampled_from([1.0, 8.0, 200.0]),
-       box=st.booleans())
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(1, 12),
+    k=st.sampled_from([1.0, 8.0, 200.0]),
+    box=st.booleans(),
+)
 def test_numba_kernel_matches_numpy_reference(seed: int, n: int, k: float, box: bool) -> None:
     from cellplan.assembly.navigation import evaluate_numpy
 
-    p = _problem(seed, n, box) if n <= 5 else generate_problem(
-        GeneratorSpec(n=n, seed=seed), default_workspace(n))
+    p = (
+        _problem(seed, n, box)
+        if n <= 5
+        else generate_problem(GeneratorSpec(n=n, seed=seed), default_workspace(n))
+    )
     a, b = evaluate(p.start, p, k), evaluate_numpy(p.start, p, k)
     for name in ("log_gamma", "log_beta", "log_scale", "log_phi"):
         assert np.isclose(getattr(a, name), getattr(b, name), rtol=1e-11, atol=1e-11)
@@ -109,8 +128,12 @@ def test_numba_kernel_matches_numpy_reference(seed: int, n: int, k: float, box: 
 
 
 @settings(max_examples=20, deadline=None)
-@given(seed=st.integers(0, 10_000), n=st.integers(2, 5), k=st.sampled_from([2.0, 12.0, 64.0]),
-       box=st.booleans())
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(2, 5),
+    k=st.sampled_from([2.0, 12.0, 64.0]),
+    box=st.booleans(),
+)
 def test_hessian_matches_finite_differences(seed: int, n: int, k: float, box: bool) -> None:
     from cellplan.assembly.navigation import hessian_log_w
 

@@ -27,25 +27,52 @@ from cellplan.core import Status
 # Seven unit discs, hexagonal goals with pairwise beta(d) = 1e-16 (Fig. 5(c)). The starts
 # are random legal ones (generator seeds 1 and 4), written out so that the tests do not
 # depend on the generator or the default workspace.
-HEX = np.array([[0.0, 0.0], [-1.0036711316621478, -1.738409394128992],
-                [1.0036711316621478, -1.738409394128992], [2.0073422633242957, 0.0],
-                [1.0036711316621478, 1.738409394128992],
-                [-1.0036711316621478, 1.738409394128992], [-2.0073422633242957, 0.0]])
+HEX = np.array(
+    [
+        [0.0, 0.0],
+        [-1.0036711316621478, -1.738409394128992],
+        [1.0036711316621478, -1.738409394128992],
+        [2.0073422633242957, 0.0],
+        [1.0036711316621478, 1.738409394128992],
+        [-1.0036711316621478, 1.738409394128992],
+        [-2.0073422633242957, 0.0],
+    ]
+)
 # k = 48: the T map at k alone runs out of its 20 n switches with two discs pressed
 # together handing the turn back and forth (it solves only after 181 switches)
-PING_PONG = DiscProblem(np.ones(7), np.array(
-    [[-1.5869574702043012, -7.548733073037667], [-8.750518505339972, 3.293009396759315],
-     [5.781808107370352, 3.8062636853552334], [-3.2764170041026963, 3.236272247279302],
-     [-0.817040215745796, 8.891677773140197], [-4.5921874139775145, 0.22416827260256159],
-     [-7.527354726059178, -3.9485190004263058]]), HEX,
-    CircleWorkspace(np.zeros(2), math.sqrt(7 / 0.05)))
+PING_PONG = DiscProblem(
+    np.ones(7),
+    np.array(
+        [
+            [-1.5869574702043012, -7.548733073037667],
+            [-8.750518505339972, 3.293009396759315],
+            [5.781808107370352, 3.8062636853552334],
+            [-3.2764170041026963, 3.236272247279302],
+            [-0.817040215745796, 8.891677773140197],
+            [-4.5921874139775145, 0.22416827260256159],
+            [-7.527354726059178, -3.9485190004263058],
+        ]
+    ),
+    HEX,
+    CircleWorkspace(np.zeros(2), math.sqrt(7 / 0.05)),
+)
 # k = 128: given 2,000 switches the T map at k alone ends at a spurious minimum of phi
-MINIMUM = DiscProblem(np.ones(7), np.array(
-    [[8.502503951561781, 0.5014044186974838], [-7.639906054552546, -2.9541896416794606],
-     [-4.974085509499576, 0.5109299830604094], [-0.8264038376106735, -6.677296312716237],
-     [5.079880098463133, -0.13413278725061303], [7.205586012419186, 2.518009889781232],
-     [-0.42874986801157106, -1.962137963183225]]), HEX,
-    CircleWorkspace(np.zeros(2), 4.0 + 2.2 * math.sqrt(7)))
+MINIMUM = DiscProblem(
+    np.ones(7),
+    np.array(
+        [
+            [8.502503951561781, 0.5014044186974838],
+            [-7.639906054552546, -2.9541896416794606],
+            [-4.974085509499576, 0.5109299830604094],
+            [-0.8264038376106735, -6.677296312716237],
+            [5.079880098463133, -0.13413278725061303],
+            [7.205586012419186, 2.518009889781232],
+            [-0.42874986801157106, -1.962137963183225],
+        ]
+    ),
+    HEX,
+    CircleWorkspace(np.zeros(2), 4.0 + 2.2 * math.sqrt(7)),
+)
 
 
 def _replay(p: DiscProblem, res: SequentialResult) -> np.ndarray:
@@ -103,8 +130,7 @@ def test_t_map_ends_at_a_spurious_minimum_and_a_lower_k_leaves_it() -> None:
     assert np.linalg.norm(end - HEX) > 1.0
     assert np.linalg.eigvalsh(hessian_log_w(end, MINIMUM, k))[0] > 0
     # only the critical-point test (min_progress=0): the first stage is the plain run
-    res = sequential_assembly(MINIMUM, k, "paper", max_switches=budget, escapes=3,
-                              min_progress=0.0)
+    res = sequential_assembly(MINIMUM, k, "paper", max_switches=budget, escapes=3, min_progress=0.0)
     assert res.stages[0] == plain.stages[0]
     assert res.status is Status.SOLVED and res.escapes >= 1
     assert res.min_clearance > 0
@@ -134,8 +160,9 @@ def test_bad_escape_arguments_are_rejected() -> None:
 
 
 def _route_state(seed: int, n: int, at_goals: bool) -> tuple[DiscProblem, np.ndarray, int]:
-    p = generate_problem(GeneratorSpec(n=n, seed=seed, gap=0.1), CircleWorkspace(np.zeros(2),
-                                                                                    2.5 * n))
+    p = generate_problem(
+        GeneratorSpec(n=n, seed=seed, gap=0.1), CircleWorkspace(np.zeros(2), 2.5 * n)
+    )
     i = seed % n
     x = p.start.copy()
     if at_goals:  # the others stand on their goals: disc i must go round the cluster
@@ -155,7 +182,8 @@ def _clear_of_discs(p: DiscProblem, x: np.ndarray, i: int, pts: np.ndarray) -> f
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10_000), n=st.integers(3, 8), at_goals=st.booleans())
 def test_lazy_route_is_as_short_as_the_full_graph_and_collision_free(
-        seed: int, n: int, at_goals: bool) -> None:
+    seed: int, n: int, at_goals: bool
+) -> None:
     p, x, i = _route_state(seed, n, at_goals)
     nodes = route_nodes(p, x, i)
     full = shortest_route_full(p, x, i, nodes)

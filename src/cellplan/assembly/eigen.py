@@ -219,8 +219,7 @@ def _rotate_rows(rows: Array, k: int, j: int, c: float, s: float) -> None:
 
 
 @numba.njit(cache=True)
-def _reserve(rc: Array, rs: Array, rk: Array, count: int, need: int
-             ) -> tuple[Array, Array, Array]:
+def _reserve(rc: Array, rs: Array, rk: Array, count: int, need: int) -> tuple[Array, Array, Array]:
     """The rotation store with room for ``need`` more (doubling)."""
     if count + need <= rc.shape[0]:
         return rc, rs, rk
@@ -235,8 +234,9 @@ def _reserve(rc: Array, rs: Array, rk: Array, count: int, need: int
 
 
 @numba.njit(cache=True)
-def tridiagonal_qr(d: Array, e: Array, rows: Array, record: bool
-                   ) -> tuple[Array, Array, Array, int]:
+def tridiagonal_qr(
+    d: Array, e: Array, rows: Array, record: bool
+) -> tuple[Array, Array, Array, int]:
     """Eigenvalues of a symmetric tridiagonal ``T`` by implicit QR/QL with Wilkinson shifts.
 
     ``T = Z diag(d_out) Z^T`` with ``Z = G_1 G_2 ... G_r`` a product of Givens rotations.

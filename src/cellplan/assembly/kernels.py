@@ -21,8 +21,9 @@ Array = NDArray[np.float64]
 
 
 @numba.njit(cache=True)
-def nav_kernel(b: Array, d: Array, radii: Array, circle: bool, w0: Array, w1: Array,
-               k: float) -> tuple[float, float, Array, Array, Array, Array, Array]:
+def nav_kernel(
+    b: Array, d: Array, radii: Array, circle: bool, w0: Array, w1: Array, k: float
+) -> tuple[float, float, Array, Array, Array, Array, Array]:
     """``(log_gamma, log_beta, v, rep, rep_bnd, gaps, bgap)`` at ``b``.
 
     ``circle``: the workspace is the disc of centre ``w0`` and radius ``w1[0]``;

@@ -56,7 +56,7 @@ def segments_clearance(problem: DiscProblem, x: Array, i: int, P: Array, Q: Arra
     else:
         walls = np.concatenate([ends - ws.lo, ws.hi - ends], axis=1)
         bgap = np.min(walls, axis=1) - problem.radii[i]
-    bgap = np.minimum(bgap[: len(P)], bgap[len(P):])
+    bgap = np.minimum(bgap[: len(P)], bgap[len(P) :])
     return np.minimum(np.min(gap, axis=1), bgap)
 
 
@@ -80,8 +80,9 @@ def segment_is_free(problem: DiscProblem, x: Array, i: int, target: Array) -> bo
     return segment_clearance(problem, x, i, target) > route_margin(problem)
 
 
-def route_nodes(problem: DiscProblem, x: Array, i: int, directions: int = 24,
-                corners: int = 12) -> Array:
+def route_nodes(
+    problem: DiscProblem, x: Array, i: int, directions: int = 24, corners: int = 12
+) -> Array:
     """Nodes of the visibility graph for disc i: ``[x_i, d_i, ...]`` (N, 2).
 
     ``corners`` points around each standing disc (a polygon circumscribing the circle
@@ -117,8 +118,15 @@ def _walk_back(nodes: Array, pred: NDArray[np.int64]) -> list[Array]:
     return route
 
 
-def _edges_free(problem: DiscProblem, x: Array, i: int, nodes: Array, u: int,
-                others: NDArray[np.int64], margin: float) -> NDArray[np.bool_]:
+def _edges_free(
+    problem: DiscProblem,
+    x: Array,
+    i: int,
+    nodes: Array,
+    u: int,
+    others: NDArray[np.int64],
+    margin: float,
+) -> NDArray[np.bool_]:
     """Edges ``u - others`` that keep the margin, one vectorised test.
 
     Each segment runs from the lower to the higher node index, as in the baseline, so
@@ -128,8 +136,9 @@ def _edges_free(problem: DiscProblem, x: Array, i: int, nodes: Array, u: int,
     return segments_clearance(problem, x, i, nodes[lo], nodes[hi]) > margin
 
 
-def shortest_route(problem: DiscProblem, x: Array, i: int, nodes: Array
-                   ) -> tuple[list[Array], float] | None:
+def shortest_route(
+    problem: DiscProblem, x: Array, i: int, nodes: Array
+) -> tuple[list[Array], float] | None:
     """Shortest path from ``nodes[0]`` to ``nodes[1]``: A* with lazy edge tests.
 
     Same graph and edge test as :func:`shortest_route_full`, hence the same shortest
@@ -174,8 +183,9 @@ def shortest_route(problem: DiscProblem, x: Array, i: int, nodes: Array
         pred[cand[ok]] = u
 
 
-def shortest_route_full(problem: DiscProblem, x: Array, i: int, nodes: Array
-                        ) -> tuple[list[Array], float] | None:
+def shortest_route_full(
+    problem: DiscProblem, x: Array, i: int, nodes: Array
+) -> tuple[list[Array], float] | None:
     """Baseline of :func:`shortest_route`: test every edge, then Dijkstra (scipy)."""
     from scipy.sparse.csgraph import dijkstra
 
@@ -197,8 +207,14 @@ def shortest_route_full(problem: DiscProblem, x: Array, i: int, nodes: Array
     return _walk_back(nodes, pred.astype(np.int64)), float(dist[1])
 
 
-def placement_route(problem: DiscProblem, x: Array, i: int, directions: int = 24,
-                    corners: int = 12, full: bool = False) -> list[Array] | None:
+def placement_route(
+    problem: DiscProblem,
+    x: Array,
+    i: int,
+    directions: int = 24,
+    corners: int = 12,
+    full: bool = False,
+) -> list[Array] | None:
     """A short collision-free polygonal route for disc i to its goal, others standing.
 
     The straight segment when it is free; otherwise the shortest path in the visibility
