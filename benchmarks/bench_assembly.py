@@ -39,6 +39,7 @@ import math
 import statistics
 import time
 from collections.abc import Callable
+from typing import Literal
 from unittest import mock
 
 import numpy as np
@@ -46,11 +47,13 @@ import numpy as np
 from cellplan.assembly import eigen, experiments, flows
 from cellplan.assembly.flows import FlowSettings, gradient_flow, implicit_step
 from cellplan.assembly.navigation import evaluate, grad_linear, hessian_log_w, log_beta_parts
-from cellplan.assembly.planners import ESCAPES
+from cellplan.assembly.options import GradientOptions
 from cellplan.assembly.problems import DiscProblem, default_workspace, generate_problem
 from cellplan.assembly.section import GeneratorSpec
 from cellplan.core import RunSpec
 
+#: the planner's default number of k-halvings (its options model is the one source)
+ESCAPES: int = GradientOptions.model_fields["escapes"].default
 LOG_MAX = math.log(np.finfo(float).max)
 LOG_TINY = math.log(np.finfo(float).tiny)
 
@@ -66,7 +69,7 @@ def k_for(n: int) -> float:
 
 def problem_for(n: int, seed: int) -> DiscProblem:
     """Hexagonal goal cluster (gap 0.1) up to 15 discs; random legal goals beyond."""
-    pattern = "hex" if n <= 15 else "random"
+    pattern: Literal["hex", "random"] = "hex" if n <= 15 else "random"
     return generate_problem(GeneratorSpec(n=n, seed=seed, gap=0.1, pattern=pattern),
                             default_workspace(n))
 

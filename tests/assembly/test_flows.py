@@ -20,8 +20,10 @@ from cellplan.core import Status
 
 
 def _problem(seed: int, n: int = 5, starts: str = "random") -> DiscProblem:
-    return generate_problem(GeneratorSpec(n=n, seed=seed, gap=0.1, starts=starts),  # type: ignore[arg-type]
-                            CircleWorkspace(np.zeros(2), 8.0))
+    return generate_problem(
+        GeneratorSpec(n=n, seed=seed, gap=0.1, starts=starts),  # type: ignore[arg-type]
+        CircleWorkspace(np.zeros(2), 8.0),
+    )
 
 
 def _swept_ok(path: np.ndarray, p: DiscProblem, samples: int = 17) -> bool:
@@ -83,8 +85,10 @@ def test_place_rule_is_collision_free_on_tight_permuted_goals(seed: int) -> None
     # seven discs, goal pattern with beta(d) = 1e-28 (gaps ~1e-4), starts permute the goals
     from cellplan.assembly.problems import default_workspace
 
-    p = generate_problem(GeneratorSpec(n=7, seed=seed, starts="permutation",
-                                       log10_beta_goal=-28.0), default_workspace(7))
+    p = generate_problem(
+        GeneratorSpec(n=7, seed=seed, starts="permutation", log10_beta_goal=-28.0),
+        default_workspace(7),
+    )
     _replay_sequential(p, "place")  # (the grasp count can exceed 2 n here: fallbacks)
 
 
@@ -110,8 +114,13 @@ def _replay_sequential(p: DiscProblem, rule: str) -> None:
 
 
 def test_place_rule_needs_fewer_switches_than_the_paper() -> None:
-    counts = {rule: [sequential_assembly(_problem(s, 6), 32.0, rule).switches  # type: ignore[arg-type]
-                     for s in range(3)] for rule in ("paper", "place")}
+    counts = {
+        rule: [
+            sequential_assembly(_problem(s, 6), 32.0, rule).switches  # type: ignore[arg-type]
+            for s in range(3)
+        ]
+        for rule in ("paper", "place")
+    }
     assert np.mean(counts["place"]) <= 2 * 6  # at most two grasps per disc
     assert np.mean(counts["place"]) < np.mean(counts["paper"])
 
@@ -132,8 +141,9 @@ def test_segment_check_is_exact_not_only_at_the_ends() -> None:
     gaps, bgap = clearances(b, radii, ws)
 
     def safe(delta: np.ndarray) -> bool:
-        return segment_is_safe(b, delta, radii, gaps, bgap, clearances(b + delta, radii, ws)[1],
-                               0.5)
+        return segment_is_safe(
+            b, delta, radii, gaps, bgap, clearances(b + delta, radii, ws)[1], 0.5
+        )
 
     jump = np.array([[6.0, 0.0], [0.0, 0.0]])  # disc 0 jumps over disc 1; both ends legal
     assert min_clearance(b + jump, radii, ws) > 0 and not safe(jump)
@@ -192,8 +202,8 @@ def test_spurious_minimum_is_reported_as_stuck_not_solved() -> None:
 def test_lowering_k_leaves_a_spurious_minimum_and_says_so() -> None:
     # Section 3.2: k is adjusted to eliminate local minima. The same seed as above ends
     # in a spurious minimum at k = 256; continued at k/2, k/4 it reaches the goal.
-    from cellplan.assembly.planners import run_gradient
-    from cellplan.assembly.problems import default_workspace
+    import cellplan
+    from cellplan.assembly.problems import default_workspace, generated_setup
 
     p = generate_problem(GeneratorSpec(n=10, seed=25, gap=0.1), default_workspace(10))
     plain = gradient_flow(p, 256.0)
@@ -208,9 +218,19 @@ def test_lowering_k_leaves_a_spurious_minimum_and_says_so() -> None:
     assert np.linalg.norm(res.end - p.goal) < 1e-3
     assert res.min_clearance > 0 and _swept_ok(res.path, p, samples=5)
     assert res.steps == sum(s.steps for s in res.stages)
-    stats = run_gradient(p, 256.0).stats
+    # the planner (escapes=6 by default) reports it, and its trajectory marks each escape
+    planned = cellplan.plan(
+        generated_setup({"n": 10, "seed": 25, "gap": 0.1}), "assembly.gradient", k=256.0
+    )
+    stats = planned.stats
     assert stats["solved_at_k"] == 0.0 and stats["escapes"] == res.escapes
     assert stats["k_final"] == res.stages[-1].k
+    assert planned.success and "lowered" in planned.message
+    np.testing.assert_array_equal(planned.solution.path, res.path)
+    escapes = planned.trajectory.events_of("escape")
+    starts = np.cumsum([s.steps for s in res.stages])[:-1]
+    assert [e.index for e in escapes] == starts.tolist()
+    assert [e.detail for e in escapes] == [f"k={s.k:g}" for s in res.stages[1:]]
     with pytest.raises(ValueError, match="escape_factor"):
         gradient_flow(p, 256.0, escape_factor=1.0)
 
@@ -238,8 +258,12 @@ def test_place_route_goes_round_a_blocking_disc_almost_as_short_as_possible() ->
 
     # disc 0 from (-5, 0) to (5, 0), disc 1 standing at the origin: the shortest path
     # of the centre keeps distance 2 from the origin, tangent - arc - tangent
-    p = DiscProblem(np.ones(2), np.array([[-5.0, 0.0], [0.0, 0.0]]),
-                    np.array([[5.0, 0.0], [0.0, 10.0]]), CircleWorkspace(np.zeros(2), 20.0))
+    p = DiscProblem(
+        np.ones(2),
+        np.array([[-5.0, 0.0], [0.0, 0.0]]),
+        np.array([[5.0, 0.0], [0.0, 10.0]]),
+        CircleWorkspace(np.zeros(2), 20.0),
+    )
     route = placement_route(p, p.start, 0)
     assert route is not None and np.array_equal(route[-1], p.goal[0])
     pts = np.array([p.start[0], *route])

@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellplan.assembly.planners import run_gradient
-from cellplan.assembly.problems import default_workspace, generate_problem
-from cellplan.assembly.section import GeneratorSpec
+import cellplan
+from cellplan.assembly.problems import generated_setup
 
 SEEDS = range(4)
 
@@ -18,9 +17,10 @@ SEEDS = range(4)
 def _mean_ratio(log10_beta: float, starts: str, k: float = 64.0) -> float:
     ratios = []
     for seed in SEEDS:
-        gen = GeneratorSpec(n=7, seed=seed, log10_beta_goal=log10_beta,
-                            starts=starts)  # type: ignore[arg-type]
-        res = run_gradient(generate_problem(gen, default_workspace(7)), k)
+        setup = generated_setup(
+            {"n": 7, "seed": seed, "log10_beta_goal": log10_beta, "starts": starts}
+        )
+        res = cellplan.plan(setup, "assembly.gradient", k=k)
         assert res.status.ok and res.stats["min_clearance"] > 0
         ratios.append(res.stats["ratio"])
     return float(np.mean(ratios))

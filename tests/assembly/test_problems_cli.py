@@ -75,12 +75,15 @@ def test_bundled_scenarios_load() -> None:
 
 
 def test_overlapping_discs_are_named() -> None:
-    text = BASE + """  boundary: {type: workcell}
+    text = (
+        BASE
+        + """  boundary: {type: workcell}
   discs:
     - {radius: 1, start: [2, 2], goal: [8, 8]}
     - {radius: 1, start: [3, 2], goal: [5, 5]}
     - {radius: 1, start: [9.5, 5], goal: [2, 8]}
 """
+    )
     with pytest.raises(ScenarioError) as err:
         loads_scenario(text)
     fields = [p.field for p in err.value.problems]
@@ -89,12 +92,15 @@ def test_overlapping_discs_are_named() -> None:
     assert len(fields) == 2
 
 
-@pytest.mark.parametrize(("snippet", "field"), [
-    ("  k: 0\n  generate: {n: 3}\n", "discs.k"),
-    ("  epsilon: -1\n  generate: {n: 3}\n", "discs.epsilon"),
-    ("  generate: {n: 3, gap: 0.1, log10_beta_goal: 40}\n", "discs.generate.log10_beta_goal"),
-    ("  generate: {n: 90}\n", "discs.generate.n"),
-])
+@pytest.mark.parametrize(
+    ("snippet", "field"),
+    [
+        ("  k: 0\n  generate: {n: 3}\n", "discs.k"),
+        ("  epsilon: -1\n  generate: {n: 3}\n", "discs.epsilon"),
+        ("  generate: {n: 3, gap: 0.1, log10_beta_goal: 40}\n", "discs.generate.log10_beta_goal"),
+        ("  generate: {n: 90}\n", "discs.generate.n"),
+    ],
+)
 def test_bad_parameters_are_named(snippet: str, field: str) -> None:
     with pytest.raises(ScenarioError) as err:
         loads_scenario(BASE + snippet)
@@ -102,31 +108,45 @@ def test_bad_parameters_are_named(snippet: str, field: str) -> None:
 
 
 def test_illegal_goal_pattern_is_reported(tmp_path: Path) -> None:
-    text = (BASE + "  boundary: {type: disc, center: [5, 5], radius: 4.2}\n"
-            "  generate: {n: 7, gap: 1.5}\n")
+    text = (
+        BASE + "  boundary: {type: disc, center: [5, 5], radius: 4.2}\n"
+        "  generate: {n: 7, gap: 1.5}\n"
+    )
     with pytest.raises(ScenarioError) as err:
         loads_scenario(text)
     assert all(p.field == "discs.generate" for p in err.value.problems)
 
 
-@pytest.mark.parametrize(("args", "name"), [
-    (["--random", "5", "--k", "0"], "--k"),
-    (["--random", "5", "--k", "-3"], "--k"),
-    (["--random", "5", "--epsilon", "0"], "--epsilon"),
-    (["--random", "5", "--algorithm", "magic"], "--algorithm"),
-    (["--random", "5", "--rule", "magic"], "--rule"),
-    (["--random", "0"], "--random"),
-    (["--random", "5", "--escapes", "-1"], "--escapes"),
-    (["--random", "5", "--fill", "0"], "--fill"),
-    (["--random", "5", "--fill", "0.7"], "--fill"),
-])
-def test_cli_bad_arguments_exit_2_naming_the_parameter(args: list[str], name: str,
-                                                       tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("args", "name"),
+    [
+        (["--random", "5", "--k", "0"], "--k"),
+        (["--random", "5", "--k", "-3"], "--k"),
+        (["--random", "5", "--epsilon", "0"], "--epsilon"),
+        (["--random", "5", "--algorithm", "magic"], "--algorithm"),
+        (["--random", "5", "--rule", "magic"], "--rule"),
+        (["--random", "0"], "--random"),
+        (["--random", "5", "--escapes", "-1"], "--escapes"),
+        (["--random", "5", "--fill", "0"], "--fill"),
+        (["--random", "5", "--fill", "0.7"], "--fill"),
+        (["--random", "5", "--tolerance", "0"], "--tolerance"),
+        (["--random", "5", "--algorithm", "control", "--escapes", "2"], "--escapes"),
+        (["discs_swap", "--seed", "3"], "--seed"),
+        (["--random", "5", "--frames", "1"], "--frames"),
+    ],
+)
+def test_cli_bad_arguments_exit_2_naming_the_parameter(
+    args: list[str], name: str, tmp_path: Path
+) -> None:
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-m", "cellplan.cli", "assemble", *args, "-o",
-                          str(tmp_path / "o")], capture_output=True, text=True, check=False)
+    out = subprocess.run(
+        [sys.executable, "-m", "cellplan.cli", "assemble", *args, "-o", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert out.returncode == 2
     lines = [line for line in out.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and name in lines[0]
@@ -139,19 +159,27 @@ def test_cli_bad_scenario_exit_2(tmp_path: Path) -> None:
     import sys
 
     bad = tmp_path / "bad.yaml"
-    bad.write_text(BASE + "  boundary: {type: workcell}\n  discs:\n"
-                   "    - {radius: 1, start: [2, 2], goal: [8, 8]}\n"
-                   "    - {radius: 1, start: [8, 8], goal: [8.5, 8]}\n")
-    out = subprocess.run([sys.executable, "-m", "cellplan.cli", "assemble", str(bad)],
-                         capture_output=True, text=True, check=False)
+    bad.write_text(
+        BASE + "  boundary: {type: workcell}\n  discs:\n"
+        "    - {radius: 1, start: [2, 2], goal: [8, 8]}\n"
+        "    - {radius: 1, start: [8, 8], goal: [8.5, 8]}\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-m", "cellplan.cli", "assemble", str(bad)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert out.returncode == 2
     assert "discs.discs[1].goal" in out.stderr and "Traceback" not in out.stderr
 
 
-def test_cli_writes_frames_gif_and_metrics(tmp_path: Path) -> None:
+def test_cli_writes_frames_gif_trajectory_and_metrics(tmp_path: Path) -> None:
     res = runner.invoke(app, ["assemble", "discs_swap", "--frames", "3", "-o", str(tmp_path)])
     assert res.exit_code == 0, res.output
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["status"] == "solved" and metrics["min_clearance"] > 0
+    assert metrics["k"] == 32.0 and metrics["message"].startswith("assembled at k=32")
+    assert (tmp_path / "trajectory.csv").read_text().startswith("# cellplan-trajectory")
     assert (tmp_path / "sequence.png").stat().st_size > 0
     assert (tmp_path / "assembly.gif").read_bytes()[:3] == b"GIF"

@@ -1,53 +1,36 @@
 """CLI commands of the assembly package, registered on the main app by :func:`register`.
 
-``cellplan assemble FILE --algorithm gradient|sequential|control --k K -o DIR`` and
-``cellplan assemble --random N --seed S ...``: every argument is validated before any
-work; the run writes a Fig. 1-2 style sequence, an animated GIF and ``metrics.json``.
+``cellplan assemble FILE --algorithm gradient|sequential|control`` plans the scenario's
+``discs:`` section; ``cellplan assemble --random N --seed S ...`` first builds a scenario
+with a ``discs: generate:`` section (:func:`~cellplan.assembly.problems.random_setup`)
+and plans it the same way. Both go through :func:`cellplan.api.plan`; every option
+defaults to ``None`` and is passed on only when given, so the defaults are those of
+the planners' option models and the scenario section. The run writes a Fig. 1-2 style
+sequence, an animated GIF, ``trajectory.csv`` and ``metrics.json``; the exit status is
+0 when the discs are assembled, 1 when the run stopped short (stuck, budget spent), 2
+for bad input.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
-from cellplan.assembly.problems import DEFAULT_FILL
+from cellplan.cliutil import JsonOpt
 from cellplan.errors import ArgumentError, Problem
 
 ALGORITHMS = ("gradient", "sequential", "control")
 
-
-def check_arguments(scenario: str | None, random_n: int | None, algorithm: str, k: float | None,
-                    epsilon: float | None, rule: str, radius: float, frames: int,
-                    escapes: int = 0, fill: float = DEFAULT_FILL) -> None:
-    """Every mistake in the arguments, one :class:`Problem` each (raised together)."""
-    from cellplan.assembly.sequential import RULES
-
-    problems: list[Problem] = []
-    if (scenario is None) == (random_n is None):
-        problems.append(Problem("FILE", "give a scenario FILE or --random N, not both"))
-    if random_n is not None and not 1 <= random_n <= 200:
-        problems.append(Problem("--random", f"must be between 1 and 200, got {random_n}"))
-    if algorithm not in ALGORITHMS:
-        known = ", ".join(ALGORITHMS)
-        problems.append(Problem("--algorithm", f"unknown {algorithm!r}; use {known}"))
-    if k is not None and not k > 0:
-        problems.append(Problem("--k", f"must be > 0, got {k:g}"))
-    if epsilon is not None and not epsilon > 0:
-        problems.append(Problem("--epsilon", f"must be > 0, got {epsilon:g}"))
-    if rule not in RULES:
-        problems.append(Problem("--rule", f"unknown {rule!r}; use {', '.join(RULES)}"))
-    if not radius > 0:
-        problems.append(Problem("--radius", f"must be > 0, got {radius:g}"))
-    if not 0 < fill <= 0.5:
-        problems.append(Problem("--fill", f"must be in (0, 0.5], got {fill:g}"))
-    if frames < 2:
-        problems.append(Problem("--frames", f"must be at least 2, got {frames}"))
-    if not 0 <= escapes <= 20:
-        problems.append(Problem("--escapes", f"must be between 0 and 20, got {escapes}"))
-    if problems:
-        raise ArgumentError(problems)
+#: ``random_setup`` parameter -> the command-line option that sets it
+_RANDOM_FLAGS = {
+    "n": "--random",
+    "seed": "--seed",
+    "radius": "--radius",
+    "fill": "--fill",
+    "log10_beta": "--log10-beta",
+}
 
 
 def register(app: typer.Typer) -> None:
@@ -55,33 +38,122 @@ def register(app: typer.Typer) -> None:
 
     @app.command()
     def assemble(
-        scenario: Annotated[str | None, typer.Argument(help="scenario (discs: section)")] = None,
+        scenario: Annotated[
+            str | None,
+            typer.Argument(
+                help="scenario file with a discs: section, or a bundled scenario's name"
+            ),
+        ] = None,
         algorithm: Annotated[str, typer.Option(help="gradient|sequential|control")] = "gradient",
-        k: Annotated[float | None, typer.Option("--k", help="exponent k (default: file's)")] = None,
-        epsilon: Annotated[float | None, typer.Option(help="normalisation epsilon")] = None,
-        rule: Annotated[str, typer.Option(help="sequential rule: paper | place")] = "paper",
+        k: Annotated[
+            float | None, typer.Option("--k", help="exponent k (default: the scenario's discs.k)")
+        ] = None,
+        epsilon: Annotated[
+            float | None, typer.Option(help="normalisation epsilon (default: discs.epsilon)")
+        ] = None,
+        tolerance: Annotated[
+            float | None, typer.Option(help="goal tolerance in R^2n (default: discs.tolerance)")
+        ] = None,
+        rule: Annotated[
+            str | None, typer.Option(help="sequential rule: paper | place (default: paper)")
+        ] = None,
+        escapes: Annotated[
+            int | None,
+            typer.Option(
+                help="gradient and paper rule: times k may be halved when stuck (0: k alone; "
+                "default 6)"
+            ),
+        ] = None,
         random_n: Annotated[int | None, typer.Option("--random", help="generate N discs")] = None,
-        seed: Annotated[int, typer.Option(help="seed of --random")] = 0,
-        permutation: Annotated[bool, typer.Option(help="--random: starts permute goals")] = False,
-        log10_beta: Annotated[float | None, typer.Option(help="--random: goal difficulty")] = None,
-        radius: Annotated[float, typer.Option(help="--random: disc radius")] = 1.0,
-        fill: Annotated[float, typer.Option(
-            help="--random: fraction of the workspace area the discs cover")] = DEFAULT_FILL,
+        seed: Annotated[int | None, typer.Option(help="--random: seed (default 0)")] = None,
+        permutation: Annotated[
+            bool, typer.Option(help="--random: starts permute the goals")
+        ] = False,
+        log10_beta: Annotated[
+            float | None, typer.Option(help="--random: goal difficulty log10 beta(d)")
+        ] = None,
+        radius: Annotated[
+            float | None, typer.Option(help="--random: disc radius (default 1)")
+        ] = None,
+        fill: Annotated[
+            float | None,
+            typer.Option(
+                help="--random: fraction of the workspace area the discs cover (default 0.05)"
+            ),
+        ] = None,
         frames: Annotated[int, typer.Option(help="GIF frames")] = 40,
-        escapes: Annotated[int, typer.Option(
-            help="gradient and paper rule: times k may be halved when stuck (0: k alone)")] = 6,
         output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
-            "assembly-out"),
+            "assembly-out"
+        ),
+        as_json: JsonOpt = False,
     ) -> None:
-        """Plan a disc assembly (Whitcomb & Koditschek 1991): frames, GIF and metrics JSON."""
-        from cellplan.assembly.run import run_assembly
+        """Plan a disc assembly (Whitcomb & Koditschek 1991): frames, GIF, trajectory, metrics."""
+        from cellplan import api
+        from cellplan.assembly.problems import random_setup
+        from cellplan.assembly.run import write_outputs
+        from cellplan.cliutil import finish, progress_enabled, stderr
+        from cellplan.registry import parse_options, planner
 
-        check_arguments(scenario, random_n, algorithm, k, epsilon, rule, radius, frames, escapes,
-                        fill)
-        metrics = run_assembly(scenario, random_n, algorithm, k, epsilon, rule, seed,
-                               permutation, log10_beta, radius, frames, output, escapes, fill)
-        lowered = int(metrics.get("escapes", 0))
-        note = (f" (stuck at k={metrics['k']:g}; k lowered {lowered}x to "
-                f"{metrics['k_final']:g})" if lowered else "")
-        typer.echo(f"{metrics['status']}{note}: ratio {metrics['ratio']:.3f}, min clearance "
-                   f"{metrics['min_clearance']:.3g}; wrote {output}")
+        problems: list[Problem] = []
+        if (scenario is None) == (random_n is None):
+            problems.append(Problem("FILE", "give a scenario FILE or --random N, not both"))
+        if scenario is not None:
+            given = {
+                "--seed": seed,
+                "--radius": radius,
+                "--fill": fill,
+                "--log10-beta": log10_beta,
+                "--permutation": permutation or None,
+            }
+            problems.extend(
+                Problem(flag, "only with --random N")
+                for flag, value in given.items()
+                if value is not None
+            )
+        if algorithm not in ALGORITHMS:
+            problems.append(
+                Problem("--algorithm", f"unknown {algorithm!r}; use {', '.join(ALGORITHMS)}")
+            )
+        if frames < 2:
+            problems.append(Problem("--frames", f"must be at least 2, got {frames}"))
+        options: dict[str, Any] = {
+            key: value
+            for key, value in (
+                ("k", k),
+                ("epsilon", epsilon),
+                ("tolerance", tolerance),
+                ("rule", rule),
+                ("escapes", escapes),
+            )
+            if value is not None
+        }
+        name = f"assembly.{algorithm}"
+        if algorithm in ALGORITHMS:
+            try:
+                parse_options(planner(name), options, flag=True)
+            except ArgumentError as exc:
+                problems.extend(exc.problems)
+        setup = None
+        if random_n is not None:
+            try:
+                setup = random_setup(random_n, seed, radius, fill, permutation, log10_beta)
+            except ArgumentError as exc:
+                problems.extend(
+                    Problem(_RANDOM_FLAGS.get(p.field, p.field), p.message) for p in exc.problems
+                )
+        if problems:
+            raise ArgumentError(problems)
+        if setup is None:
+            assert scenario is not None
+            setup = api.load(scenario)
+        progress = None
+        if progress_enabled(as_json):
+            console = stderr()
+
+            def progress(done: float, total: float | None, text: str) -> None:
+                console.print(f"{name}: {text}", markup=False)
+
+        result = api.plan(setup, name, progress=progress, **options)
+        files = write_outputs(result, output, frames)
+        summary = f"{result.message}; wrote {output}" if result.success else f"wrote {output}"
+        finish(result, as_json, summary, outputs=files, extra={"scenario": setup.name})

@@ -44,15 +44,24 @@ class ControlResult:
     energy: Array  # (m,)
     min_clearance: float
     steps: int
+    problem: DiscProblem | None = None  # the problem simulated
 
     def length(self) -> float:
         seg = np.diff(self.path, axis=0).reshape(len(self.path) - 1, -1)
         return float(np.sum(np.linalg.norm(seg, axis=1)))
 
 
-def simulate_control(problem: DiscProblem, k: float, kp: float = 1.0, kd: float | None = None,
-                     *, dt_max: float = 0.05, t_max: float = 400.0, tol: float = 1e-3,
-                     max_steps: int = 200000) -> ControlResult:
+def simulate_control(
+    problem: DiscProblem,
+    k: float,
+    kp: float = 1.0,
+    kd: float | None = None,
+    *,
+    dt_max: float = 0.05,
+    t_max: float = 400.0,
+    tol: float = 1e-3,
+    max_steps: int = 200000,
+) -> ControlResult:
     """Simulate ``b'' = -K_p grad W - K_d b'`` from rest at the start until at rest at the goal.
 
     Parameters
@@ -110,5 +119,6 @@ def simulate_control(problem: DiscProblem, k: float, kp: float = 1.0, kd: float 
         times.append(t)
         path.append(b.copy())
         energies.append(energy)
-    return ControlResult(status, np.array(times), np.array(path), np.array(energies),
-                         min_clear, steps)
+    return ControlResult(
+        status, np.array(times), np.array(path), np.array(energies), min_clear, steps, problem
+    )

@@ -34,8 +34,10 @@ from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
 PAPER = "assembly"
 BETAS = (-2.0, -9.0, -16.0, -28.0, -44.0)
 K_BETA = (32.0, 48.0, 64.0, 96.0, 128.0)
-K_BY_N = {7: (16.0, 32.0, 48.0, 64.0, 96.0, 128.0, 192.0, 256.0),
-          10: (32.0, 64.0, 96.0, 128.0, 192.0, 256.0, 384.0, 512.0)}
+K_BY_N = {
+    7: (16.0, 32.0, 48.0, 64.0, 96.0, 128.0, 192.0, 256.0),
+    10: (32.0, 64.0, 96.0, 128.0, 192.0, 256.0, 384.0, 512.0),
+}
 GAP = 0.1  # goal gap of the Figs. 3-4 cluster (unit discs)
 #: sensitivity study: k per n (the best k of Figs. 3-4), workspace fills, start gaps.
 #: 0.075 is about the fill of the workspace used before the 5% default (7.3% for 7
@@ -46,30 +48,32 @@ START_GAPS = (0.05, 1.0)
 
 
 def run(spec: RunSpec) -> dict[str, Scalar]:
-    """One planning run; parameters: algorithm, n, k, log10_beta (or gap), starts, rule."""
-    from cellplan.assembly.planners import run_gradient, run_sequential
-    from cellplan.assembly.problems import (
-        DEFAULT_FILL,
-        default_workspace,
-        generate_problem,
-        log10_beta_pairs,
-    )
-    from cellplan.assembly.section import GeneratorSpec
+    """One planning run; parameters: algorithm, n, k, log10_beta (or gap), starts, rule.
+
+    The problem is a scenario with a ``discs: generate:`` section seeded by the run's
+    seed (:func:`problems.generated_setup`), planned through :func:`cellplan.plan` with
+    every other option at its default (tolerance, epsilon, escapes).
+    """
+    from cellplan import api
+    from cellplan.assembly.problems import DEFAULT_FILL, generated_setup, log10_beta_pairs
 
     prm = spec.params
-    n = int(prm["n"])
+    generate: dict[str, Scalar] = {
+        "n": int(prm["n"]),
+        "seed": spec.seed,
+        "gap": GAP,
+        "starts": str(prm.get("starts", "random")),
+        "min_start_gap": float(prm.get("start_gap", 0.05)),
+    }
+    if "log10_beta" in prm:
+        generate["log10_beta_goal"] = float(prm["log10_beta"])
+    setup = generated_setup(generate, float(prm.get("fill", DEFAULT_FILL)))
     k = float(prm["k"])
-    lb = float(prm.get("log10_beta", 0.0))
-    gen = GeneratorSpec(n=n, seed=spec.seed, gap=GAP, starts=str(prm.get("starts", "random")),  # type: ignore[arg-type]
-                        log10_beta_goal=lb if "log10_beta" in prm else None,
-                        min_start_gap=float(prm.get("start_gap", 0.05)))
-    ws = default_workspace(n, fill=float(prm.get("fill", DEFAULT_FILL)))
-    problem = generate_problem(gen, ws)
-    algorithm = str(prm["algorithm"])
-    if algorithm == "gradient":
-        res = run_gradient(problem, k)
+    if str(prm["algorithm"]) == "gradient":
+        res = api.plan(setup, "assembly.gradient", k=k)
     else:
-        res = run_sequential(problem, k, str(prm["rule"]))
+        res = api.plan(setup, "assembly.sequential", k=k, rule=str(prm["rule"]))
+    problem = res.solution.problem
     row: dict[str, Scalar] = {
         "status": res.status.value,
         "solved": res.status.ok,
@@ -85,8 +89,12 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
 def _runs_ratio_vs_k(runs: int, quick: bool) -> list[RunSpec]:
     grid = {5: (16.0, 64.0)} if quick else K_BY_N
     seeds = range(2 if quick else runs)
-    return [RunSpec("assembly.ratio_vs_k", {"algorithm": "gradient", "n": n, "k": k}, s)
-            for n, ks in grid.items() for k in ks for s in seeds]
+    return [
+        RunSpec("assembly.ratio_vs_k", {"algorithm": "gradient", "n": n, "k": k}, s)
+        for n, ks in grid.items()
+        for k in ks
+        for s in seeds
+    ]
 
 
 def _runs_sensitivity(runs: int, quick: bool) -> list[RunSpec]:
@@ -94,25 +102,45 @@ def _runs_sensitivity(runs: int, quick: bool) -> list[RunSpec]:
     fills = (0.05, 0.0125) if quick else FILLS
     seeds = range(2 if quick else runs)
     cells = [(f, START_GAPS[0]) for f in fills] + [(0.05, g) for g in START_GAPS[1:]]
-    return [RunSpec("assembly.sensitivity", {"algorithm": "gradient", "n": n, "k": k,
-                                             "fill": f, "start_gap": g}, s)
-            for n, k in grid.items() for f, g in cells for s in seeds]
+    return [
+        RunSpec(
+            "assembly.sensitivity",
+            {"algorithm": "gradient", "n": n, "k": k, "fill": f, "start_gap": g},
+            s,
+        )
+        for n, k in grid.items()
+        for f, g in cells
+        for s in seeds
+    ]
 
 
 def _runs_ratio_vs_beta(runs: int, quick: bool) -> list[RunSpec]:
     betas, ks, n = ((-2.0, -16.0), (48.0,), 5) if quick else (BETAS, K_BETA, 7)
     seeds = range(2 if quick else runs)
-    return [RunSpec("assembly.ratio_vs_beta",
-                    {"algorithm": "gradient", "n": n, "k": k, "log10_beta": b}, s)
-            for b in betas for k in ks for s in seeds]
+    return [
+        RunSpec(
+            "assembly.ratio_vs_beta", {"algorithm": "gradient", "n": n, "k": k, "log10_beta": b}, s
+        )
+        for b in betas
+        for k in ks
+        for s in seeds
+    ]
 
 
 def _runs_sequential(runs: int, quick: bool) -> list[RunSpec]:
     betas, ks, n = ((-2.0, -16.0), (32.0,), 3) if quick else (BETAS, K_BETA, 7)
     seeds = range(2 if quick else runs)
-    return [RunSpec("assembly.sequential", {"algorithm": "sequential", "rule": rule, "n": n,
-                                            "k": k, "log10_beta": b}, s)
-            for rule in ("paper", "place") for b in betas for k in ks for s in seeds]
+    return [
+        RunSpec(
+            "assembly.sequential",
+            {"algorithm": "sequential", "rule": rule, "n": n, "k": k, "log10_beta": b},
+            s,
+        )
+        for rule in ("paper", "place")
+        for b in betas
+        for k in ks
+        for s in seeds
+    ]
 
 
 def _runs_permutation(runs: int, quick: bool) -> list[RunSpec]:
@@ -121,10 +149,18 @@ def _runs_permutation(runs: int, quick: bool) -> list[RunSpec]:
     specs: list[RunSpec] = []
     for b in betas:
         for starts in ("random", "permutation"):
-            for algorithm, rule in (("gradient", ""), ("sequential", "paper"),
-                                    ("sequential", "place")):
-                prm: dict[str, Scalar] = {"algorithm": algorithm, "n": n, "k": k,
-                                          "log10_beta": b, "starts": starts}
+            for algorithm, rule in (
+                ("gradient", ""),
+                ("sequential", "paper"),
+                ("sequential", "place"),
+            ):
+                prm: dict[str, Scalar] = {
+                    "algorithm": algorithm,
+                    "n": n,
+                    "k": k,
+                    "log10_beta": b,
+                    "starts": starts,
+                }
                 if rule:
                     prm["rule"] = rule
                 specs.extend(RunSpec("assembly.permutation", prm, s) for s in seeds)
@@ -134,8 +170,9 @@ def _runs_permutation(runs: int, quick: bool) -> list[RunSpec]:
 # --- reports ---------------------------------------------------------------------------------
 
 
-def _group(rows: list[dict[str, Scalar]], keys: tuple[str, ...], value: str
-           ) -> dict[tuple[Any, ...], dict[str, float]]:
+def _group(
+    rows: list[dict[str, Scalar]], keys: tuple[str, ...], value: str
+) -> dict[tuple[Any, ...], dict[str, float]]:
     """Mean, std, successes, runs of ``value`` (solved runs only) per key tuple.
 
     Gradient rows also carry ``solved_at_k`` (the flow at the stated k alone reached the
@@ -151,31 +188,49 @@ def _group(rows: list[dict[str, Scalar]], keys: tuple[str, ...], value: str
         ok = [r for r in rs if r.get("solved")]
         vals = np.array([float(r[value]) for r in ok if value in r])
         clear = np.array([float(r["min_clearance"]) for r in rs if "min_clearance" in r])
-        out[key] = {"mean": float(vals.mean()) if len(vals) else float("nan"),
-                    "std": float(vals.std()) if len(vals) else float("nan"),
-                    "solved": float(len(ok)), "runs": float(len(rs)),
-                    "min_clearance": float(clear.min()) if len(clear) else float("nan"),
-                    "wall_s": float(np.mean([float(r.get("wall_s", 0.0)) for r in rs]))}
+        out[key] = {
+            "mean": float(vals.mean()) if len(vals) else float("nan"),
+            "std": float(vals.std()) if len(vals) else float("nan"),
+            "solved": float(len(ok)),
+            "runs": float(len(rs)),
+            "min_clearance": float(clear.min()) if len(clear) else float("nan"),
+            "wall_s": float(np.mean([float(r.get("wall_s", 0.0)) for r in rs])),
+        }
         if rs and all("solved_at_k" in r for r in rs):
             at_k = np.array([float(r[value]) for r in ok if float(r["solved_at_k"]) > 0])
-            out[key].update({"solved_k": float(len(at_k)),
-                             "mean_k": float(at_k.mean()) if len(at_k) else float("nan"),
-                             "std_k": float(at_k.std()) if len(at_k) else float("nan")})
+            out[key].update(
+                {
+                    "solved_k": float(len(at_k)),
+                    "mean_k": float(at_k.mean()) if len(at_k) else float("nan"),
+                    "std_k": float(at_k.std()) if len(at_k) else float("nan"),
+                }
+            )
     return out
 
 
-def _table(stats: dict[tuple[Any, ...], dict[str, float]], keys: tuple[str, ...]
-           ) -> list[dict[str, Scalar]]:
+def _table(
+    stats: dict[tuple[Any, ...], dict[str, float]], keys: tuple[str, ...]
+) -> list[dict[str, Scalar]]:
     rows: list[dict[str, Scalar]] = []
     for key, s in stats.items():
         row: dict[str, Scalar] = {k: v for k, v in zip(keys, key, strict=True)}
-        row.update({"mean": round(s["mean"], 4), "std": round(s["std"], 4),
-                    "solved": f"{int(s['solved'])}/{int(s['runs'])}"})
+        row.update(
+            {
+                "mean": round(s["mean"], 4),
+                "std": round(s["std"], 4),
+                "solved": f"{int(s['solved'])}/{int(s['runs'])}",
+            }
+        )
         if "solved_k" in s:
-            row.update({"solved at k": f"{int(s['solved_k'])}/{int(s['runs'])}",
-                        "mean (solved at k)": round(s["mean_k"], 4)})
-        row.update({"min clearance": float(f"{s['min_clearance']:.3g}"),
-                    "s/run": round(s["wall_s"], 3)})
+            row.update(
+                {
+                    "solved at k": f"{int(s['solved_k'])}/{int(s['runs'])}",
+                    "mean (solved at k)": round(s["mean_k"], 4),
+                }
+            )
+        row.update(
+            {"min clearance": float(f"{s['min_clearance']:.3g}"), "s/run": round(s["wall_s"], 3)}
+        )
         rows.append(row)
     return rows
 
@@ -185,55 +240,93 @@ def _report_ratio_vs_k(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
 
     outdir = Path(outdir)
     stats = _group(rows, ("n", "k"), "ratio")
-    piece = ReportPiece("Path-length ratio vs k (Figs. 3-4)",
-                        "Gradient algorithm, random legal starts, hexagonal goal cluster "
-                        "(gap 0.1 radius); mean and standard deviation over solved runs.",
-                        tables=[("ratio vs k", _table(stats, ("n", "k")))])
+    piece = ReportPiece(
+        "Path-length ratio vs k (Figs. 3-4)",
+        "Gradient algorithm, random legal starts, hexagonal goal cluster "
+        "(gap 0.1 radius); mean and standard deviation over solved runs.",
+        tables=[("ratio vs k", _table(stats, ("n", "k")))],
+    )
     for n in sorted({key[0] for key in stats}):
         pts = sorted((key[1], s) for key, s in stats.items() if key[0] == n)
         ks = np.array([float(k) for k, _ in pts])
-        series = [(f"{n} discs", ks, np.array([s["mean"] for _, s in pts]),
-                   np.array([s["std"] for _, s in pts]))]
-        piece.figures.append(save_errorbars(series, outdir / f"assembly_ratio_vs_k_{n}.png",
-                                            "k", "path-length ratio",
-                                            f"Fig. {3 if n == 7 else 4}: {n} discs", logx=True,
-                                            reference=1.25, plain_ticks=True))
+        series = [
+            (
+                f"{n} discs",
+                ks,
+                np.array([s["mean"] for _, s in pts]),
+                np.array([s["std"] for _, s in pts]),
+            )
+        ]
+        piece.figures.append(
+            save_errorbars(
+                series,
+                outdir / f"assembly_ratio_vs_k_{n}.png",
+                "k",
+                "path-length ratio",
+                f"Fig. {3 if n == 7 else 4}: {n} discs",
+                logx=True,
+                reference=1.25,
+                plain_ticks=True,
+            )
+        )
         target = 1.25 if n <= 7 else 1.3
-        for label, mean_key, solved_key in (("the flow at k alone", "mean_k", "solved_k"),
-                                            ("k lowered when stuck", "mean", "solved")):
+        for label, mean_key, solved_key in (
+            ("the flow at k alone", "mean_k", "solved_k"),
+            ("k lowered when stuck", "mean", "solved"),
+        ):
             full = [(k, s) for k, s in pts if s.get(solved_key, -1.0) == s["runs"]]
             best = min(full, key=lambda ks_: ks_[1][mean_key]) if full else None
             std_key = "std_k" if mean_key == "mean_k" else "std"
-            ours = (f"best k={best[0]:g}: {best[1][mean_key]:.3f} ± {best[1][std_key]:.3f}, "
-                    f"{int(best[1][solved_key])}/{int(best[1]['runs'])} solved" if best else
-                    "no k with every run solved")
-            piece.claims.append(Claim(
-                claim=f"{n} discs ({label}): mean ratio at the best k is at most {target} "
-                      "with every run solved",
-                paper="Fig. 3: 1.25 at the highest k (7 discs); Fig. 4: under 1.25 (10 discs)",
-                ours=ours, reproduced=bool(best and best[1][mean_key] <= target)))
+            ours = (
+                f"best k={best[0]:g}: {best[1][mean_key]:.3f} ± {best[1][std_key]:.3f}, "
+                f"{int(best[1][solved_key])}/{int(best[1]['runs'])} solved"
+                if best
+                else "no k with every run solved"
+            )
+            piece.claims.append(
+                Claim(
+                    claim=f"{n} discs ({label}): mean ratio at the best k is at most {target} "
+                    "with every run solved",
+                    paper="Fig. 3: 1.25 at the highest k (7 discs); Fig. 4: under 1.25 (10 discs)",
+                    ours=ours,
+                    reproduced=bool(best and best[1][mean_key] <= target),
+                )
+            )
         means = [s["mean"] for _, s in pts if np.isfinite(s["mean"])]
-        piece.claims.append(Claim(
-            claim=f"{n} discs: higher k gives shorter paths",
-            paper="Sec. 5.2.1: higher k clearly yields smaller mean ratios",
-            ours=" → ".join(f"{m:.2f}" for m in means),
-            reproduced=bool(len(means) > 1 and means[-1] < means[0])))
+        piece.claims.append(
+            Claim(
+                claim=f"{n} discs: higher k gives shorter paths",
+                paper="Sec. 5.2.1: higher k clearly yields smaller mean ratios",
+                ours=" → ".join(f"{m:.2f}" for m in means),
+                reproduced=bool(len(means) > 1 and means[-1] < means[0]),
+            )
+        )
     clear = min((s["min_clearance"] for s in stats.values()), default=float("nan"))
-    piece.claims.append(Claim(claim="minimum clearance along every path is positive",
-                              paper="paths are guaranteed collision-free (Sec. 5.2.1)",
-                              ours=f"smallest clearance {clear:.3g}",
-                              reproduced=bool(clear > 0)))
+    piece.claims.append(
+        Claim(
+            claim="minimum clearance along every path is positive",
+            paper="paths are guaranteed collision-free (Sec. 5.2.1)",
+            ours=f"smallest clearance {clear:.3g}",
+            reproduced=bool(clear > 0),
+        )
+    )
     return piece
 
 
-def _beta_series(stats: dict[tuple[Any, ...], dict[str, float]], label_fmt: str
-                 ) -> list[tuple[str, Any, Any, Any]]:
+def _beta_series(
+    stats: dict[tuple[Any, ...], dict[str, float]], label_fmt: str
+) -> list[tuple[str, Any, Any, Any]]:
     series = []
     for k in sorted({key[-2] for key in stats}):
         pts = sorted((float(key[-1]), s) for key, s in stats.items() if key[-2] == k)
-        series.append((label_fmt.format(k=float(k)),
-                       np.array([10.0 ** b for b, _ in pts]),
-                       np.array([s["mean"] for _, s in pts]), np.array([s["std"] for _, s in pts])))
+        series.append(
+            (
+                label_fmt.format(k=float(k)),
+                np.array([10.0**b for b, _ in pts]),
+                np.array([s["mean"] for _, s in pts]),
+                np.array([s["std"] for _, s in pts]),
+            )
+        )
     return series
 
 
@@ -242,22 +335,33 @@ def _report_ratio_vs_beta(rows: list[dict[str, Scalar]], outdir: Any) -> ReportP
 
     outdir = Path(outdir)
     stats = _group(rows, ("k", "log10_beta"), "ratio")
-    piece = ReportPiece("Path-length ratio vs goal difficulty beta(d) (Figs. 5-7)",
-                        "Gradient algorithm, 7 discs, hexagonal goals whose gaps are set so "
-                        "that the pairwise beta(d) of equation (4) is 1e-2 ... 1e-44.",
-                        tables=[("ratio vs beta(d)", _table(stats, ("k", "log10_beta")))])
-    piece.figures.append(save_errorbars(_beta_series(stats, "k={k:g}"),
-                                        outdir / "assembly_ratio_vs_beta.png", "beta(d)",
-                                        "path-length ratio", "Figs. 6-7: gradient algorithm",
-                                        logx=True))
+    piece = ReportPiece(
+        "Path-length ratio vs goal difficulty beta(d) (Figs. 5-7)",
+        "Gradient algorithm, 7 discs, hexagonal goals whose gaps are set so "
+        "that the pairwise beta(d) of equation (4) is 1e-2 ... 1e-44.",
+        tables=[("ratio vs beta(d)", _table(stats, ("k", "log10_beta")))],
+    )
+    piece.figures.append(
+        save_errorbars(
+            _beta_series(stats, "k={k:g}"),
+            outdir / "assembly_ratio_vs_beta.png",
+            "beta(d)",
+            "path-length ratio",
+            "Figs. 6-7: gradient algorithm",
+            logx=True,
+        )
+    )
     for k in sorted({key[0] for key in stats}):
         means = [s["mean"] for key, s in stats.items() if key[0] == k]
         spread = max(means) / min(means) if means and min(means) > 0 else float("nan")
-        piece.claims.append(Claim(
-            claim=f"k={k:g}: ratio nearly independent of beta(d)",
-            paper="Sec. 5.2.2: harder goals only marginally longer",
-            ours=f"means {min(means):.3f}-{max(means):.3f} (max/min {spread:.2f})",
-            reproduced=bool(spread <= 1.15)))
+        piece.claims.append(
+            Claim(
+                claim=f"k={k:g}: ratio nearly independent of beta(d)",
+                paper="Sec. 5.2.2: harder goals only marginally longer",
+                ours=f"means {min(means):.3f}-{max(means):.3f} (max/min {spread:.2f})",
+                reproduced=bool(spread <= 1.15),
+            )
+        )
     return piece
 
 
@@ -265,10 +369,12 @@ def _report_sequential(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
     from cellplan.assembly.plots import save_errorbars
 
     outdir = Path(outdir)
-    piece = ReportPiece("Sequential algorithm: ratio and switches vs beta(d) (Figs. 8-9)",
-                        "Ratio over summed disc distances (footnote 6); switches = grasps "
-                        "(pick, move, release). Rules: paper (equations (13)-(16)) and ours "
-                        "(place).")
+    piece = ReportPiece(
+        "Sequential algorithm: ratio and switches vs beta(d) (Figs. 8-9)",
+        "Ratio over summed disc distances (footnote 6); switches = grasps "
+        "(pick, move, release). Rules: paper (equations (13)-(16)) and ours "
+        "(place).",
+    )
     for rule in ("paper", "place"):
         rs = [r for r in rows if r.get("rule") == rule]
         if not rs:
@@ -279,54 +385,88 @@ def _report_sequential(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
         piece.tables.append((f"{rule}: switches per disc", _table(sw, ("k", "log10_beta"))))
         if rule == "paper":
             near = _group(rs, ("k", "log10_beta"), "switches_per_disc_within_0.1")
-            piece.tables.append(("paper: switches per disc until ||x - d|| < 0.1",
-                                 _table(near, ("k", "log10_beta"))))
-        piece.figures.append(save_errorbars(_beta_series(ratio, "k={k:g}"),
-                                            outdir / f"assembly_seq_ratio_{rule}.png", "beta(d)",
-                                            "path-length ratio", f"Fig. 8 ({rule} rule)",
-                                            logx=True))
-        piece.figures.append(save_errorbars(_beta_series(sw, "k={k:g}"),
-                                            outdir / f"assembly_seq_switches_{rule}.png",
-                                            "beta(d)", "switches per disc",
-                                            f"Fig. 9 ({rule} rule)", logx=True))
+            piece.tables.append(
+                (
+                    "paper: switches per disc until ||x - d|| < 0.1",
+                    _table(near, ("k", "log10_beta")),
+                )
+            )
+        piece.figures.append(
+            save_errorbars(
+                _beta_series(ratio, "k={k:g}"),
+                outdir / f"assembly_seq_ratio_{rule}.png",
+                "beta(d)",
+                "path-length ratio",
+                f"Fig. 8 ({rule} rule)",
+                logx=True,
+            )
+        )
+        piece.figures.append(
+            save_errorbars(
+                _beta_series(sw, "k={k:g}"),
+                outdir / f"assembly_seq_switches_{rule}.png",
+                "beta(d)",
+                "switches per disc",
+                f"Fig. 9 ({rule} rule)",
+                logx=True,
+            )
+        )
         per_disc = np.array([s["mean"] for s in sw.values()])
         solved = sum(s["solved"] for s in sw.values())
         total = sum(s["runs"] for s in sw.values())
         if rule == "paper":
             # per k: (hardest, easiest) goal's switches; pts is sorted by log10 beta(d)
-            ends = [(pts[0][1]["mean"], pts[-1][1]["mean"]) for pts in (
-                sorted(((float(key[1]), st) for key, st in sw.items() if key[0] == k),
-                       key=lambda item: item[0])
-                for k in sorted({key[0] for key in sw}))]
+            ends = [
+                (pts[0][1]["mean"], pts[-1][1]["mean"])
+                for pts in (
+                    sorted(
+                        ((float(key[1]), st) for key, st in sw.items() if key[0] == k),
+                        key=lambda item: item[0],
+                    )
+                    for k in sorted({key[0] for key in sw})
+                )
+            ]
             easy = np.array([e for _, e in ends])
-            piece.claims.append(Claim(
-                claim="paper rule: about three switches per disc on easy goals",
-                paper="Fig. 9: about 3 per disc on the easy goals",
-                ours=f"{easy.min():.1f}-{easy.max():.1f} per disc on beta(d) = "
-                     f"1e{max(float(key[1]) for key in sw):g} over k; "
-                     f"{int(solved)}/{int(total)} solved",
-                reproduced=bool(np.all(np.abs(easy - 3.0) <= 1.0))))
-            piece.claims.append(Claim(
-                claim="paper rule: harder goals need more switches",
-                paper="Fig. 9: the switch count rises perceptibly with difficulty",
-                ours=", ".join(f"{e:.1f} -> {h:.1f}" for h, e in ends) + " (easy -> hard, per k)",
-                reproduced=bool(all(h > e for h, e in ends))))
+            piece.claims.append(
+                Claim(
+                    claim="paper rule: about three switches per disc on easy goals",
+                    paper="Fig. 9: about 3 per disc on the easy goals",
+                    ours=f"{easy.min():.1f}-{easy.max():.1f} per disc on beta(d) = "
+                    f"1e{max(float(key[1]) for key in sw):g} over k; "
+                    f"{int(solved)}/{int(total)} solved",
+                    reproduced=bool(np.all(np.abs(easy - 3.0) <= 1.0)),
+                )
+            )
+            piece.claims.append(
+                Claim(
+                    claim="paper rule: harder goals need more switches",
+                    paper="Fig. 9: the switch count rises perceptibly with difficulty",
+                    ours=", ".join(f"{e:.1f} -> {h:.1f}" for h, e in ends)
+                    + " (easy -> hard, per k)",
+                    reproduced=bool(all(h > e for h, e in ends)),
+                )
+            )
         else:
-            piece.claims.append(Claim(
-                claim="our place rule: at most two switches per disc, every run solved",
-                paper="Sec. 5.3: a person needs one or two switches per disc",
-                ours=f"{per_disc.min():.2f}-{per_disc.max():.2f} per disc; "
-                     f"{int(solved)}/{int(total)} solved",
-                reproduced=bool(per_disc.max() <= 2.0 and solved == total)))
+            piece.claims.append(
+                Claim(
+                    claim="our place rule: at most two switches per disc, every run solved",
+                    paper="Sec. 5.3: a person needs one or two switches per disc",
+                    ours=f"{per_disc.min():.2f}-{per_disc.max():.2f} per disc; "
+                    f"{int(solved)}/{int(total)} solved",
+                    reproduced=bool(per_disc.max() <= 2.0 and solved == total),
+                )
+            )
     return piece
 
 
 def _report_permutation(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     keys = ("log10_beta", "starts", "algorithm", "rule")
     ratio = _group(rows, keys, "ratio")
-    piece = ReportPiece("Permutation starts on packed goals (Section 5.2.2)",
-                        "Starts are random permutations of the packed goals.",
-                        tables=[("ratio", _table(ratio, keys))])
+    piece = ReportPiece(
+        "Permutation starts on packed goals (Section 5.2.2)",
+        "Starts are random permutations of the packed goals.",
+        tables=[("ratio", _table(ratio, keys))],
+    )
     for b in sorted({key[0] for key in ratio}):
         for alg, rule in (("gradient", ""), ("sequential", "paper"), ("sequential", "place")):
             rnd = ratio.get((b, "random", alg, rule))
@@ -334,12 +474,15 @@ def _report_permutation(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPie
             if not rnd or not per:
                 continue
             factor = per["mean"] / rnd["mean"]
-            piece.claims.append(Claim(
-                claim=f"beta(d)=1e{b:g}, {alg} {rule}: permutation starts lengthen paths",
-                paper="Sec. 5.2.2: ratios nearly double those of random starts",
-                ours=f"{per['mean']:.2f} vs {rnd['mean']:.2f} (x{factor:.2f}); "
-                     f"solved {int(per['solved'])}/{int(per['runs'])}",
-                reproduced=bool(1.3 <= factor <= 3.0)))
+            piece.claims.append(
+                Claim(
+                    claim=f"beta(d)=1e{b:g}, {alg} {rule}: permutation starts lengthen paths",
+                    paper="Sec. 5.2.2: ratios nearly double those of random starts",
+                    ours=f"{per['mean']:.2f} vs {rnd['mean']:.2f} (x{factor:.2f}); "
+                    f"solved {int(per['solved'])}/{int(per['runs'])}",
+                    reproduced=bool(1.3 <= factor <= 3.0),
+                )
+            )
     return piece
 
 
@@ -349,41 +492,93 @@ def _report_sensitivity(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPie
     outdir = Path(outdir)
     keys = ("n", "k", "fill", "start_gap")
     stats = _group(rows, keys, "ratio")
-    piece = ReportPiece("Sensitivity of the Figs. 3-4 ratio to the problem distribution",
-                        "Gradient algorithm at one k per n; the discs cover the fraction "
-                        "fill of a circular workspace (radius sqrt(n / fill) radii; default "
-                        "0.05) and random starts keep pairwise gaps above start_gap. Not in "
-                        "the paper, which gives neither.",
-                        tables=[("ratio vs workspace and start spacing", _table(stats, keys))])
+    piece = ReportPiece(
+        "Sensitivity of the Figs. 3-4 ratio to the problem distribution",
+        "Gradient algorithm at one k per n; the discs cover the fraction "
+        "fill of a circular workspace (radius sqrt(n / fill) radii; default "
+        "0.05) and random starts keep pairwise gaps above start_gap. Not in "
+        "the paper, which gives neither.",
+        tables=[("ratio vs workspace and start spacing", _table(stats, keys))],
+    )
     series = []
     for n, k in sorted({(key[0], key[1]) for key in stats}):
-        pts = sorted((float(key[2]), s) for key, s in stats.items()
-                     if key[:2] == (n, k) and float(key[3]) == START_GAPS[0])
-        series.append((f"{n} discs, k={float(k):g}", np.array([x for x, _ in pts]),
-                       np.array([s["mean"] for _, s in pts]), np.array([s["std"] for _, s in pts])))
-    piece.figures.append(save_errorbars(series, outdir / "assembly_ratio_vs_workspace.png",
-                                        "fill (disc area / workspace area)",
-                                        "path-length ratio", "ratio vs workspace fill",
-                                        logx=True, reference=1.25, plain_ticks=True))
+        pts = sorted(
+            (float(key[2]), s)
+            for key, s in stats.items()
+            if key[:2] == (n, k) and float(key[3]) == START_GAPS[0]
+        )
+        series.append(
+            (
+                f"{n} discs, k={float(k):g}",
+                np.array([x for x, _ in pts]),
+                np.array([s["mean"] for _, s in pts]),
+                np.array([s["std"] for _, s in pts]),
+            )
+        )
+    piece.figures.append(
+        save_errorbars(
+            series,
+            outdir / "assembly_ratio_vs_workspace.png",
+            "fill (disc area / workspace area)",
+            "path-length ratio",
+            "ratio vs workspace fill",
+            logx=True,
+            reference=1.25,
+            plain_ticks=True,
+        )
+    )
     for label, _, mean, _ in series:
         if len(mean) > 1:
-            piece.claims.append(Claim(
-                claim=f"{label}: a sparser workspace (starts further out) gives smaller ratios",
-                paper="not stated (the paper gives no workspace)",
-                ours=" → ".join(f"{m:.3f}" for m in mean) + " (fill rising)",
-                reproduced=bool(np.all(np.diff(mean) > 0))))
+            piece.claims.append(
+                Claim(
+                    claim=f"{label}: a sparser workspace (starts further out) gives smaller ratios",
+                    paper="not stated (the paper gives no workspace)",
+                    ours=" → ".join(f"{m:.3f}" for m in mean) + " (fill rising)",
+                    reproduced=bool(np.all(np.diff(mean) > 0)),
+                )
+            )
     return piece
 
 
 EXPERIMENTS: list[Experiment] = [
-    Experiment("assembly.ratio_vs_k", PAPER, "Gradient assembly: path-length ratio vs k",
-               _runs_ratio_vs_k, run, _report_ratio_vs_k),
-    Experiment("assembly.ratio_vs_beta", PAPER, "Gradient assembly: ratio vs beta(d)",
-               _runs_ratio_vs_beta, run, _report_ratio_vs_beta),
-    Experiment("assembly.sequential", PAPER, "Sequential assembly: ratio and switches",
-               _runs_sequential, run, _report_sequential),
-    Experiment("assembly.permutation", PAPER, "Permutation starts on packed goals",
-               _runs_permutation, run, _report_permutation),
-    Experiment("assembly.sensitivity", PAPER, "Gradient assembly: ratio vs workspace and starts",
-               _runs_sensitivity, run, _report_sensitivity),
+    Experiment(
+        "assembly.ratio_vs_k",
+        PAPER,
+        "Gradient assembly: path-length ratio vs k",
+        _runs_ratio_vs_k,
+        run,
+        _report_ratio_vs_k,
+    ),
+    Experiment(
+        "assembly.ratio_vs_beta",
+        PAPER,
+        "Gradient assembly: ratio vs beta(d)",
+        _runs_ratio_vs_beta,
+        run,
+        _report_ratio_vs_beta,
+    ),
+    Experiment(
+        "assembly.sequential",
+        PAPER,
+        "Sequential assembly: ratio and switches",
+        _runs_sequential,
+        run,
+        _report_sequential,
+    ),
+    Experiment(
+        "assembly.permutation",
+        PAPER,
+        "Permutation starts on packed goals",
+        _runs_permutation,
+        run,
+        _report_permutation,
+    ),
+    Experiment(
+        "assembly.sensitivity",
+        PAPER,
+        "Gradient assembly: ratio vs workspace and starts",
+        _runs_sensitivity,
+        run,
+        _report_sensitivity,
+    ),
 ]

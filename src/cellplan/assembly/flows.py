@@ -130,7 +130,8 @@ class FlowResult:
     """A path of a flow and how it ended.
 
     ``stages`` lists the k-stages of :func:`gradient_flow` (one stage unless a stuck
-    run was continued at a smaller k); empty for the low-level flows.
+    run was continued at a smaller k); empty for the low-level flows. ``problem`` is the
+    problem :func:`gradient_flow` solved (``None`` for the low-level flows).
     """
 
     status: Status
@@ -142,6 +143,7 @@ class FlowResult:
     reason: str = ""
     log_w: list[float] = field(default_factory=list)
     stages: list[Stage] = field(default_factory=list)
+    problem: DiscProblem | None = None  # set by gradient_flow (the planners' solution)
 
     @property
     def escapes(self) -> int:
@@ -163,8 +165,9 @@ class FlowResult:
         return np.sum(np.linalg.norm(seg, axis=2), axis=0)
 
 
-def max_dt(w: Array, ev: NavEval, moving: Array, gaps: Array, bgap: Array,
-           stiff: bool = True) -> float:
+def max_dt(
+    w: Array, ev: NavEval, moving: Array, gaps: Array, bgap: Array, stiff: bool = True
+) -> float:
     """Largest ``dt`` for which the Euler step stays within every gap.
 
     Per pair, ``dt (||w_i|| + ||w_j|| + 2 rep_ij) <= gap_ij`` (and per disc the same with
@@ -185,8 +188,7 @@ def max_dt(w: Array, ev: NavEval, moving: Array, gaps: Array, bgap: Array,
 def step_is_safe(delta: Array, gaps: Array, bgap: Array, fraction: float) -> bool:
     """True when no disc pair or disc and boundary can meet along the straight step."""
     m = np.sqrt(np.sum(delta * delta, axis=1))
-    return bool(np.all(m[:, None] + m[None, :] <= fraction * gaps)
-                and np.all(m <= fraction * bgap))
+    return bool(np.all(m[:, None] + m[None, :] <= fraction * gaps) and np.all(m <= fraction * bgap))
 
 
 Field = Callable[[Array], tuple[Array, NavEval]]
@@ -256,8 +258,9 @@ def integrate(
         return 1.0 / (settings.normalize + float(np.sqrt(np.sum(vm * vm))))
 
     # near the goal the normalised field has rate 1/eta: keep dt * rate <= 1
-    dt_cap = settings.dt_max if settings.normalize is None else min(settings.dt_max,
-                                                                     settings.normalize)
+    dt_cap = (
+        settings.dt_max if settings.normalize is None else min(settings.dt_max, settings.normalize)
+    )
     b = np.array(b0, dtype=float)
     w, ev = fld(b)
     gaps, bgap = clearances(b, radii, ws)
@@ -272,12 +275,16 @@ def integrate(
         if not np.all(np.isfinite(w)):
             status, reason = Status.STUCK, "non-finite field"
             break
-        dt = min(dt_cap, settings.euler_fraction * max_dt(
-            w, ev, mask[:, 0] * lam_of(ev), gaps, bgap, settings.stiff_bound))
+        dt = min(
+            dt_cap,
+            settings.euler_fraction
+            * max_dt(w, ev, mask[:, 0] * lam_of(ev), gaps, bgap, settings.stiff_bound),
+        )
         for _ in range(60):
             new = _rk4(fld, b, w, dt, gaps, bgap)
-            if new is not None and (settings.stiff_bound
-                                    or log_w(new[2], k) <= log_w(ev, k) + 1e-13):
+            if new is not None and (
+                settings.stiff_bound or log_w(new[2], k) <= log_w(ev, k) + 1e-13
+            ):
                 break
             dt *= 0.5
         else:
@@ -310,10 +317,25 @@ class _Record:
     log_time: float = -math.inf
 
     @classmethod
-    def start(cls, b: Array, ev: NavEval, k: float, epsilon: float, moving: int | None,
-              settings: FlowSettings) -> _Record:
-        return cls(k, math.log(epsilon), moving, settings.window, settings.min_progress,
-                   [b.copy()], [log_w(ev, k)], float(min(np.min(ev.gaps), np.min(ev.bgap))))
+    def start(
+        cls,
+        b: Array,
+        ev: NavEval,
+        k: float,
+        epsilon: float,
+        moving: int | None,
+        settings: FlowSettings,
+    ) -> _Record:
+        return cls(
+            k,
+            math.log(epsilon),
+            moving,
+            settings.window,
+            settings.min_progress,
+            [b.copy()],
+            [log_w(ev, k)],
+            float(min(np.min(ev.gaps), np.min(ev.bgap))),
+        )
 
     def accept(self, b: Array, ev: NavEval, b_new: Array, ev_new: NavEval) -> bool:
         """Record an accepted step ``b -> b_new``; True when progress has stalled."""
@@ -332,15 +354,24 @@ class _Record:
         return len(lw) > self.window and lw[-self.window - 1] - lw[-1] < self.min_progress
 
     def result(self, status: Status, steps: int, evals: int, reason: str) -> FlowResult:
-        return FlowResult(status, np.array(self.path), steps, evals, self.min_clear,
-                          self.log_time, reason, self.log_ws)
+        return FlowResult(
+            status,
+            np.array(self.path),
+            steps,
+            evals,
+            self.min_clear,
+            self.log_time,
+            reason,
+            self.log_ws,
+        )
 
 
 # --- the normalised flow with a linearly implicit, clearance-bounded step ---------------------
 
 
-def segment_is_safe(b: Array, delta: Array, radii: Array, gaps: Array, bgap: Array,
-                    bgap_new: Array, fraction: float) -> bool:
+def segment_is_safe(
+    b: Array, delta: Array, radii: Array, gaps: Array, bgap: Array, bgap_new: Array, fraction: float
+) -> bool:
     """True when along the straight step ``b -> b + delta`` no gap shrinks below
     ``fraction`` of its value at ``b`` (so no contact can occur inside the step).
 
@@ -393,8 +424,11 @@ def implicit_step(g: Array, hess: Array, length: float, *, lapack: bool = False)
         the tests and the benchmark. Both compute the same step up to rounding.
     """
     if not lapack:
-        return implicit_step_kernel(np.ascontiguousarray(g, dtype=np.float64),
-                                    np.ascontiguousarray(hess, dtype=np.float64), float(length))
+        return implicit_step_kernel(
+            np.ascontiguousarray(g, dtype=np.float64),
+            np.ascontiguousarray(hess, dtype=np.float64),
+            float(length),
+        )
     lam, Q = sym_eigh_lapack(np.ascontiguousarray(hess))
     lam = np.maximum(lam, 0.0)
     gq = Q.T @ g
@@ -415,9 +449,15 @@ def implicit_step(g: Array, hess: Array, length: float, *, lapack: bool = False)
     return -(Q @ (gq / (mu + lam)))
 
 
-def _integrate_implicit(problem: DiscProblem, b0: Array, k: float, epsilon: float,
-                        moving: int | None, stop: Callable[[Array, NavEval], Status | None],
-                        settings: FlowSettings) -> FlowResult:
+def _integrate_implicit(
+    problem: DiscProblem,
+    b0: Array,
+    k: float,
+    epsilon: float,
+    moving: int | None,
+    stop: Callable[[Array, NavEval], Status | None],
+    settings: FlowSettings,
+) -> FlowResult:
     """The normalised gradient flow (Section 3.3) by arc length; see :func:`integrate`.
 
     Each step has length at most ``min(r, goal_fraction ||b - d||)`` for a trust radius
@@ -458,9 +498,11 @@ def _integrate_implicit(problem: DiscProblem, b0: Array, k: float, epsilon: floa
             b_new = b + delta
             ev_new = evaluate(b_new, problem, k)
             evals += 1
-            if (np.isfinite(ev_new.log_beta) and log_w(ev_new, k) <= lw
-                    and segment_is_safe(b, delta, radii, gaps, bgap, ev_new.bgap,
-                                        STEP_FRACTION)):
+            if (
+                np.isfinite(ev_new.log_beta)
+                and log_w(ev_new, k) <= lw
+                and segment_is_safe(b, delta, radii, gaps, bgap, ev_new.bgap, STEP_FRACTION)
+            ):
                 break
             length *= 0.5
             radius = length
@@ -497,8 +539,9 @@ def _log_field_norm(ev: NavEval, moving: int | None) -> float:
     return ev.log_scale + math.log(norm) if norm > 0 else -math.inf
 
 
-def _rk4(fld: Field, b: Array, w1: Array, dt: float, gaps: Array, bgap: Array
-         ) -> tuple[Array, Array, NavEval] | None:
+def _rk4(
+    fld: Field, b: Array, w1: Array, dt: float, gaps: Array, bgap: Array
+) -> tuple[Array, Array, NavEval] | None:
     # Each stage point is itself a straight step from b; all must pass the gap test.
     stages = [w1]
     for c in (0.5, 0.5, 1.0):
@@ -522,10 +565,16 @@ def _rk4(fld: Field, b: Array, w1: Array, dt: float, gaps: Array, bgap: Array
 # --- the gradient assembly algorithm (Section 4.1) -------------------------------------------
 
 
-def gradient_flow(problem: DiscProblem, k: float, epsilon: float = 1e-3, tol: float = 1e-3,
-                  settings: FlowSettings = FlowSettings(),
-                  direction: Callable[[Array], Array] | None = None,
-                  escapes: int = 0, escape_factor: float = 0.5) -> FlowResult:
+def gradient_flow(
+    problem: DiscProblem,
+    k: float,
+    epsilon: float = 1e-3,
+    tol: float = 1e-3,
+    settings: FlowSettings = FlowSettings(),
+    direction: Callable[[Array], Array] | None = None,
+    escapes: int = 0,
+    escape_factor: float = 0.5,
+) -> FlowResult:
     """All discs move together along ``-grad phi`` (equation (9)) until ``||b - d|| < tol``.
 
     Ends ``solved`` at the goal, ``stuck`` at another critical point or without
@@ -558,18 +607,33 @@ def gradient_flow(problem: DiscProblem, k: float, epsilon: float = 1e-3, tol: fl
         parts.append(res)
     if len(parts) == 1:
         res.stages = stages
+        res.problem = problem
         return res
     path = np.concatenate([parts[0].path] + [p.path[1:] for p in parts[1:]])
     log_time = float(np.logaddexp.reduce([p.log_time for p in parts]))
-    return FlowResult(res.status, path, sum(p.steps for p in parts),
-                      sum(p.evaluations for p in parts),
-                      min(p.min_clearance for p in parts), log_time, res.reason,
-                      [w for p in parts for w in p.log_w], stages)
+    return FlowResult(
+        res.status,
+        path,
+        sum(p.steps for p in parts),
+        sum(p.evaluations for p in parts),
+        min(p.min_clearance for p in parts),
+        log_time,
+        res.reason,
+        [w for p in parts for w in p.log_w],
+        stages,
+        problem,
+    )
 
 
-def _gradient_stage(problem: DiscProblem, b0: Array, k: float, epsilon: float, tol: float,
-                    settings: FlowSettings, direction: Callable[[Array], Array] | None
-                    ) -> FlowResult:
+def _gradient_stage(
+    problem: DiscProblem,
+    b0: Array,
+    k: float,
+    epsilon: float,
+    tol: float,
+    settings: FlowSettings,
+    direction: Callable[[Array], Array] | None,
+) -> FlowResult:
     """The flow (9) at one k from ``b0`` (see :func:`gradient_flow`)."""
     goal = problem.goal
 
@@ -581,5 +645,4 @@ def _gradient_stage(problem: DiscProblem, b0: Array, k: float, epsilon: float, t
             return Status.STUCK
         return None
 
-    return integrate(problem, b0, k, epsilon, stop=stop, settings=settings,
-                     direction=direction)
+    return integrate(problem, b0, k, epsilon, stop=stop, settings=settings, direction=direction)

@@ -35,7 +35,37 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from cellplan.assembly.problems import BoxWorkspace, CircleWorkspace, DiscProblem, Workspace
+from cellplan.assembly.layout import (
+    BoxWorkspace,
+    CircleWorkspace,
+    Workspace,
+    boundary_terms,
+    clearances,
+    log_beta_parts,
+    min_clearance,
+    pair_terms,
+)
+from cellplan.assembly.problems import DiscProblem
+
+__all__ = [
+    "BoxWorkspace",
+    "CircleWorkspace",
+    "NavEval",
+    "Workspace",
+    "boundary_terms",
+    "clearances",
+    "direction",
+    "evaluate",
+    "evaluate_numpy",
+    "grad_linear",
+    "grad_log_phi",
+    "hessian_log_w",
+    "log_beta_parts",
+    "log_w",
+    "min_clearance",
+    "pair_terms",
+    "phi_linear",
+]
 
 Array = NDArray[np.float64]
 
@@ -85,53 +115,6 @@ class NavEval:
             return self.log_scale + np.log(np.sqrt(np.sum(self.v * self.v, axis=1)))
 
 
-def pair_terms(b: Array, radii: Array) -> tuple[Array, Array, Array]:
-    """Pairwise differences, ``beta_ij`` (equation (5)) and centre distances.
-
-    Returns ``D`` (n, n, 2) with ``D[i, j] = b_i - b_j``, ``B`` (n, n) with ``B[i, j] =
-    beta_ij`` and the diagonal set to 1 (so ``log`` and ``1/B`` ignore it), and the
-    distance matrix ``dist`` (n, n).
-    """
-    diff = b[:, None, :] - b[None, :, :]
-    sq = np.einsum("ijk,ijk->ij", diff, diff)
-    rsum = radii[:, None] + radii[None, :]
-    B = 0.5 * (sq - rsum * rsum)
-    np.fill_diagonal(B, 1.0)
-    return diff, B, np.sqrt(sq)
-
-
-def boundary_terms(b: Array, radii: Array, ws: Workspace) -> tuple[Array, Array]:
-    """``log beta_0i`` summed per disc (n,) and ``grad_{b_i} log beta_0i`` (n, 2).
-
-    Non-positive terms (a disc touching or outside the boundary) give ``nan``/``-inf``.
-    """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if isinstance(ws, CircleWorkspace):
-            rel = b - ws.center
-            w = 0.5 * ((ws.radius - radii) ** 2 - np.sum(rel * rel, axis=1))
-            return np.log(w), -rel / w[:, None]
-        lo, hi = ws.lo, ws.hi
-        t = np.stack(
-            [b[:, 0] - lo[0] - radii, hi[0] - radii - b[:, 0], b[:, 1] - lo[1] - radii,
-             hi[1] - radii - b[:, 1]],
-            axis=1,
-        )
-        inv = 1.0 / t
-        grad = np.stack([inv[:, 0] - inv[:, 1], inv[:, 2] - inv[:, 3]], axis=1)
-        return np.sum(np.log(t), axis=1), grad
-
-
-def log_beta_parts(b: Array, radii: Array, ws: Workspace | None) -> tuple[float, float]:
-    """``(log prod_{i<j} beta_ij, log prod_i beta_0i)``; ``-inf``/``nan`` in contact."""
-    _, B, _ = pair_terms(b, radii)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        pairs = 0.5 * float(np.sum(np.log(B)))
-    if ws is None:
-        return pairs, 0.0
-    logs, _ = boundary_terms(b, radii, ws)
-    return pairs, float(np.sum(logs))
-
-
 def evaluate(b: Array, problem: DiscProblem, k: float) -> NavEval:
     """Evaluate ``phi`` and its gradient (equations (2)-(8)) in log space (numba kernel).
 
@@ -145,12 +128,27 @@ def evaluate(b: Array, problem: DiscProblem, k: float) -> NavEval:
     else:
         w0, w1, circle = ws.lo, ws.hi, False
     log_gamma, log_beta, v, rep, rep_bnd, gaps, bgap = nav_kernel(
-        np.ascontiguousarray(b, dtype=np.float64), problem.goal, problem.radii, circle,
-        w0, w1, float(k))
+        np.ascontiguousarray(b, dtype=np.float64),
+        problem.goal,
+        problem.radii,
+        circle,
+        w0,
+        w1,
+        float(k),
+    )
     with np.errstate(invalid="ignore"):
         log_sum = float(np.logaddexp(k * log_gamma, log_beta))
-    return NavEval(log_gamma, log_beta, v, log_beta - (1.0 + k) / k * log_sum,
-                   log_gamma - log_sum / k, rep, rep_bnd, gaps, bgap)
+    return NavEval(
+        log_gamma,
+        log_beta,
+        v,
+        log_beta - (1.0 + k) / k * log_sum,
+        log_gamma - log_sum / k,
+        rep,
+        rep_bnd,
+        gaps,
+        bgap,
+    )
 
 
 def evaluate_numpy(b: Array, problem: DiscProblem, k: float) -> NavEval:
@@ -209,8 +207,9 @@ def phi_linear(b: Array, problem: DiscProblem, k: float) -> float:
     _, B, _ = pair_terms(b, problem.radii)
     iu = np.triu_indices(problem.n, 1)
     with np.errstate(all="ignore"):
-        beta = np.prod(B[iu]) * np.prod(np.exp(
-            boundary_terms(b, problem.radii, problem.workspace)[0]))
+        beta = np.prod(B[iu]) * np.prod(
+            np.exp(boundary_terms(b, problem.radii, problem.workspace)[0])
+        )
         # numpy scalars, so that overflow gives inf as it would in C, not an exception
         gamma = np.float64(0.5 * np.sum((b - problem.goal) ** 2))
         alpha = gamma**k / beta if beta != 0 else np.inf
@@ -236,32 +235,6 @@ def grad_linear(b: Array, problem: DiscProblem, k: float) -> Array:
         gamma = np.float64(0.5 * np.sum(e * e))
         pre = (1.0 / k) * (beta + gamma**k) ** (-(1.0 + k) / k)
         return pre * (k * beta * e - gamma * dbeta)
-
-
-def clearances(b: Array, radii: Array, ws: Workspace) -> tuple[Array, Array]:
-    """Gaps between discs (n, n; diagonal ``inf``) and to the boundary (n,).
-
-    Negative values mean overlap. The boundary gap of a box is the smallest wall gap.
-    """
-    _, _, dist = pair_terms(b, radii)
-    gaps = dist - (radii[:, None] + radii[None, :])
-    np.fill_diagonal(gaps, np.inf)
-    if isinstance(ws, CircleWorkspace):
-        bgap = ws.radius - radii - np.sqrt(np.sum((b - ws.center) ** 2, axis=1))
-    else:
-        assert isinstance(ws, BoxWorkspace)
-        bgap = np.min(
-            np.stack([b[:, 0] - ws.lo[0], ws.hi[0] - b[:, 0], b[:, 1] - ws.lo[1],
-                      ws.hi[1] - b[:, 1]], axis=1),
-            axis=1,
-        ) - radii
-    return gaps, bgap
-
-
-def min_clearance(b: Array, radii: Array, ws: Workspace) -> float:
-    """Smallest gap between two discs or a disc and the boundary."""
-    gaps, bgap = clearances(b, radii, ws)
-    return float(min(np.min(gaps), np.min(bgap)))
 
 
 def log_w(ev: NavEval, k: float) -> float:
@@ -294,8 +267,10 @@ def hessian_log_w(b: Array, problem: DiscProblem, k: float) -> Array:
     inv_b = 1.0 / B
     np.fill_diagonal(inv_b, 0.0)
     # M[i, j] = D_x^2 log beta_ij, (n, n, 2, 2), zero on the diagonal
-    M = (inv_b[:, :, None, None] * eye2
-         - (inv_b * inv_b)[:, :, None, None] * diff[:, :, :, None] * diff[:, :, None, :])
+    M = (
+        inv_b[:, :, None, None] * eye2
+        - (inv_b * inv_b)[:, :, None, None] * diff[:, :, :, None] * diff[:, :, None, :]
+    )
     blocks = -M
     idx = np.arange(n)
     blocks[idx, idx] = np.sum(M, axis=1)
@@ -303,8 +278,10 @@ def hessian_log_w(b: Array, problem: DiscProblem, k: float) -> Array:
     if isinstance(ws, CircleWorkspace):
         rel = b - ws.center
         w = 0.5 * ((ws.radius - problem.radii) ** 2 - np.sum(rel * rel, axis=1))
-        blocks[idx, idx] += (-(1.0 / w)[:, None, None] * eye2
-                             - (1.0 / w**2)[:, None, None] * rel[:, :, None] * rel[:, None, :])
+        blocks[idx, idx] += (
+            -(1.0 / w)[:, None, None] * eye2
+            - (1.0 / w**2)[:, None, None] * rel[:, :, None] * rel[:, None, :]
+        )
     else:
         lo, hi, r = ws.lo, ws.hi, problem.radii
         for axis in (0, 1):

@@ -1,30 +1,147 @@
-"""Planners of the assembly package, listed for the registry (CLI, benchmarks, conformance test).
+"""The assembly planners (Whitcomb & Koditschek 1991): each algorithm as a common :class:`Result`.
 
-Each entry wraps one algorithm as a function ``problem -> PlanResult`` with plain-number
-statistics (path-length ratio as in Section 5.1, switches, minimum clearance, steps,
-wall time) and a tiny deterministic ``smoke(seed)`` run.
+``assembly.gradient`` (Section 4.1), ``assembly.sequential`` (Section 4.2) and
+``assembly.control`` (Section 3.4), registered in :mod:`cellplan.assembly.plugin` with
+the option models of :mod:`cellplan.assembly.options`. Each ``plan_*`` function builds
+the :class:`~cellplan.assembly.problems.DiscProblem` of the scenario's ``discs:``
+section, resolves the options (``None``: the section's value), runs the algorithm and
+returns a :class:`~cellplan.core.Result`:
+
+* ``status`` and ``message`` from the algorithm (solved; stuck, with the kind of
+  critical point and the k it was at; budget exhausted, with the budget);
+* ``stats``: the path-length ratio (Section 5.1; footnote 6 for the sequential
+  algorithm), minimum clearance, escapes, switches, steps, wall time;
+* ``solution``: the run itself (:class:`~cellplan.assembly.flows.FlowResult`,
+  :class:`~cellplan.assembly.sequential.SequentialResult` or
+  :class:`~cellplan.assembly.control.ControlResult`), its ``problem`` attribute the
+  :class:`DiscProblem`;
+* ``trajectory``: the disc centres (columns ``disc1.x, disc1.y, ...``, workcell units)
+  against the path length in R^2n (gradient, sequential: ``time_unit="path"``) or the
+  simulated time (control: ``"s"``); mode ``all discs`` or ``disc i`` (the moving disc,
+  1-based like the columns); events ``escape`` (k lowered, detail ``k=...``) and, for
+  the sequential algorithm, ``grasp`` and ``switch``.
+
+The normalised system's own time (Section 3.3) is not used as the time axis: near the
+goal ``grad phi`` underflows and that time reaches 1e43-1e170 on the bundled problems;
+its log10 is the ``log10_flow_time`` statistic.
+
+:func:`run_gradient`, :func:`run_sequential` and :func:`run_control` do the same on a
+:class:`DiscProblem` with every parameter given (benchmarks, tests).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from cellplan.assembly.control import simulate_control
-from cellplan.assembly.flows import gradient_flow
-from cellplan.assembly.problems import CircleWorkspace, DiscProblem, generate_problem
-from cellplan.assembly.section import GeneratorSpec
-from cellplan.assembly.sequential import sequential_assembly
-from cellplan.core import PlannerEntry, PlanResult, Status
+from cellplan.assembly.options import (
+    SEQUENTIAL_TOLERANCE,
+    ControlOptions,
+    GradientOptions,
+    SequentialOptions,
+)
+from cellplan.core import Progress, Result, Status
+from cellplan.trajectory import Event, Trajectory
 
-#: default number of k-halvings after a stuck stage (1024 -> 16 at most)
-ESCAPES = 6
+if TYPE_CHECKING:
+    from cellplan.assembly.control import ControlResult
+    from cellplan.assembly.flows import Stage
+    from cellplan.assembly.problems import DiscProblem
+    from cellplan.assembly.section import DiscsSection
+    from cellplan.assembly.sequential import SequentialResult
+    from cellplan.setup import Setup
+
+Array = NDArray[np.float64]
+
+#: Default number of k-halvings after a stuck stage, read from the options model (the one
+#: source; 6 halvings take k = 1024 down to 16 at most).
+ESCAPES: int = GradientOptions.model_fields["escapes"].default
 
 
-def run_gradient(problem: DiscProblem, k: float, epsilon: float = 1e-3,
-                 tol: float = 1e-3, escapes: int = ESCAPES) -> PlanResult:
+# --- the planners' run functions (registered in plugin.py) -----------------------------------
+
+
+def _problem(setup: Setup) -> tuple[DiscProblem, DiscsSection]:
+    from cellplan.assembly.problems import problem_from_section
+
+    section = setup.section("discs")
+    return problem_from_section(section, setup.scenario), section
+
+
+def _given(value: float | None, default: float) -> float:
+    return float(default if value is None else value)
+
+
+def plan_gradient(setup: Setup, options: GradientOptions, progress: Progress | None) -> Result:
+    """``assembly.gradient``: the gradient algorithm (Section 4.1) on the scenario's discs."""
+    problem, section = _problem(setup)
+    k = _given(options.k, section.k)
+    if progress is not None:
+        progress(0.0, None, f"gradient flow, {problem.n} discs, k={k:g}")
+    result = run_gradient(
+        problem,
+        k,
+        _given(options.epsilon, section.epsilon),
+        _given(options.tolerance, section.tolerance),
+        options.escapes,
+        scenario=setup.name,
+    )
+    if progress is not None:
+        progress(1.0, 1.0, result.status.value)
+    return result
+
+
+def plan_sequential(setup: Setup, options: SequentialOptions, progress: Progress | None) -> Result:
+    """``assembly.sequential``: one disc at a time (Section 4.2), rule ``paper`` or ``place``."""
+    problem, section = _problem(setup)
+    k = _given(options.k, section.k)
+    tol = _given(options.tolerance, max(section.tolerance, SEQUENTIAL_TOLERANCE))
+    if progress is not None:
+        progress(0.0, None, f"sequential ({options.rule}), {problem.n} discs, k={k:g}")
+    result = run_sequential(
+        problem,
+        k,
+        options.rule,
+        _given(options.epsilon, section.epsilon),
+        tol,
+        options.escapes,
+        scenario=setup.name,
+    )
+    if progress is not None:
+        progress(1.0, 1.0, result.status.value)
+    return result
+
+
+def plan_control(setup: Setup, options: ControlOptions, progress: Progress | None) -> Result:
+    """``assembly.control``: the double-integrator controller (Section 3.4) on the discs."""
+    problem, section = _problem(setup)
+    k = _given(options.k, section.k)
+    if progress is not None:
+        progress(0.0, None, f"controlled assembly, {problem.n} discs, k={k:g}")
+    result = run_control(
+        problem, k, _given(options.tolerance, section.tolerance), scenario=setup.name
+    )
+    if progress is not None:
+        progress(1.0, 1.0, result.status.value)
+    return result
+
+
+# --- the algorithms on a DiscProblem ---------------------------------------------------------
+
+
+def run_gradient(
+    problem: DiscProblem,
+    k: float,
+    epsilon: float,
+    tol: float,
+    escapes: int = ESCAPES,
+    *,
+    scenario: str = "",
+) -> Result:
     """The gradient assembly algorithm (Section 4.1); ratio in the R^2n norm (Section 5.1).
 
     A run stuck at a spurious minimum continues at k/2, k/4, ... (at most ``escapes``
@@ -33,6 +150,8 @@ def run_gradient(problem: DiscProblem, k: float, epsilon: float = 1e-3,
     ``escapes`` (how often k was lowered) and ``k_final``; ``ratio`` is over the
     whole path, every stage included.
     """
+    from cellplan.assembly.flows import gradient_flow
+
     t0 = time.perf_counter()
     res = gradient_flow(problem, k, epsilon, tol, escapes=escapes)
     straight = float(np.linalg.norm(problem.start - problem.goal))
@@ -50,11 +169,30 @@ def run_gradient(problem: DiscProblem, k: float, epsilon: float = 1e-3,
         "final_error": float(np.linalg.norm(res.end - problem.goal)),
         "wall_s": time.perf_counter() - t0,
     }
-    return PlanResult(res.status, stats, res)
+    events = _escape_events(res.stages, _stage_starts(res.stages))
+    traj = _trajectory(
+        res.path,
+        _arc_length(res.path),
+        "path",
+        np.zeros(len(res.path), dtype=np.int64),
+        ("all discs",),
+        events,
+        _meta(scenario, problem, k, epsilon, tol),
+    )
+    message = _flow_message(res.status, res.reason, res.stages, stats, "steps")
+    return Result(res.status, message, stats=stats, solution=res, trajectory=traj)
 
 
-def run_sequential(problem: DiscProblem, k: float, rule: str = "paper", epsilon: float = 1e-3,
-                   tol: float = 1e-2, escapes: int = ESCAPES) -> PlanResult:
+def run_sequential(
+    problem: DiscProblem,
+    k: float,
+    rule: str,
+    epsilon: float,
+    tol: float = SEQUENTIAL_TOLERANCE,
+    escapes: int = ESCAPES,
+    *,
+    scenario: str = "",
+) -> Result:
     """Sequential assembly (Section 4.2); ratio over summed disc distances (footnote 6).
 
     Rule ``paper``: a stuck T map (every disc blocked away from the goal, or no progress
@@ -63,9 +201,17 @@ def run_sequential(problem: DiscProblem, k: float, rule: str = "paper", epsilon:
     ``k_final`` say so, as for the gradient planner, and ``switches`` counts every grasp
     of every stage. The ``place`` rule does not lower k.
     """
+    from cellplan.assembly.sequential import sequential_assembly
+
     t0 = time.perf_counter()
-    res = sequential_assembly(problem, k, rule, epsilon=epsilon, tol=tol,  # type: ignore[arg-type]
-                              escapes=escapes if rule == "paper" else 0)
+    res = sequential_assembly(
+        problem,
+        k,
+        rule,  # type: ignore[arg-type]
+        epsilon=epsilon,
+        tol=tol,
+        escapes=escapes if rule == "paper" else 0,
+    )
     straight = float(np.sum(np.linalg.norm(problem.start - problem.goal, axis=1)))
     stats = {
         "ratio": float(np.sum(res.disc_lengths())) / straight if straight > 0 else 1.0,
@@ -80,13 +226,17 @@ def run_sequential(problem: DiscProblem, k: float, rule: str = "paper", epsilon:
         "final_error": float(np.linalg.norm(res.path[-1] - problem.goal)),
         "wall_s": time.perf_counter() - t0,
     }
-    return PlanResult(res.status, stats, res)
+    traj = _sequential_trajectory(res, _meta(scenario, problem, k, epsilon, tol, rule=rule))
+    message = _flow_message(res.status, res.reason, res.stages, stats, "switches")
+    return Result(res.status, message, stats=stats, solution=res, trajectory=traj)
 
 
-def run_control(problem: DiscProblem, k: float) -> PlanResult:
+def run_control(problem: DiscProblem, k: float, tol: float, *, scenario: str = "") -> Result:
     """The double-integrator controller of Section 3.4, simulated to rest at the goal."""
+    from cellplan.assembly.control import simulate_control
+
     t0 = time.perf_counter()
-    res = simulate_control(problem, k)
+    res = simulate_control(problem, k, tol=tol)
     straight = float(np.linalg.norm(problem.start - problem.goal))
     stats = {
         "ratio": res.length() / straight if straight > 0 else 1.0,
@@ -95,35 +245,168 @@ def run_control(problem: DiscProblem, k: float) -> PlanResult:
         "settling_time": float(res.times[-1]),
         "wall_s": time.perf_counter() - t0,
     }
-    return PlanResult(res.status, stats, res)
+    traj = _trajectory(
+        res.path,
+        res.times,
+        "s",
+        np.zeros(len(res.path), dtype=np.int64),
+        ("all discs",),
+        (),
+        _meta(scenario, problem, k, None, tol),
+    )
+    return Result(
+        res.status, _control_message(res, stats), stats=stats, solution=res, trajectory=traj
+    )
 
 
-def smoke_problem(seed: int) -> DiscProblem:
-    """Four unit discs in a circle of radius 7, hex goals, random legal starts."""
-    return generate_problem(GeneratorSpec(n=4, seed=seed, gap=0.2),
-                            CircleWorkspace(np.zeros(2), 7.0))
+# --- messages --------------------------------------------------------------------------------
 
 
-def _smoke(run: Callable[[DiscProblem], PlanResult]) -> Callable[[int], PlanResult]:
-    def smoke(seed: int) -> PlanResult:
-        res = run(smoke_problem(seed))
-        stats = {key: value for key, value in res.stats.items() if key != "wall_s"}
-        return PlanResult(res.status, stats, None)
+def _flow_message(
+    status: Status,
+    reason: str,
+    stages: Sequence[Stage],
+    stats: dict[str, float],
+    unit: str,
+) -> str:
+    """One line: what the run achieved, or where and why it stopped short of the goal."""
+    k0, k_end = stages[0].k, stages[-1].k
+    lowered = len(stages) - 1
+    times = "once" if lowered == 1 else f"{lowered} times"
+    quality = f"ratio {stats['ratio']:.3f}, min clearance {stats['min_clearance']:.3g}"
+    if status is Status.SOLVED:
+        if lowered:
+            return (
+                f"assembled: {quality}; k lowered {times} from {k0:g} to {k_end:g} after the "
+                f"run was stuck {_where(stages[0].reason, k0)}"
+            )
+        return f"assembled at k={k0:g}: {quality}"
+    if status is Status.STUCK and lowered:
+        head = (
+            f"stuck {_where(stages[0].reason, k0)}; lowered k {times} to {k_end:g}, "
+            f"still stuck {_where(reason, k_end)}"
+        )
+    elif status is Status.STUCK:
+        head = f"stuck {_where(reason, k0)}"
+    else:
+        head = f"budget spent at k={k_end:g} ({reason})"
+        if lowered:
+            head += f", k lowered {times} from {k0:g}"
+    return f"{head}; {stats['final_error']:.3g} from the goal after {int(stats[unit])} {unit}"
 
-    return smoke
+
+def _where(reason: str, k: float) -> str:
+    """``at a spurious minimum at k=32``, ``at a saddle ...``, or ``at k=32 (reason)``."""
+    if reason in ("spurious minimum", "saddle"):
+        return f"at a {reason} at k={k:g}"
+    return f"at k={k:g} ({reason or 'no reason given'})"
 
 
-PLANNERS: list[PlannerEntry] = [
-    PlannerEntry("assembly.gradient", "assembly",
-                 "all discs along -grad phi of the navigation function (W&K 1991, Sec. 4.1)",
-                 _smoke(lambda p: run_gradient(p, 32.0))),
-    PlannerEntry("assembly.sequential", "assembly",
-                 "one disc at a time, the paper's high-level map T (Sec. 4.2)",
-                 _smoke(lambda p: run_sequential(p, 32.0, "paper"))),
-    PlannerEntry("assembly.sequential_place", "assembly",
-                 "one disc at a time, our placement rule (about 1-2 grasps per disc)",
-                 _smoke(lambda p: run_sequential(p, 32.0, "place"))),
-    PlannerEntry("assembly.control", "assembly",
-                 "double-integrator discs, gradient plus damping controller (Sec. 3.4)",
-                 _smoke(lambda p: run_control(p, 32.0))),
-]
+def _control_message(res: ControlResult, stats: dict[str, float]) -> str:
+    if res.status is Status.SOLVED:
+        return (
+            f"at rest at the goal after t={stats['settling_time']:.3g}: ratio "
+            f"{stats['ratio']:.3f}, min clearance {stats['min_clearance']:.3g}"
+        )
+    if res.status is Status.STUCK:
+        return (
+            f"the step collapsed at t={stats['settling_time']:.3g} (no step keeps the "
+            "energy from growing within the gap bound)"
+        )
+    return (
+        f"not at rest at the goal after t={stats['settling_time']:.3g} "
+        f"({int(stats['steps'])} steps): the simulation budget is spent"
+    )
+
+
+# --- trajectories ----------------------------------------------------------------------------
+
+
+def disc_columns(n: int) -> tuple[str, ...]:
+    """``disc1.x, disc1.y, ..., discn.y``: the columns of an assembly trajectory."""
+    return tuple(f"disc{i + 1}.{axis}" for i in range(n) for axis in "xy")
+
+
+def _arc_length(path: Array) -> Array:
+    """Cumulative length in R^2n along ``path`` (m, n, 2), 0 at the start."""
+    seg = np.linalg.norm(np.diff(path, axis=0).reshape(len(path) - 1, -1), axis=1)
+    return np.concatenate([[0.0], np.cumsum(seg)])
+
+
+def _meta(
+    scenario: str,
+    problem: DiscProblem,
+    k: float,
+    epsilon: float | None,
+    tol: float,
+    rule: str = "",
+) -> dict[str, Any]:
+    meta: dict[str, Any] = {"scenario": scenario, "n": problem.n, "k": k, "tolerance": tol}
+    if epsilon is not None:
+        meta["epsilon"] = epsilon
+    if rule:
+        meta["rule"] = rule
+    return meta
+
+
+def _trajectory(
+    path: Array,
+    t: Array,
+    time_unit: str,
+    mode: NDArray[np.int64],
+    modes: tuple[str, ...],
+    events: Sequence[Event],
+    meta: dict[str, Any],
+) -> Trajectory:
+    n = path.shape[1]
+    return Trajectory(
+        t=t,
+        q=path.reshape(len(path), 2 * n),
+        mode=mode,
+        modes=modes,
+        columns=disc_columns(n),
+        units=("workcell",) * (2 * n),
+        time_unit=time_unit,
+        events=tuple(sorted(events, key=lambda e: e.index)),
+        meta=meta,
+    )
+
+
+def _stage_starts(stages: Sequence[Stage]) -> list[int]:
+    """Sample index at which each stage of a gradient run starts (``steps`` rows each)."""
+    return [int(v) for v in np.concatenate([[0], np.cumsum([s.steps for s in stages])])[:-1]]
+
+
+def _escape_events(stages: Sequence[Stage], starts: Sequence[int]) -> list[Event]:
+    """One ``escape`` event where each stage after the first starts (k lowered)."""
+    return [
+        Event(int(start), "escape", f"k={stage.k:g}")
+        for stage, start in zip(stages[1:], starts[1:], strict=True)
+    ]
+
+
+def _sequential_trajectory(res: SequentialResult, meta: dict[str, Any]) -> Trajectory:
+    """Rows of the sequential path; mode = the disc moving into each row (1-based)."""
+    lengths = [len(g.path) - 1 for g in res.grasps]
+    starts = np.concatenate([[0], np.cumsum(lengths, dtype=np.int64)])  # row of each pick
+    discs = sorted({g.disc for g in res.grasps})
+    modes = tuple(f"disc {i + 1}" for i in discs) or ("all discs",)
+    mode_of = {d: j for j, d in enumerate(discs)}
+    mode = np.zeros(len(res.path), dtype=np.int64)
+    events: list[Event] = []
+    previous = -1
+    for j, g in enumerate(res.grasps):
+        a, b = int(starts[j]), int(starts[j + 1])
+        mode[a + 1 : b + 1] = mode_of[g.disc]
+        if j == 0:
+            mode[0] = mode_of[g.disc]
+        if previous >= 0 and previous != g.disc:
+            events.append(Event(a, "switch", f"disc {previous + 1} -> disc {g.disc + 1}"))
+        events.append(Event(a, "grasp", f"disc {g.disc + 1}"))
+        previous = g.disc
+    grasp_starts = [
+        int(starts[min(sum(s.steps for s in res.stages[:i]), len(lengths))])
+        for i in range(len(res.stages))
+    ]
+    events.extend(_escape_events(res.stages, grasp_starts))
+    return _trajectory(res.path, _arc_length(res.path), "path", mode, modes, events, meta)

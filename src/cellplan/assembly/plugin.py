@@ -10,8 +10,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
+from cellplan.assembly.options import ControlOptions, GradientOptions, SequentialOptions
 from cellplan.assembly.section import DiscsSection
-from cellplan.core import Package
+from cellplan.core import Options, Package, PlannerSpec, Progress, Result, ShowcaseItem
 
 TITLE = "Navigation-function assembly planning for disc assemblies"
 CITATION = (
@@ -28,7 +29,74 @@ SUMMARY = (
 )
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from cellplan.setup import Setup
+
+
+# The run functions import the algorithm modules only when a planner runs.
+
+
+def _gradient(setup: Setup, options: Options, progress: Progress | None) -> Result:
+    from cellplan.assembly.planners import plan_gradient
+
+    assert isinstance(options, GradientOptions)
+    return plan_gradient(setup, options, progress)
+
+
+def _sequential(setup: Setup, options: Options, progress: Progress | None) -> Result:
+    from cellplan.assembly.planners import plan_sequential
+
+    assert isinstance(options, SequentialOptions)
+    return plan_sequential(setup, options, progress)
+
+
+def _control(setup: Setup, options: Options, progress: Progress | None) -> Result:
+    from cellplan.assembly.planners import plan_control
+
+    assert isinstance(options, ControlOptions)
+    return plan_control(setup, options, progress)
+
+
+def _showcase(folder: Path) -> list[ShowcaseItem]:
+    from cellplan.assembly.showcase import showcase
+
+    return showcase(folder)
+
+
+#: A small bundled problem every planner solves in well under a second (three discs,
+#: two of which swap places).
+SMOKE = "discs_swap"
+
+PLANNERS = (
+    PlannerSpec(
+        name="assembly.gradient",
+        package="assembly",
+        summary="all discs along -grad phi of the navigation function (W&K 1991, Sec. 4.1)",
+        options=GradientOptions,
+        run=_gradient,
+        section="discs",
+        smoke=(SMOKE, {}),
+    ),
+    PlannerSpec(
+        name="assembly.sequential",
+        package="assembly",
+        summary="one disc at a time: the paper's map T (rule=paper, Sec. 4.2) or ours (place)",
+        options=SequentialOptions,
+        run=_sequential,
+        section="discs",
+        smoke=(SMOKE, {}),
+    ),
+    PlannerSpec(
+        name="assembly.control",
+        package="assembly",
+        summary="double-integrator discs, gradient plus damping controller (Sec. 3.4)",
+        options=ControlOptions,
+        run=_control,
+        section="discs",
+        smoke=(SMOKE, {}),
+    ),
+)
 
 
 def describe(setup: Setup) -> Mapping[str, str]:
@@ -50,9 +118,10 @@ PACKAGE = Package(
     summary=SUMMARY,
     section="discs",
     section_model=DiscsSection,
-    planners=(),
+    planners=PLANNERS,
     experiments="cellplan.assembly.experiments",
     commands="cellplan.assembly.commands",
     paper_runs=25,
     describe=describe,
+    showcase=_showcase,
 )

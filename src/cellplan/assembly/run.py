@@ -1,4 +1,11 @@
-"""One assembly run for the CLI: build the problem, plan, write pictures and metrics."""
+"""The files of one assembly run: pictures, the trajectory and the metrics of a :class:`Result`.
+
+What ``cellplan assemble`` writes (and what a script can write after
+``cellplan.plan(setup, "assembly.gradient")``): ``sequence.png`` (four moments, Figs. 1-2
+style), ``assembly.gif``, ``trajectory.csv`` (the :class:`~cellplan.trajectory.Trajectory`)
+and ``metrics.json`` (status, message, the parameters the run used, its statistics, and
+for the sequential algorithm the pick / move / release actions).
+"""
 
 from __future__ import annotations
 
@@ -7,82 +14,52 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.assembly.problems import (
-    DEFAULT_FILL,
-    DiscProblem,
-    default_workspace,
-    generate_problem,
-    generator_problems,
-)
-from cellplan.assembly.section import GeneratorSpec
-from cellplan.core import PlanResult
-from cellplan.errors import ArgumentError, Problem, ScenarioError
+from cellplan.core import Result
 from cellplan.fileio import write_json
 
 
-def load_problem(scenario: str) -> tuple[DiscProblem, float, float, float]:
-    """Problem, k, epsilon and tolerance of a scenario file with a ``discs:`` section."""
-    from cellplan.assembly.problems import problem_from_section
-    from cellplan.scenario import load_scenario
-
-    sc = load_scenario(scenario)
-    if sc.discs is None:
-        raise ScenarioError([Problem("discs", "this scenario has no discs: section")])
-    return problem_from_section(sc.discs, sc), sc.discs.k, sc.discs.epsilon, sc.discs.tolerance
+def run_title(result: Result) -> str:
+    """``gradient k=96``, ``sequential k=96 (paper)``: a picture title for the run."""
+    assert result.trajectory is not None
+    meta = result.trajectory.meta
+    algorithm = result.planner.removeprefix("assembly.") or "assembly"
+    rule = f" ({meta['rule']})" if "rule" in meta else ""
+    return f"{algorithm} k={float(meta['k']):g}{rule}"
 
 
-def run_assembly(scenario: str | None, random_n: int | None, algorithm: str, k: float | None,
-                 epsilon: float | None, rule: str, seed: int, permutation: bool,
-                 log10_beta: float | None, radius: float, frames: int, output: Path,
-                 escapes: int = 0, fill: float = DEFAULT_FILL) -> dict[str, Any]:
-    """Plan and write ``sequence.png``, ``assembly.gif`` and ``metrics.json`` under ``output``.
+def write_outputs(result: Result, output: Path, frames: int = 40) -> dict[str, Path]:
+    """Write the run's files under ``output``; returns them by name.
 
-    ``escapes``: gradient algorithm and the sequential paper rule, how often k may be
-    halved after the run is stuck (:func:`planners.run_gradient`,
-    :func:`planners.run_sequential`). ``fill``: ``--random``
-    only, the fraction of the workspace area the generated discs cover.
+    ``result`` is a result of one of the assembly planners (its ``solution`` carries the
+    problem and the path).
     """
     from cellplan.assembly import plots
-    from cellplan.assembly.planners import run_control, run_gradient, run_sequential
 
-    if scenario is not None:
-        problem, k_file, eps_file, tol = load_problem(scenario)
-    else:
-        assert random_n is not None
-        gen = GeneratorSpec(n=random_n, seed=seed, radius=radius,
-                            starts="permutation" if permutation else "random",
-                            log10_beta_goal=log10_beta)
-        ws = default_workspace(random_n, radius, fill)
-        # name the command-line option behind each generator problem
-        option = "--log10-beta" if log10_beta is not None else "--random"
-        bad = generator_problems(gen, ws)
-        if bad:
-            raise ArgumentError([Problem(option, p.message) for p in bad])
-        problem = generate_problem(gen, ws)
-        k_file, eps_file, tol = 32.0, 1e-3, 1e-3 * radius
-    k = k_file if k is None else k
-    epsilon = eps_file if epsilon is None else epsilon
-    result: PlanResult
-    if algorithm == "gradient":
-        result = run_gradient(problem, k, epsilon, tol, escapes)
-        path = result.payload.path
-    elif algorithm == "sequential":
-        result = run_sequential(problem, k, rule, epsilon, max(tol, 1e-2), escapes)
-        path = result.payload.path
-    else:
-        result = run_control(problem, k)
-        path = result.payload.path
+    run = result.solution
+    problem = run.problem
+    traj = result.trajectory
+    assert traj is not None and problem is not None
     output.mkdir(parents=True, exist_ok=True)
-    title = f"{algorithm} k={k:g}" + (f" ({rule})" if algorithm == "sequential" else "")
-    plots.save_sequence(problem, path, output / "sequence.png", title)
-    plots.save_animation(problem, path, output / "assembly.gif", frames, title)
-    metrics: dict[str, Any] = {"status": result.status.value, "algorithm": algorithm, "k": k,
-                               "epsilon": epsilon, "n": problem.n, **result.stats}
-    if algorithm == "sequential":
-        metrics["rule"] = rule
-        metrics["actions"] = result.payload.actions()
+    title = run_title(result)
+    files = {
+        "sequence": plots.save_sequence(problem, run.path, output / "sequence.png", title),
+        "animation": plots.save_animation(
+            problem, run.path, output / "assembly.gif", frames, title
+        ),
+        "trajectory": traj.save(output / "trajectory.csv"),
+    }
+    metrics: dict[str, Any] = {
+        "status": result.status.value,
+        "message": result.message,
+        "algorithm": result.planner.removeprefix("assembly."),
+        **{key: traj.meta[key] for key in ("k", "epsilon", "tolerance", "n") if key in traj.meta},
+        **result.stats,
+    }
+    if "rule" in traj.meta:
+        metrics["rule"] = traj.meta["rule"]
+        metrics["actions"] = run.actions()
     metrics["start"] = problem.start
     metrics["goal"] = problem.goal
-    metrics["final"] = np.asarray(path[-1])
-    write_json(output / "metrics.json", metrics)
-    return metrics
+    metrics["final"] = np.asarray(run.path[-1])
+    files["metrics"] = write_json(output / "metrics.json", metrics)
+    return files

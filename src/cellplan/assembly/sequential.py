@@ -85,9 +85,19 @@ from cellplan.assembly.routes import (
 )
 from cellplan.core import Status
 
-__all__ = ["RULES", "Grasp", "Rule", "SequentialResult", "parking_route", "path_clearance",
-           "placement_route", "segment_clearance", "segment_is_free", "segments_clearance",
-           "sequential_assembly"]
+__all__ = [
+    "RULES",
+    "Grasp",
+    "Rule",
+    "SequentialResult",
+    "parking_route",
+    "path_clearance",
+    "placement_route",
+    "segment_clearance",
+    "segment_is_free",
+    "segments_clearance",
+    "sequential_assembly",
+]
 
 Array = NDArray[np.float64]
 Rule = Literal["paper", "place"]
@@ -117,6 +127,7 @@ class SequentialResult:
     evaluations: int
     reason: str = ""
     stages: list[Stage] = field(default_factory=list)
+    problem: DiscProblem | None = None  # the problem solved
 
     @property
     def switches(self) -> int:
@@ -161,14 +172,16 @@ class SequentialResult:
         out: list[dict[str, object]] = []
         for g in self.grasps:
             out.append({"action": "pick", "disc": g.disc, "at": g.path[0].tolist()})
-            out.append({"action": "move", "disc": g.disc, "path": g.path.tolist(),
-                        "kinds": list(g.kinds)})
+            out.append(
+                {"action": "move", "disc": g.disc, "path": g.path.tolist(), "kinds": list(g.kinds)}
+            )
             out.append({"action": "release", "disc": g.disc, "at": g.path[-1].tolist()})
         return out
 
 
-def parking_route(problem: DiscProblem, x: Array, i: int, directions: int = 24
-                  ) -> list[Array] | None:
+def parking_route(
+    problem: DiscProblem, x: Array, i: int, directions: int = 24
+) -> list[Array] | None:
     """A route of one or two straight segments taking disc i to a parking spot.
 
     Spots lie on a circle around the goal pattern, clear of every goal and every
@@ -179,8 +192,12 @@ def parking_route(problem: DiscProblem, x: Array, i: int, directions: int = 24
     far = float(np.max(np.linalg.norm(problem.goal - centre, axis=1) + problem.radii))
     ang = 2.0 * np.pi * (np.arange(directions) + 0.5) / directions
     unit = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-    spots = np.concatenate([centre + (far + problem.radii[i] + 0.25 * reach) * unit,
-                            centre + (far + problem.radii[i] + reach) * unit])
+    spots = np.concatenate(
+        [
+            centre + (far + problem.radii[i] + 0.25 * reach) * unit,
+            centre + (far + problem.radii[i] + reach) * unit,
+        ]
+    )
     # clear of the goals and the other discs (with a margin), inside the workspace
     others = np.concatenate([problem.goal, np.delete(x, i, axis=0)])
     r_others = np.concatenate([problem.radii, np.delete(problem.radii, i)])
@@ -286,11 +303,18 @@ def sequential_assembly(
     # A low-level flow ends when blocked (||v_i|| < block) or after ``low_steps`` steps:
     # near a contact the flow is stiff and creeps towards its limit point Omega_i
     # (equation (15)); we release the disc where it is then (a legal configuration).
-    low_settings = FlowSettings(dt_max=base.dt_max, euler_fraction=base.euler_fraction,
-                                max_steps=low_steps, stall_ratio=0.0,
-                                window=base.window, min_progress=0.0, stiff_bound=False,
-                                method=base.method, step_max=base.step_max,
-                                goal_fraction=base.goal_fraction)
+    low_settings = FlowSettings(
+        dt_max=base.dt_max,
+        euler_fraction=base.euler_fraction,
+        max_steps=low_steps,
+        stall_ratio=0.0,
+        window=base.window,
+        min_progress=0.0,
+        stiff_bound=False,
+        method=base.method,
+        step_max=base.step_max,
+        goal_fraction=base.goal_fraction,
+    )
     x = np.array(problem.start, dtype=float)
     rows = [x.copy()]
     grasps: list[Grasp] = []
@@ -312,8 +336,7 @@ def sequential_assembly(
         def stop(b: Array, ev: NavEval) -> Status | None:
             return Status.SOLVED if float(np.linalg.norm(ev.v[i])) < block else None
 
-        res = integrate(problem, x0, k_now, epsilon, moving=i, stop=stop,
-                        settings=low_settings)
+        res = integrate(problem, x0, k_now, epsilon, moving=i, stop=stop, settings=low_settings)
         evals += res.evaluations
         return res.path, res.status
 
@@ -325,7 +348,7 @@ def sequential_assembly(
         if len(grasps) - first >= budget:
             status, reason = Status.BUDGET_EXHAUSTED, f"{budget} switches"
             if rule == "paper" and _no_progress(progress, span, min_progress):
-                reason += "; " + _no_progress_reason(grasps[len(grasps) - span:], span)
+                reason += "; " + _no_progress_reason(grasps[len(grasps) - span :], span)
             break
         if rule == "paper" and float(np.linalg.norm(x - problem.goal)) < tol:
             status, reason = Status.SOLVED, ""
@@ -343,7 +366,7 @@ def sequential_assembly(
                 # every f_i vanishes, hence grad phi: a critical point other than d
                 stuck = critical_point_kind(hessian_log_w(x, problem, k_now))
             elif len(stages) < escapes and _no_progress(progress, span, min_progress):
-                stuck = _no_progress_reason(grasps[len(grasps) - span:], span)
+                stuck = _no_progress_reason(grasps[len(grasps) - span :], span)
             if stuck:
                 if len(stages) >= escapes:
                     status, reason = Status.STUCK, stuck
@@ -417,16 +440,19 @@ def sequential_assembly(
             stalled[:] = False  # the scene changed: blocked discs may move again
         placed[i] = now_placed
         grasps.append(Grasp(i, pts, kinds))
-        new_rows = np.array(rows[len(rows) - len(pts):])  # from pick to release
+        new_rows = np.array(rows[len(rows) - len(pts) :])  # from pick to release
         n_straight = sum(1 for kind in kinds if kind != "flow")
         n_flow = len(pts) - n_straight
         if n_flow > 1:
             min_clear = min(min_clear, path_clearance(problem, new_rows[:n_flow]))
         for s_idx in range(n_flow - 1 if n_flow else 0, len(pts) - 1):
-            min_clear = min(min_clear, segment_clearance(problem, new_rows[s_idx], i,
-                                                         pts[s_idx + 1]))
+            min_clear = min(
+                min_clear, segment_clearance(problem, new_rows[s_idx], i, pts[s_idx + 1])
+            )
     stages.append(Stage(k_now, status, reason, len(grasps) - first))
-    return SequentialResult(status, grasps, np.array(rows), min_clear, evals, reason, stages)
+    return SequentialResult(
+        status, grasps, np.array(rows), min_clear, evals, reason, stages, problem
+    )
 
 
 def _no_progress(progress: list[float], window: int, min_progress: float) -> bool:
@@ -438,14 +464,20 @@ def _no_progress_reason(recent: list[Grasp], window: int) -> str:
     """Name the stall; a pair of discs that hand the turn back and forth is named."""
     discs = sorted({g.disc for g in recent})
     if len(discs) == 2:
-        return (f"no progress over {window} switches (discs {discs[0]} and {discs[1]} "
-                "hand the turn back and forth)")
+        return (
+            f"no progress over {window} switches (discs {discs[0]} and {discs[1]} "
+            "hand the turn back and forth)"
+        )
     return f"no progress over {window} switches"
 
 
-def _park_blocker(problem: DiscProblem, x: Array, placed: NDArray[np.bool_],
-                  parked_already: NDArray[np.bool_], inner_rank: NDArray[np.int64]
-                  ) -> tuple[int, list[Array]] | None:
+def _park_blocker(
+    problem: DiscProblem,
+    x: Array,
+    placed: NDArray[np.bool_],
+    parked_already: NDArray[np.bool_],
+    inner_rank: NDArray[np.int64],
+) -> tuple[int, list[Array]] | None:
     """Move aside the unplaced disc nearest the innermost open goal, if it can leave.
 
     Discs are tried by distance from that goal; each disc is parked at most once
