@@ -17,11 +17,32 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from pydantic import BaseModel
 
+from cellplan.assembly.layout import DEFAULT_FILL
+from cellplan.assembly.options import SequentialOptions
+from cellplan.assembly.section import GeneratorSpec
 from cellplan.cliutil import JsonOpt
 from cellplan.errors import ArgumentError, Problem
 
 ALGORITHMS = ("gradient", "sequential", "control")
+
+
+def _default(model: type[BaseModel], field: str) -> Any:
+    """The default of a model field, for help texts (the model is its one source)."""
+    return model.model_fields[field].default
+
+
+# Help texts quote the defaults from their one source (module level: typer resolves the
+# annotations in this module's namespace).
+_ESCAPES_HELP = (
+    "gradient and paper rule: times k may be halved when stuck (0: k alone; default "
+    f"{_default(SequentialOptions, 'escapes')})"
+)
+_RULE_HELP = f"sequential rule: paper | place (default: {_default(SequentialOptions, 'rule')})"
+_SEED_HELP = f"--random: seed (default {_default(GeneratorSpec, 'seed')})"
+_RADIUS_HELP = f"--random: disc radius (default {_default(GeneratorSpec, 'radius'):g})"
+_FILL_HELP = f"--random: fraction of the workspace the discs cover (default {DEFAULT_FILL:g})"
 
 #: ``random_setup`` parameter -> the command-line option that sets it
 _RANDOM_FLAGS = {
@@ -54,33 +75,18 @@ def register(app: typer.Typer) -> None:
         tolerance: Annotated[
             float | None, typer.Option(help="goal tolerance in R^2n (default: discs.tolerance)")
         ] = None,
-        rule: Annotated[
-            str | None, typer.Option(help="sequential rule: paper | place (default: paper)")
-        ] = None,
-        escapes: Annotated[
-            int | None,
-            typer.Option(
-                help="gradient and paper rule: times k may be halved when stuck (0: k alone; "
-                "default 6)"
-            ),
-        ] = None,
+        rule: Annotated[str | None, typer.Option(help=_RULE_HELP)] = None,
+        escapes: Annotated[int | None, typer.Option(help=_ESCAPES_HELP)] = None,
         random_n: Annotated[int | None, typer.Option("--random", help="generate N discs")] = None,
-        seed: Annotated[int | None, typer.Option(help="--random: seed (default 0)")] = None,
+        seed: Annotated[int | None, typer.Option(help=_SEED_HELP)] = None,
         permutation: Annotated[
             bool, typer.Option(help="--random: starts permute the goals")
         ] = False,
         log10_beta: Annotated[
             float | None, typer.Option(help="--random: goal difficulty log10 beta(d)")
         ] = None,
-        radius: Annotated[
-            float | None, typer.Option(help="--random: disc radius (default 1)")
-        ] = None,
-        fill: Annotated[
-            float | None,
-            typer.Option(
-                help="--random: fraction of the workspace area the discs cover (default 0.05)"
-            ),
-        ] = None,
+        radius: Annotated[float | None, typer.Option(help=_RADIUS_HELP)] = None,
+        fill: Annotated[float | None, typer.Option(help=_FILL_HELP)] = None,
         frames: Annotated[int, typer.Option(help="GIF frames")] = 40,
         output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
             "assembly-out"
