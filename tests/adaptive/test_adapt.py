@@ -1,11 +1,10 @@
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from adaptive_scenarios import POINT_SCENARIO  # type: ignore[import-not-found]
 
+from cellplan import units
 from cellplan.adaptive.adapt import Adapter
 from cellplan.adaptive.graph import BLOCKED
 from cellplan.adaptive.repair import repair
@@ -136,7 +135,7 @@ def test_attached_subgoals_follow_their_object() -> None:
 
 def test_arm_subgoal_ik_keeps_its_elbow_branch() -> None:
     sc = load_scenario("adaptive_fig4")
-    world = World(sc, math.radians(1.0))
+    world = World(sc, units.radians(1.0))
     for name, tag in world.goals.items():
         q = world.goal_config(name)
         assert q is not None and world.branch(q) == tag.branch

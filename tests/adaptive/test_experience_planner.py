@@ -49,7 +49,6 @@ def fig4() -> api.Setup:
 def test_arm_query_is_solved_and_the_path_is_collision_free(fig4: api.Setup) -> None:
     ep = ExperiencePlanner(fig4)
     a, b = ep.goals["g1"], ep.goals["g5"]
-    assert a is not None and b is not None
     res = ep.plan(a, b)
     assert res.status is Status.SOLVED and res.solution is ep
     traj = res.trajectory
@@ -105,8 +104,7 @@ def test_moved_object_carries_its_goal_and_subgoals() -> None:
     assert ep.plan(None, "home").success
     ep.move("A", (0.5, 0.25, 0.0))
     assert ep.pose("A") == (0.5, 0.25, 0.0)
-    g2 = ep.goals["g2"]
-    assert g2 is not None and np.allclose(g2, [7.0, 3.25])
+    assert np.allclose(ep.goals["g2"], [7.0, 3.25])
     res = ep.plan(None, "g2")
     assert res.success and np.allclose(res.trajectory.q[-1], [7.0, 3.25])  # type: ignore[union-attr]
     _assert_free(ep.world.workcell(), res.trajectory, 0.005)  # type: ignore[arg-type]

@@ -25,6 +25,7 @@ task is a query from where the robot stands to a named goal.
 
 from __future__ import annotations
 
+import gc
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -190,9 +191,18 @@ class ExperiencePlanner:
         return self.adapter.u.copy()
 
     @property
-    def goals(self) -> dict[str, FloatArray | None]:
-        """The named goals' configurations in the current workcell (``None``: no IK)."""
-        return {n: self.world.goal_config(n) for n in sorted(self.world.goals)}
+    def goals(self) -> dict[str, FloatArray]:
+        """The named goals' configurations in the current workcell (radians for angles).
+
+        A goal whose object has moved out of the arm's reach (no inverse-kinematics
+        solution on its elbow branch now) is left out.
+        """
+        out = {}
+        for name in sorted(self.world.goals):
+            q = self.world.goal_config(name)
+            if q is not None:
+                out[name] = q
+        return out
 
     def stats(self) -> dict[str, float]:
         """G's size, the checks made so far, Solve calls, queries and the generation."""
@@ -241,6 +251,8 @@ class ExperiencePlanner:
         self.adapter.tasks_done += 1  # Solve's seeds derive from (seed, task, call)
         result = self._result(res, u, label)
         self.save()
+        if res.solve_calls:
+            gc.collect()  # OMPL's objects of the Solve calls go now, not at exit
         return result
 
     def run_task(self, key: str, w: FloatArray, start: FloatArray | None = None) -> TaskResult:

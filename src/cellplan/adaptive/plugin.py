@@ -7,8 +7,8 @@ their algorithm modules when they run.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 from cellplan.adaptive.planners import (
     AdaptiveOptions,
@@ -19,6 +19,9 @@ from cellplan.adaptive.planners import (
 )
 from cellplan.adaptive.section import AdaptiveSection
 from cellplan.core import Package, PlannerSpec, ShowcaseItem
+
+if TYPE_CHECKING:
+    from cellplan.setup import Setup
 
 TITLE = "Adaptive experience-graph planning in changing workcells"
 CITATION = (
@@ -32,6 +35,29 @@ SUMMARY = (
     "(Fig. 5): 2.5 at task 1, 1.0 at task 16, 0.67 by task 40; after the change the "
     "on-demand repair A3 is best, then A1, then A0, while A2 jumps and then approaches A3."
 )
+
+
+def describe(setup: Setup) -> Mapping[str, str]:
+    """``cellplan validate`` lines; runs the check every adaptive run starts with.
+
+    Every goal must have an inverse-kinematics solution and be free at every stage of
+    the change schedule (:func:`~cellplan.adaptive.world.preflight`).
+    """
+    from cellplan.adaptive.runner import settings_for, task_count
+    from cellplan.adaptive.section import RandomTasks
+    from cellplan.adaptive.world import preflight
+
+    sc = setup.scenario
+    sec: AdaptiveSection = setup.section("adaptive")
+    settings = settings_for(sc, None, None)
+    preflight(sc, settings.resolution)
+    kind = f"random, seed {sec.tasks.seed}" if isinstance(sec.tasks, RandomTasks) else "listed"
+    return {
+        "adaptive goals": f"{len(sec.goals)} ({', '.join(sorted(sec.goals))})",
+        "adaptive tasks": f"{task_count(sc, None)} ({kind})",
+        "workcell changes": str(len(sec.changes)),
+        "repair / Solve / Reach": f"{sec.repair} / {sec.solve} / {sec.reach}",
+    }
 
 
 def _showcase(folder: Any) -> Sequence[ShowcaseItem]:
@@ -77,6 +103,7 @@ PACKAGE = Package(
             smoke=("adaptive_fig4", {"tasks": 3, "seed": 0}),
         ),
     ),
+    describe=describe,
     showcase=_showcase,
     experiments="cellplan.adaptive.experiments",
     commands="cellplan.adaptive.commands",
