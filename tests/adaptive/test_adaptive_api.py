@@ -128,3 +128,16 @@ def test_the_python_examples_of_the_docs_run(
         exec(compile(block, str(doc), "exec"), namespace)
     assert Trajectory.load(tmp_path / "paths.csv").events_of("arrive")
     assert (tmp_path / "exp.sqlite").is_file()
+
+
+def test_showcase_draws_figure_3_through_the_api_without_printing(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    from cellplan.adaptive.plugin import PACKAGE
+
+    assert PACKAGE.showcase is not None
+    (item,) = PACKAGE.showcase(tmp_path)
+    assert capfd.readouterr() == ("", "")
+    (figure,) = item.figures
+    assert Path(figure).stat().st_size > 10_000 and "cellplan.plan" in item.code
+    assert "11 of 11 tasks solved" in item.caption

@@ -299,12 +299,13 @@ class ExperiencePlanner:
             "generation": float(self.world.gen),
             "seconds": float(res.seconds),
         }
-        if ok:
-            message = (
-                f"reached {label} along {len(traj) - 1} straight segment"
-                f"{'' if len(traj) == 2 else 's'} "
-                f"({checks} collision checks, {res.solve_calls} Solve calls, |V|={res.vertices})"
-            )
+        cost = f"({checks} collision checks, {res.solve_calls} Solve calls, |V|={res.vertices})"
+        if ok and len(traj) == 1:
+            message = f"already at {label} {cost}"
+            status = Status.SOLVED
+        elif ok:
+            segments = f"{len(traj) - 1} straight segment{'' if len(traj) == 2 else 's'}"
+            message = f"reached {label} along {segments} {cost}"
             status = Status.SOLVED
         elif res.success:
             message = f"reached {label}, but the executed path failed the 4x finer re-check"
@@ -315,7 +316,12 @@ class ExperiencePlanner:
                 "checks per Solve call"
             )
             status = Status.FAILED
-        return Result(status, message, "", stats, self, traj)
+        options = {
+            "repair": self.settings.repair,
+            "resolution": self.settings.resolution,
+            "seed": self.settings.seed,
+        }
+        return Result(status, message, "ExperiencePlanner", stats, self, traj, options)
 
     def _meta(self) -> dict[str, str | int | float | bool]:
         return {

@@ -40,7 +40,7 @@ def settings_for(scenario: Scenario, repair: str | None, seed: int | None) -> Se
     sec = _section(scenario)
     if repair is not None and repair not in STRATEGIES:
         raise ArgumentError(
-            f"unknown repair strategy {repair!r}; choose one of {', '.join(STRATEGIES)}", "--repair"
+            f"unknown repair strategy {repair!r}; choose one of {', '.join(STRATEGIES)}", "repair"
         )
     return Settings(
         repair=repair or sec.repair,
@@ -76,9 +76,9 @@ def task_count(scenario: Scenario, tasks: int | None) -> int:
     sec = _section(scenario)
     if tasks is not None:
         if tasks < 1:
-            raise ArgumentError("must be at least 1", "--tasks")
+            raise ArgumentError("must be at least 1", "tasks")
         if isinstance(sec.tasks, list) and tasks > len(sec.tasks):
-            raise ArgumentError(f"the scenario lists only {len(sec.tasks)} tasks", "--tasks")
+            raise ArgumentError(f"the scenario lists only {len(sec.tasks)} tasks", "tasks")
         return tasks
     return len(sec.tasks) if isinstance(sec.tasks, list) else sec.tasks.count
 
@@ -294,14 +294,14 @@ def _check_resume(saved: dict[str, Any], settings: Settings) -> None:
     if saved.get("repair") != settings.repair:
         problems.append(
             Problem(
-                "--repair",
+                "repair",
                 f"the database was built with {saved.get('repair')}, not {settings.repair}",
             )
         )
     if saved.get("seed") != settings.seed:
         problems.append(
             Problem(
-                "--seed",
+                "seed",
                 f"the database was built with seed {saved.get('seed')}, not {settings.seed}",
             )
         )
