@@ -179,9 +179,11 @@ def test_bad_start_and_goal_are_refused_with_one_line(fig4: api.Setup) -> None:
     assert ep.queries == 0 and len(ep.graph) == 1  # nothing was planned
 
 
-def test_a_bare_workcell_is_enough() -> None:
-    cell = api.loads(POINT_SCENARIO).workcell
-    ep = ExperiencePlanner(cell, resolution=0.1)
+def test_a_bare_workcell_is_enough(tmp_path: Path) -> None:
+    setup = api.loads(POINT_SCENARIO)
+    cell = setup.workcell
+    db = tmp_path / "cell.sqlite"
+    ep = ExperiencePlanner(cell, resolution=0.1, db=db)
     res = ep.plan([1.0, 1.0], [9.0, 1.0])
     assert res.success and ep.goals == {}
     _assert_free(cell, res.trajectory, 0.005)  # type: ignore[arg-type]
@@ -190,3 +192,10 @@ def test_a_bare_workcell_is_enough() -> None:
         ep.plan(None, [8.5, 5.0])
     with pytest.raises(ArgumentError, match="shape"):
         ep.add("bad", {"type": "box", "min": [1.0]})
+    ep.close()
+    again = ExperiencePlanner(cell, resolution=0.1, db=db)
+    assert _graph(again) == _graph(ep) and again.pose("post") == (0.5, 0.0, 0.0)
+    again.close()
+    # keyed on the workcell's own numbers: the scenario's signature is another key
+    with pytest.raises(PersistenceError, match="another"):
+        ExperiencePlanner(setup, db=db)
