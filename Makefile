@@ -28,10 +28,7 @@ lint: $(STAMP)
 
 # The API reference, from the docstrings (numpydoc), into build/api; a warning fails it.
 docs: $(STAMP)
-	$(BIN)/pdoc --docformat numpy -o build/api cellplan 2> build-api-warnings.txt; \
-	status=$$?; cat build-api-warnings.txt >&2; \
-	if [ $$status -ne 0 ] || grep -q . build-api-warnings.txt; then rm -f build-api-warnings.txt; exit 1; fi; \
-	rm -f build-api-warnings.txt; echo "API reference: build/api/index.html"
+	$(BIN)/python docs/build_api.py build/api
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done

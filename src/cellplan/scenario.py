@@ -45,6 +45,36 @@ from cellplan.schema import (
     Vec2,
 )
 
+# ``Scenario`` itself is left out of ``__all__``: it is built when this module is imported
+# (ScenarioBase plus the registered sections), so its documentation is ScenarioBase's.
+__all__ = [
+    "MAX_FILE_BYTES",
+    "SCHEMA_VERSION",
+    "ArmRobotSpec",
+    "CSpaceSpec",
+    "LinkSpec",
+    "PartSpec",
+    "PointRobotSpec",
+    "RegionSpec",
+    "RobotSpec",
+    "RotatingRobotSpec",
+    "ScenarioBase",
+    "TranslatingRobotSpec",
+    "WorkcellSpec",
+    "build_scenario_model",
+    "check_references",
+    "dump_scenario",
+    "format_location",
+    "json_schema",
+    "load_scenario",
+    "loads_scenario",
+    "parse_yaml",
+    "problems_from_validation",
+    "robot_dimension",
+    "scenario_from_data",
+    "section_keys",
+]
+
 SCHEMA_VERSION = 1
 
 MAX_FILE_BYTES = 10_000_000
