@@ -199,3 +199,29 @@ def test_a_bare_workcell_is_enough(tmp_path: Path) -> None:
     # keyed on the workcell's own numbers: the scenario's signature is another key
     with pytest.raises(PersistenceError, match="another"):
         ExperiencePlanner(setup, db=db)
+
+
+def test_a_rotating_robot_plans_and_its_attached_subgoals_turn_with_objects() -> None:
+    setup = api.load("strategies_p3")
+    robot = setup.workcell.robot
+    ep = ExperiencePlanner(setup, resolution=0.2)
+    rng = np.random.default_rng(3)
+    q = rng.uniform(robot.lower, robot.upper, size=(200, robot.dim))
+    q = q[ep.world.is_free(q)]
+    first = ep.plan(q[0], q[1])
+    assert first.success and first.trajectory.units == ("workcell", "workcell", "rad")  # type: ignore[union-attr]
+    _assert_free(setup.workcell, first.trajectory, 0.01)  # type: ignore[arg-type]
+    attached = {v.id: v.q.copy() for v in ep.graph.vertices.values() if v.obj is not None}
+    assert attached
+    obj = ep.graph.vertices[next(iter(attached))].obj
+    assert obj is not None
+    turned = [vid for vid in attached if ep.graph.vertices[vid].obj == obj]
+    ep.move(obj, (0.0, 0.0, 0.1))
+    # subgoals on the object turn with it; one the turn makes collide is dropped (2.3)
+    kept = [vid for vid in turned if vid in ep.graph.vertices]
+    assert kept
+    for vid in kept:
+        after, before = ep.graph.vertices[vid].q, attached[vid]
+        assert np.isclose(after[2], robot.wrap(before + np.array([0.0, 0.0, 0.1]))[2])
+        assert not np.allclose(after[:2], before[:2])
+    assert ep.plan(None, q[2]).success

@@ -46,6 +46,7 @@ from cellplan.adaptive.world import Pose, Tag, World
 from cellplan.core import Result, Status
 from cellplan.errors import ArgumentError, PersistenceError, Problem
 from cellplan.geometry import ShapeSet
+from cellplan.robots import PlanarArm, Robot
 from cellplan.scenario import Scenario
 from cellplan.schema import Shape
 from cellplan.setup import Setup, as_setup
@@ -162,6 +163,7 @@ class ExperiencePlanner:
             self.world = World(sc, settings.resolution)
             sig = signatures(sc)
             self.name = setup.name
+        _check_robot(self.world.robot)
         self.settings = settings
         self.counter = CheckCounter()
         self.adapter = Adapter(self.world, settings, self.counter, hook)
@@ -567,6 +569,16 @@ def task_trajectory(
         tuple(events),
         dict(meta or {}),
     )
+
+
+def _check_robot(robot: Robot) -> None:
+    """Object-attached subgoals (Section 2.3) need IK: a rigid robot, or a 2- or 3-link arm."""
+    if isinstance(robot, PlanarArm) and robot.n_links not in (2, 3):
+        raise ArgumentError(
+            f"the experience planner needs a rigid robot or a 2- or 3-link arm, not a "
+            f"{robot.n_links}-link arm (attached subgoals need inverse kinematics)",
+            "robot",
+        )
 
 
 def _pose(pose: Sequence[float]) -> Pose:

@@ -204,7 +204,9 @@ class World:
             if not valid[0, k]:
                 return None
             return np.asarray(sols[0, k], dtype=float)
-        q = np.array([x, y], dtype=float)
+        # A rigid robot's tool frame is its body frame: (x, y), or (x, y, theta) wrapped.
+        q = np.array([x, y] if robot.dim == 2 else [x, y, phi], dtype=float)
+        q = robot.wrap(q)
         return q if bool(robot.within_limits(q[None, :])[0]) else None
 
     def _goal_tag(self, goal: GoalSpec) -> Tag:
