@@ -39,6 +39,7 @@ def test_adapt_command_writes_csv_pictures_and_continues(tmp_path: Path) -> None
     assert first.stdout.startswith("3 of 3 tasks solved") and first.stdout.count("\n") == 1
     for name in (
         "paths.csv",
+        "paths.png",
         "tasks.csv",
         "ratio.png",
         "costs.png",

@@ -6,7 +6,8 @@ it is a terminal) and writes, into DIR:
 
 * ``paths.csv``: the executed paths of every task run in this call as one trajectory
   (:class:`~cellplan.trajectory.Trajectory`; mode = the task's goal, events ``task``,
-  ``arrive``, ``fail``, ``change``; radians for joint angles);
+  ``arrive``, ``fail``, ``change``; radians for joint angles) and ``paths.png`` (each
+  coordinate against the path length, modes shaded, events marked);
 * ``tasks.csv``: per-task costs with the R/T/S/Abstract split and the Solve-only baseline
   (every task of the database when continuing);
 * ``ratio.png`` (the cumulative cost ratio, Figure 5), ``costs.png``, ``graph.png`` and
@@ -169,6 +170,8 @@ def write_outputs(result: Result, output: Path) -> dict[str, Path]:
     files: dict[str, Path] = {}
     assert result.trajectory is not None
     files["paths"] = result.trajectory.save(output / "paths.csv")
+    result.trajectory.plot(output / "paths.png")
+    files["paths_plot"] = output / "paths.png"
     buf = io.StringIO()
     if rows:
         writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
