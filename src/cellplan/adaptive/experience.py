@@ -101,7 +101,11 @@ class ExperiencePlanner:
         robot); ``None``: the section's value (its ``resolution`` is in degrees for an
         arm and converted here).
     seed
-        Seed of Solve (OMPL's RNG is reseeded from it before every call).
+        Seed of Solve (OMPL's RNG is reseeded from it before every call); ``None``:
+        the section's task seed.
+    hook
+        Called with the phase names ``augment``, ``trace_solve`` and ``executed`` as a
+        query passes them (used to test that a killed run leaves its database intact).
 
     Attributes
     ----------

@@ -46,7 +46,9 @@ class AdaptiveOptions(Options):
         description="repair strategy after a workcell change: A0 forget, A1 verify all, "
         "A2 repair actively, A3 on demand (Section 2.5)",
     )
-    tasks: TaskCount | None = Field(None, description="number of tasks (a prefix of the list)")
+    tasks: TaskCount | None = Field(
+        None, description="number of tasks (of a listed sequence: its first ones)"
+    )
     seed: int | None = Field(
         None, description="seed of the random task sequence and of Solve (OMPL's RNG)"
     )
@@ -63,7 +65,9 @@ class AdaptiveOptions(Options):
 class PeerOptions(Options):
     """Options of the Solve-only peers (``None``: the scenario section's value)."""
 
-    tasks: TaskCount | None = Field(None, description="number of tasks (a prefix of the list)")
+    tasks: TaskCount | None = Field(
+        None, description="number of tasks (of a listed sequence: its first ones)"
+    )
     seed: int | None = Field(None, description="seed of the random task sequence and of OMPL")
 
 
