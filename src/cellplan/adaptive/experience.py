@@ -42,6 +42,13 @@ from cellplan.adaptive.graph import ExperienceGraph
 from cellplan.adaptive.repair import STRATEGIES, repair
 from cellplan.adaptive.section import AdaptiveSection
 from cellplan.adaptive.space import FloatArray
+from cellplan.adaptive.store import (
+    ExperienceStore,
+    shape_from_json,
+    shape_to_json,
+    signatures,
+    workcell_signatures,
+)
 from cellplan.adaptive.world import Pose, Tag, World
 from cellplan.core import Result, Status
 from cellplan.errors import ArgumentError, PersistenceError, Problem
@@ -134,7 +141,6 @@ class ExperiencePlanner:
         hook: Hook | None = None,
     ) -> None:
         from cellplan.adaptive.runner import settings_for
-        from cellplan.adaptive.store import ExperienceStore, signatures, workcell_signatures
 
         if repair not in STRATEGIES:
             raise ArgumentError(
@@ -451,8 +457,6 @@ class ExperiencePlanner:
 
     def state(self) -> dict[str, Any]:
         """The session state written to the database (JSON values)."""
-        from cellplan.adaptive.store import shape_to_json
-
         ad, world = self.adapter, self.world
         return {
             "tasks_done": self.queries,
@@ -494,7 +498,6 @@ class ExperiencePlanner:
 
     def _restore(self) -> None:
         from cellplan.adaptive.runner import restore_run
-        from cellplan.adaptive.store import shape_from_json
 
         store = self.store
         assert store is not None
