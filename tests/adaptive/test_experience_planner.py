@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from adaptive_scenarios import POINT_SCENARIO  # type: ignore[import-not-found]
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
 
 import cellplan.api as api
 from cellplan.adaptive import ExperiencePlanner
@@ -225,3 +227,22 @@ def test_a_rotating_robot_plans_and_its_attached_subgoals_turn_with_objects() ->
         assert np.isclose(after[2], robot.wrap(before + np.array([0.0, 0.0, 0.1]))[2])
         assert not np.allclose(after[:2], before[:2])
     assert ep.plan(None, q[2]).success
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.floats(0.2, 9.8), st.floats(0.2, 9.8)), min_size=2, max_size=5))
+def test_every_answer_is_a_free_path_between_the_asked_configurations(
+    points: list[tuple[float, float]],
+) -> None:
+    setup = api.loads(POINT_SCENARIO)
+    ep = ExperiencePlanner(setup, seed=1)
+    free = [np.array(p) for p in dict.fromkeys(points) if ep.world.is_free(np.array([p]))[0]]
+    assume(len(free) >= 2)
+    for a, b in itertools.pairwise(free):
+        res = ep.plan(a, b)
+        traj = res.trajectory
+        assert traj is not None
+        assert res.success, res.message  # the wall leaves every free pair connected
+        assert np.array_equal(traj.q[0], a) and np.array_equal(traj.q[-1], b)
+        _assert_free(setup.workcell, traj, 0.01)
+        assert res.stats["checks"] == sum(v for k, v in res.stats.items() if k.endswith("_checks"))

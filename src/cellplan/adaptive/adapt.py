@@ -12,7 +12,8 @@ the ``do forever`` loop of Figure 1 for a goal:
    configuration is free now), Solve(w_hat, w), Abstract, Augment; ``w_hat``
    becomes the last vertex of the chain;
 4. T(u, w) (Section 2.4, steps 1(a), 1(b), 2, 3), then Execute the path
-   ``u, u_hat, Gamma, w_hat, w`` after corner cutting (Section 2.6).
+   ``u, u_hat, Gamma, w_hat, w`` after corner cutting (Section 2.6); the path is
+   re-checked, uncounted and without clearance, at a quarter of the resolution.
 
 Edges carry the generation they were verified in; T skips edges verified in
 the current generation (they cannot have changed), which is the only departure
@@ -310,7 +311,10 @@ class Adapter:
                 if self.settings.corner_cutting and len(gamma) > 2:
                     gamma = self.cut_corners(gamma)
                 res.path = self.execute(gamma, w)
-                res.path_ok = path_is_free(self.space, res.path, refine=4)
+                # The re-check tests the claim (no contact anywhere on the path), so it
+                # checks exactly, without the clearance Reach demands of its samples.
+                exact = self.space.with_is_free(self.world.is_free_exact)
+                res.path_ok = path_is_free(exact, res.path, refine=4)
                 res.success = True
                 self.u = w.copy()
                 self.u_hat = w_hat

@@ -153,6 +153,10 @@ class World:
         """Validity of configurations in the current environment (with the clearance margin)."""
         return ~self.workcell().collides(Q, avoid_sources="none", margin=self.margin)
 
+    def is_free_exact(self, Q: FloatArray) -> np.ndarray:
+        """Validity without the clearance margin: no contact (re-checks of executed paths)."""
+        return ~self.workcell().collides(Q, avoid_sources="none")
+
     # --- tags and inverse kinematics ------------------------------------------------------
 
     def tool(self, q: FloatArray) -> Pose:
