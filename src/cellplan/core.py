@@ -183,12 +183,15 @@ class PlannerSpec:
     smoke: tuple[str, Mapping[str, Any]] = ("", {})
 
     def option_table(self) -> list[tuple[str, str, str]]:
-        """``(name, default, description)`` for each option, in declaration order."""
-        rows = []
-        for key, info in self.options.model_fields.items():
-            default = "scenario's" if info.default is None else repr(info.default)
-            rows.append((key, default, info.description or ""))
-        return rows
+        """``(name, default, description)`` for each option, in declaration order.
+
+        A default of ``None`` is shown as ``None``; the description says what it means
+        (usually the scenario's value).
+        """
+        return [
+            (key, repr(info.default), info.description or "")
+            for key, info in self.options.model_fields.items()
+        ]
 
 
 @dataclass(frozen=True)
