@@ -38,6 +38,7 @@ from cellplan.errors import Problem, ScenarioError
 from cellplan.schema import (
     Bounds,
     Cells,
+    Coord,
     Name,
     PositiveFloat,
     Shape,
@@ -49,6 +50,7 @@ from cellplan.schema import (
 # (ScenarioBase plus the registered sections), so its documentation is ScenarioBase's.
 __all__ = [
     "MAX_FILE_BYTES",
+    "SCHEMA_ID",
     "SCHEMA_VERSION",
     "ArmRobotSpec",
     "CSpaceSpec",
@@ -87,23 +89,34 @@ MAX_FILE_BYTES = 10_000_000
 class WorkcellSpec(StrictModel):
     """Rectangular bounds and named static obstacles."""
 
-    bounds: Bounds
-    obstacles: dict[Name, Shape] = Field(default_factory=dict)
+    bounds: Bounds = Field(
+        description="the rectangle the robot stays in (workcell units)",
+        examples=[{"xmin": 0, "ymin": 0, "xmax": 100, "ymax": 100}],
+    )
+    obstacles: dict[Name, Shape] = Field(
+        default_factory=dict,
+        max_length=100_000,
+        description="static obstacles by name (box, polygon or disc, workcell units)",
+        examples=[{"wall": {"type": "box", "min": [20, 0], "max": [24, 20]}}],
+    )
 
 
 class PointRobotSpec(StrictModel):
     """A point robot; C = R^2."""
 
-    type: Literal["point"]
-    start: Vec2
+    type: Literal["point"] = Field(description="robot kind")
+    start: Vec2 = Field(description="start position (workcell units)", examples=[[15, 8]])
 
 
 class TranslatingRobotSpec(StrictModel):
     """A rigid body that translates only; C = R^2. ``shape`` is in the robot frame."""
 
-    type: Literal["translating"]
-    shape: Shape
-    start: Vec2
+    type: Literal["translating"] = Field(description="robot kind")
+    shape: Shape = Field(
+        description="the body in its own frame (workcell units)",
+        examples=[{"type": "box", "min": [-1, -1], "max": [1, 1]}],
+    )
+    start: Vec2 = Field(description="start position of the frame origin", examples=[[15, 8]])
 
 
 class RotatingRobotSpec(StrictModel):
@@ -114,9 +127,15 @@ class RotatingRobotSpec(StrictModel):
     paper) is the +x axis of its frame.
     """
 
-    type: Literal["rotating"]
-    shape: Shape
-    start: tuple[float, float, float]
+    type: Literal["rotating"] = Field(description="robot kind")
+    shape: Shape = Field(
+        description="the body in its own frame (workcell units); its axis is +x",
+        examples=[{"type": "box", "min": [-3, -0.5], "max": [3, 0.5]}],
+    )
+    start: tuple[Coord, Coord, float] = Field(
+        description="start (x, y, theta): position in workcell units, theta in degrees",
+        examples=[[20, 10, 90]],
+    )
 
 
 class LinkSpec(StrictModel):
@@ -153,41 +172,67 @@ RobotSpec = Annotated[
 class PartSpec(StrictModel):
     """A part's shape in the gripper frame; while carried it moves rigidly with the gripper."""
 
-    shape: Shape
+    shape: Shape = Field(
+        description="the part in the gripper frame (workcell units)",
+        examples=[{"type": "box", "min": [-2, -0.5], "max": [2, 0.5]}],
+    )
 
 
 class RegionSpec(StrictModel):
     """A source or destination: one or more disjoint components."""
 
-    components: list[Shape] = Field(min_length=1)
+    components: list[Shape] = Field(
+        min_length=1,
+        description="disjoint shapes (workcell units); a part may be picked or placed at any",
+        examples=[[{"type": "box", "min": [2, 2], "max": [6, 5]}]],
+    )
 
 
 class CSpaceSpec(StrictModel):
     """Default configuration-space resolution (cells per axis) for bitmaps and reports."""
 
-    cells: list[Cells] | None = None
+    cells: list[Cells] | None = Field(
+        None,
+        description="cells per C-space axis (default: 128 x 128 point and translating robots, "
+        "64 x 64 x 32 rotating, 64 per arm joint)",
+        examples=[[100, 100]],
+    )
 
 
 # --- the scenario ----------------------------------------------------------------------------
 
 
 class ScenarioBase(StrictModel):
-    """The core of every scenario: a workcell and what moves in it.
+    """A cellplan scenario: a workcell, what moves in it, and each planner's settings.
 
-    The registered packages' sections (``strategy:``, ``adaptive:``, ``discs:`` ...)
-    are added as optional fields by :func:`build_scenario_model`; see ``cellplan
-    schema`` for the full schema.
+    Lengths are in the workcell's own unit; angles are in degrees. The registered
+    packages' sections (``strategy:``, ``adaptive:``, ``discs:`` ...) are added as
+    optional fields by :func:`build_scenario_model`.
     """
 
-    cellplan: Literal[1] = Field(description="scenario format version")
-    name: str = ""
-    description: str = ""
-    workcell: WorkcellSpec
-    robot: RobotSpec | None = None
-    parts: dict[Name, PartSpec] = Field(default_factory=dict)
-    sources: dict[Name, RegionSpec] = Field(default_factory=dict)
-    destinations: dict[Name, RegionSpec] = Field(default_factory=dict)
-    cspace: CSpaceSpec = Field(default_factory=CSpaceSpec)
+    cellplan: Literal[1] = Field(description="scenario format version", examples=[1])
+    name: str = Field("", max_length=200, description="short name", examples=["my-cell"])
+    description: str = Field(
+        "", max_length=10_000, description="what the scenario shows (free text)"
+    )
+    workcell: WorkcellSpec = Field(description="bounds and static obstacles")
+    robot: RobotSpec | None = Field(
+        None,
+        description="the robot: point, translating, rotating or a planar arm (angles in "
+        "degrees); none for disc assembly",
+    )
+    parts: dict[Name, PartSpec] = Field(
+        default_factory=dict, description="parts by name, in the gripper frame"
+    )
+    sources: dict[Name, RegionSpec] = Field(
+        default_factory=dict, description="regions where parts are picked up, by name"
+    )
+    destinations: dict[Name, RegionSpec] = Field(
+        default_factory=dict, description="regions where parts are delivered, by name"
+    )
+    cspace: CSpaceSpec = Field(
+        default_factory=CSpaceSpec, description="configuration-space resolution of bitmaps"
+    )
 
     if TYPE_CHECKING:
         # Package sections are fields of the built model; to the type checker they are Any.
@@ -508,9 +553,18 @@ def dump_scenario(scenario: Scenario) -> str:
     return yaml.safe_dump(data, sort_keys=False)
 
 
+SCHEMA_ID = f"urn:cellplan:scenario:{SCHEMA_VERSION}"
+"""The ``$id`` of the scenario schema (a URN: the schema is published by ``cellplan schema``)."""
+
+
 def json_schema() -> dict[str, Any]:
-    """The JSON Schema of scenario files."""
-    return Scenario.model_json_schema()
+    """The JSON Schema (draft 2020-12) of scenario files, with ``$schema`` and ``$id``."""
+    body = Scenario.model_json_schema()
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "$id": SCHEMA_ID,
+        **body,
+    }
 
 
 # --- cross-reference checks ------------------------------------------------------------------

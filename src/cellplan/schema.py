@@ -14,7 +14,14 @@ import shapely
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from shapely.geometry.base import BaseGeometry
 
-Vec2 = tuple[float, float]
+COORD_LIMIT = 1e6
+"""Largest magnitude of a coordinate or length in a scenario file (workcell units).
+
+Workcells are described in any unit (millimetres to metres); a million units leaves room
+for all of them while keeping every geometric computation far from float overflow."""
+Coord = Annotated[float, Field(ge=-COORD_LIMIT, le=COORD_LIMIT, allow_inf_nan=False)]
+Length = Annotated[float, Field(gt=0, le=COORD_LIMIT, allow_inf_nan=False)]
+Vec2 = tuple[Coord, Coord]
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Probability = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
@@ -34,8 +41,13 @@ class StrictModel(BaseModel):
 class PolygonShape(StrictModel):
     """A simple polygon (convex or not) given by its vertices in order."""
 
-    type: Literal["polygon"] = "polygon"
-    points: list[Vec2] = Field(min_length=3, description="vertices, in either winding order")
+    type: Literal["polygon"] = Field("polygon", description="shape kind")
+    points: list[Vec2] = Field(
+        min_length=3,
+        max_length=10_000,
+        description="vertices (workcell units), in either winding order",
+        examples=[[[0, 0], [4, 0], [2, 3]]],
+    )
 
     @model_validator(mode="after")
     def _simple_and_non_degenerate(self) -> PolygonShape:
@@ -55,9 +67,9 @@ class PolygonShape(StrictModel):
 class BoxShape(StrictModel):
     """An axis-aligned rectangle ``[min, max]``; shorthand for a four-point polygon."""
 
-    type: Literal["box"]
-    min: Vec2
-    max: Vec2
+    type: Literal["box"] = Field(description="shape kind")
+    min: Vec2 = Field(description="lower-left corner (workcell units)", examples=[[2, 2]])
+    max: Vec2 = Field(description="upper-right corner (workcell units)", examples=[[6, 5]])
 
     @model_validator(mode="after")
     def _ordered(self) -> BoxShape:
@@ -72,9 +84,9 @@ class BoxShape(StrictModel):
 class DiscShape(StrictModel):
     """A closed disc."""
 
-    type: Literal["disc"]
-    center: Vec2
-    radius: PositiveFloat
+    type: Literal["disc"] = Field(description="shape kind")
+    center: Vec2 = Field(description="centre (workcell units)", examples=[[5, 5]])
+    radius: Length = Field(description="radius (workcell units)", examples=[1.0])
 
     def to_shapely(self) -> BaseGeometry:
         # Only for drawing and reference checks; collision code uses the exact disc.
@@ -88,10 +100,10 @@ RigidShape = Annotated[PolygonShape | BoxShape, Field(discriminator="type")]
 class Bounds(StrictModel):
     """The rectangular workcell ``[xmin, xmax] x [ymin, ymax]``."""
 
-    xmin: float = 0.0
-    ymin: float = 0.0
-    xmax: float
-    ymax: float
+    xmin: Coord = Field(0.0, description="left edge (workcell units)", examples=[0])
+    ymin: Coord = Field(0.0, description="bottom edge (workcell units)", examples=[0])
+    xmax: Coord = Field(description="right edge (workcell units)", examples=[100])
+    ymax: Coord = Field(description="top edge (workcell units)", examples=[100])
 
     @model_validator(mode="after")
     def _ordered(self) -> Bounds:
@@ -104,9 +116,14 @@ class Bounds(StrictModel):
 
 
 __all__ = [
+    "CELLS_RANGE",
+    "COORD_LIMIT",
     "Bounds",
     "BoxShape",
+    "Cells",
+    "Coord",
     "DiscShape",
+    "Length",
     "Name",
     "NonNegativeFloat",
     "PolygonShape",

@@ -38,8 +38,12 @@ class Rate(StrictModel):
     a rate becomes ``1 - exp(-rate * stage_time)``.
     """
 
-    probability: Probability | None = None
-    rate: PositiveFloat | None = None
+    probability: Probability | None = Field(
+        None, description="probability per stage, in [0, 1]", examples=[0.1]
+    )
+    rate: PositiveFloat | None = Field(
+        None, description="events per unit time (Poisson), instead of probability", examples=[0.2]
+    )
 
     @model_validator(mode="after")
     def _exactly_one(self) -> Rate:
@@ -58,10 +62,14 @@ class Rate(StrictModel):
 class RequestSpec(StrictModel):
     """One requestable (part, source, destination) and, optionally, its probability."""
 
-    part: Name
-    source: Name
-    destination: Name
-    probability: Probability | None = None
+    part: Name = Field(description="a part's name", examples=["P1"])
+    source: Name = Field(description="a source's name", examples=["S1"])
+    destination: Name = Field(description="a destination's name", examples=["D1"])
+    probability: Probability | None = Field(
+        None,
+        description="relative probability of this request on arrival (default: uniform)",
+        examples=[0.5],
+    )
 
 
 class FineMotionSpec(StrictModel):
@@ -72,9 +80,15 @@ class FineMotionSpec(StrictModel):
     preferred contact point (Fig. 5).
     """
 
-    time: NonNegativeFloat = 1.0
-    point: Vec2 | None = None
-    rate: NonNegativeFloat = 0.0
+    time: NonNegativeFloat = Field(
+        1.0, description="constant part of t_f (time units)", examples=[1.5]
+    )
+    point: Vec2 | None = Field(
+        None, description="preferred contact point (workcell units)", examples=[[15, 26]]
+    )
+    rate: NonNegativeFloat = Field(
+        0.0, description="growth of t_f per workcell unit from point", examples=[0.1]
+    )
 
 
 class ActionSpec(StrictModel):
@@ -86,16 +100,28 @@ class ActionSpec(StrictModel):
     ``speed * stage_time`` degrees either way.
     """
 
-    headings: Annotated[int, Field(ge=3, le=64)] = 16
+    headings: Annotated[int, Field(ge=3, le=64)] = Field(
+        16, description="K, evenly spaced directions of a translating robot", examples=[8]
+    )
 
 
 class SolverSpec(StrictModel):
     """Stopping rule and method of the average-cost solver (Section IV)."""
 
-    method: Literal["auto", "structured", "general"] = "auto"
-    tolerance: PositiveFloat = 1e-6
-    max_sweeps: Annotated[int, Field(ge=1)] = 20000
-    damping: Annotated[float, Field(gt=0, le=1)] = 1.0
+    method: Literal["auto", "structured", "general"] = Field(
+        "auto",
+        description="structured (layered shortest paths + NR fixed point), general (relative "
+        "value iteration), or auto",
+    )
+    tolerance: PositiveFloat = Field(
+        1e-6, description="stop when the gain's certified bracket is narrower", examples=[1e-6]
+    )
+    max_sweeps: Annotated[int, Field(ge=1, le=10_000_000)] = Field(
+        20000, description="give up (not converged) after this many sweeps"
+    )
+    damping: Annotated[float, Field(gt=0, le=1)] = Field(
+        1.0, description="relaxation of the outer fixed point on the gain (1: none)"
+    )
 
 
 class StrategySection(StrictModel):
@@ -117,8 +143,14 @@ class StrategySection(StrictModel):
     )
     destination_change: Rate | None = Field(None, description="transition type 2, per stage in C")
     source_change: Rate | None = Field(None, description="transition type 3, per stage in W")
-    regions: Literal["contact", "enclosure"] = "contact"
-    fine_motion: FineMotionSpec = Field(default_factory=FineMotionSpec)
+    regions: Literal["contact", "enclosure"] = Field(
+        "contact",
+        description="FMP allowed where the carried part (or gripper) touches the region "
+        "(contact) or lies inside it (enclosure)",
+    )
+    fine_motion: FineMotionSpec = Field(
+        default_factory=FineMotionSpec, description="expected fine-motion time t_f (Sec. III-C)"
+    )
     fine_motion_regions: dict[Name, FineMotionSpec] = Field(
         default_factory=dict, description="per source/destination override of fine_motion"
     )
@@ -127,11 +159,15 @@ class StrategySection(StrictModel):
         description="grid cells per C-space axis (default: cspace.cells, else the robot "
         "kind's default: 128 x 128 point and translating, 64 x 64 x 32 rotating, 64 per arm joint)",
     )
-    actions: ActionSpec = Field(default_factory=ActionSpec)
+    actions: ActionSpec = Field(default_factory=ActionSpec, description="the action set, eq. (5)")
     home: list[float] | None = Field(
-        None, description="home configuration of the return-home baseline (default: robot.start)"
+        None,
+        description="home configuration of the return-home baseline, angles in degrees "
+        "(default: robot.start)",
     )
-    solver: SolverSpec = Field(default_factory=SolverSpec)
+    solver: SolverSpec = Field(
+        default_factory=SolverSpec, description="stopping rule and method of the solver"
+    )
 
     def request_list(self, scenario: Scenario) -> list[tuple[str, str, str, float]]:
         """The requestable (part, source, destination, probability), in a fixed order."""
