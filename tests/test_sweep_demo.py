@@ -173,3 +173,39 @@ def test_showcase_runs_each_package_and_reports_failures(tmp_path):
     html = _extra_section(section)
     assert '<pre class="cmd"><code>cellplan.plan(...)</code></pre>' in html
     assert html.count('class="error"') == 1
+
+
+def test_quick_with_runs_is_refused(tmp_path):
+    from cellplan.cli import app
+
+    with pytest.raises(ArgumentError) as err:
+        app(
+            ["reproduce", "assembly", "--quick", "--runs", "5", "-o", str(tmp_path)],
+            standalone_mode=False,
+        )
+    assert [p.field for p in err.value.problems] == ["--runs"]
+
+
+def test_interrupt_is_one_line_with_the_cached_count(tmp_path, monkeypatch, capsys):
+    from cellplan.cli import main
+
+    cache = tmp_path / "out" / "cache" / "assembly.x" / "ab"
+    cache.mkdir(parents=True)
+    for i in range(3):
+        (cache / f"ab{i}.json").write_text("{}")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(reproduce_cli, "reproduce", interrupted)
+    monkeypatch.setattr(
+        sys, "argv", ["cellplan", "reproduce", "assembly", "-o", str(tmp_path / "out")]
+    )
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"interrupted; 3 runs cached in {tmp_path / 'out' / 'cache'}; run the same "
+        "command to resume"
+    ]

@@ -247,6 +247,26 @@ class _Pending:
     key: str
 
 
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c() -> Iterator[None]:
+    """Start worker processes with Ctrl-C ignored (they inherit the ignore disposition).
+
+    Ctrl-C then reaches only this process, which stops the sweep and reports one line;
+    the workers are shut down with the cluster instead of each printing a traceback.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def run_sweep(
     experiments: Sequence[Experiment],
     runs: int | Mapping[str, int],
@@ -479,17 +499,18 @@ def _run_on_dask(
     with contextlib.ExitStack() as stack:
         if scheduler is None:
             n = workers or usable_cores()
-            cluster = stack.enter_context(
-                LocalCluster(
-                    n_workers=n,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=logging.ERROR,
-                    # one worker per core: keep numba's own thread pool from oversubscribing
-                    env={"NUMBA_NUM_THREADS": "1"},
+            with _workers_ignore_ctrl_c():
+                cluster = stack.enter_context(
+                    LocalCluster(
+                        n_workers=n,
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address=None,
+                        silence_logs=logging.ERROR,
+                        # one worker per core: keep numba's own thread pool from oversubscribing
+                        env={"NUMBA_NUM_THREADS": "1"},
+                    )
                 )
-            )
             client = stack.enter_context(Client(cluster))
             desc = f"dask LocalCluster, {n} worker processes x 1 thread"
         else:

@@ -187,19 +187,43 @@ def register(app: typer.Typer) -> None:
             attempt(lambda: check_scheduler_address(scheduler))
             if serial:
                 problems.append(Problem("--serial", "--serial and --scheduler exclude each other"))
+        if quick and runs is not None:
+            problems.append(
+                Problem(
+                    "--runs",
+                    "--quick runs each experiment's small version with its own "
+                    "seeds; give --runs without --quick",
+                )
+            )
         if problems or papers is None:
             raise ArgumentError(problems)
         names = [n.strip() for n in (only or "").split(",") if n.strip()]
         console = Console(stderr=True)
-        index = reproduce(
-            papers,
-            output,
-            runs=n_runs,
-            quick=quick,
-            scheduler=scheduler,
-            serial=serial,
-            only=names,
-            fresh=fresh,
-            console=console,
-        )
+        try:
+            index = reproduce(
+                papers,
+                output,
+                runs=n_runs,
+                quick=quick,
+                scheduler=scheduler,
+                serial=serial,
+                only=names,
+                fresh=fresh,
+                console=console,
+            )
+        except KeyboardInterrupt:
+            cached = cached_runs(output)
+            console.print(
+                f"interrupted; {cached} runs cached in {output / 'cache'}; "
+                "run the same command to resume",
+                highlight=False,
+                soft_wrap=True,
+            )
+            raise typer.Exit(130) from None
         typer.echo(f"report written: {index}")
+
+
+def cached_runs(output: Path) -> int:
+    """How many finished runs the cache under ``output`` holds (what a rerun will reuse)."""
+    folder = output / "cache"
+    return sum(1 for _ in folder.rglob("*.json")) if folder.is_dir() else 0
