@@ -226,3 +226,12 @@ def test_text_is_escaped(tmp_path, text):
     _, page = build(tmp_path, [replace(fake.grid(), title=text, report=report)], runs=1)
     assert page.errors == []
     assert "script" not in page.stack and text in page.text
+
+
+def test_markdown_code_spans_become_code_and_text_is_escaped():
+    from cellplan.report import _paragraphs
+
+    html = _paragraphs("Run `cellplan demo -o <dir>` now.\n\nA lone ` stays.")
+    assert html == (
+        "<p>Run <code>cellplan demo -o &lt;dir&gt;</code> now.</p><p>A lone ` stays.</p>"
+    )

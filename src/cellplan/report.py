@@ -403,7 +403,7 @@ def _extra_section(section: ExtraSection) -> str:
     parts += [f'<p class="note">{_e(note)}</p>' for note in section.notes]
     for item in section.items:
         parts.append(f'<article class="showcase"><h3>{_e(item.title)}</h3>')
-        parts.append(f"<p>{_e(item.caption)}</p>")
+        parts.append(f"<p>{_inline(item.caption)}</p>")
         parts.append('<div class="gallery">')
         parts += [_figure(Path(f), Path(f).parent) for f in item.figures]
         parts.append("</div>")
@@ -449,7 +449,15 @@ def _e(text: Any) -> str:
 
 def _paragraphs(text: str) -> str:
     blocks = [b.strip() for b in text.split("\n\n") if b.strip()]
-    return "".join(f"<p>{_e(' '.join(b.split()))}</p>" for b in blocks)
+    return "".join(f"<p>{_inline(' '.join(b.split()))}</p>" for b in blocks)
+
+
+def _inline(text: str) -> str:
+    """Escape text for HTML and render Markdown's inline `code` spans as code."""
+    parts = text.split("`")
+    if len(parts) % 2 == 0:  # an unmatched backtick is shown as it is
+        return _e(text)
+    return "".join(_e(p) if i % 2 == 0 else f"<code>{_e(p)}</code>" for i, p in enumerate(parts))
 
 
 def _fmt(value: Any) -> str:
@@ -503,7 +511,9 @@ td.verdict{font-weight:600}
 figure{display:inline-block;margin:.5rem 1rem .5rem 0;max-width:100%}
 figure img{max-width:100%;height:auto;border:1px solid #d0d7de}
 figcaption{font-size:.8rem;color:#57606a}
-.gallery figure{max-width:48%}
+.gallery figure{max-width:100%}
+code{background:#f6f8fa;padding:0 .2rem;border-radius:3px}
+pre.cmd code{background:none;padding:0}
 pre.cmd{background:#1d2329;color:#e6edf3;padding:.5rem .8rem;border-radius:4px;overflow-x:auto}
 .cmd-label{margin-bottom:0;font-size:.9rem}
 nav ul{columns:2}
