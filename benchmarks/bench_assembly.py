@@ -20,21 +20,20 @@ calls no BLAS (section 4).
    continues at k/2, k/4, ...; Section 3.2); they report how many runs the flow at k
    solved alone and how many with k lowered, and the time of the whole run. The RK4
    baseline is the flow at k alone, as before.
-4. The implicit step's eigen-decomposition without BLAS. Per call, at 14, 30 and 100
-   rows (7, 15 and 50 discs): the numba kernel (:func:`eigen.sym_eigh`, full
-   decomposition; :func:`eigen.implicit_step_kernel`, the whole step) against numpy's
-   ``eigh`` (OpenBLAS threads as configured, by default all cores) and numba's LAPACK
-   call (the previous step's); the experiment ``assembly.ratio_vs_k`` at 7 discs, k=96
-   (25 seeds; ``--quick`` 5) with both steps (same paths to rounding); a 50-disc flow
-   with the new step against the previous LAPACK step (``implicit_step(...,
-   lapack=True)``), same process, same problem (full run; ``--quick``: the first 300
-   steps of each).
+4. The implicit step's eigen-decomposition: LAPACK ``eigh`` on one BLAS thread
+   (``threadpoolctl``, :func:`eigen.one_blas_thread`; what the library uses since issue
+   13) against the hand-written BLAS-free solver it replaced
+   (``benchmarks/baseline_eigen.py``) and against ``eigh`` on OpenBLAS's default threads.
+   Per call, at 14, 30 and 100 rows (7, 15 and 50 discs): the full decomposition and the
+   whole step; the experiment ``assembly.ratio_vs_k`` at 7 discs, k=96 (25 seeds;
+   ``--quick`` 5) with both steps (same paths to rounding); a 50-disc flow with both
+   steps, same process, same problem (full run; ``--quick``: the first 300 steps of
+   each). Ratios printed are baseline / LAPACK (above 1: LAPACK faster).
 """
 
 from __future__ import annotations
 
 import argparse
-import functools
 import math
 import statistics
 import time
@@ -44,6 +43,8 @@ from unittest import mock
 
 import numpy as np
 
+from baseline_eigen import implicit_step_kernel as baseline_step_kernel
+from baseline_eigen import sym_eigh as baseline_eigh
 from cellplan.assembly import eigen, experiments, flows
 from cellplan.assembly.flows import FlowSettings, gradient_flow, implicit_step
 from cellplan.assembly.navigation import evaluate, grad_linear, hessian_log_w, log_beta_parts
@@ -168,6 +169,15 @@ def per_call_ms(fn: Callable[[], object], reps: int) -> float:
     return statistics.median(batches)
 
 
+def baseline_step(g: np.ndarray, hess: np.ndarray, length: float) -> np.ndarray:
+    """The previous implicit step: the BLAS-free kernel (benchmarks/baseline_eigen.py)."""
+    return baseline_step_kernel(
+        np.ascontiguousarray(g, dtype=np.float64),
+        np.ascontiguousarray(hess, dtype=np.float64),
+        float(length),
+    )
+
+
 def eigh_cost(m: int, reps: int) -> None:
     """One decomposition and one step on a real Hessian of ``m / 2`` discs."""
     p = problem_for(m // 2, 0)
@@ -176,17 +186,18 @@ def eigh_cost(m: int, reps: int) -> None:
     ev = evaluate(b, p, k)
     g = ev.v.reshape(-1) / math.exp(ev.log_gamma)
     hess = np.ascontiguousarray(hessian_log_w(b, p, k))
-    new = per_call_ms(lambda: eigen.sym_eigh(hess), reps)
-    npy = per_call_ms(lambda: np.linalg.eigh(hess), reps)
-    lap = per_call_ms(lambda: eigen.sym_eigh_lapack(hess), reps)
-    step_new = per_call_ms(lambda: implicit_step(g, hess, 0.05), reps)
-    step_old = per_call_ms(lambda: implicit_step(g, hess, 0.05, lapack=True), reps)
-    print(f"{m:>4} {new:9.4f} {npy:9.4f} {lap:9.4f} {npy / new:7.2f} {lap / new:7.2f} |"
-          f" {step_new:9.4f} {step_old:9.4f} {step_old / step_new:7.2f}")
+    old = per_call_ms(lambda: baseline_eigh(hess), reps)
+    threads = per_call_ms(lambda: np.linalg.eigh(hess), reps)
+    step_old = per_call_ms(lambda: baseline_step(g, hess, 0.05), reps)
+    with eigen.one_blas_thread():
+        one = per_call_ms(lambda: np.linalg.eigh(hess), reps)
+        step_new = per_call_ms(lambda: implicit_step(g, hess, 0.05), reps)
+    print(f"{m:>4} {old:9.4f} {one:9.4f} {threads:9.4f} {old / one:7.2f} |"
+          f" {step_old:9.4f} {step_new:9.4f} {step_old / step_new:7.2f}")
 
 
 def flow_new_vs_old(n: int, max_steps: int) -> None:
-    """The same flow with the BLAS-free step and with the previous LAPACK step."""
+    """The same flow with the LAPACK step and with the previous BLAS-free step."""
     p = problem_for(n, 0)
     k = k_for(n)
     settings = FlowSettings(max_steps=max_steps)
@@ -194,17 +205,16 @@ def flow_new_vs_old(n: int, max_steps: int) -> None:
     t0 = time.perf_counter()
     new = gradient_flow(p, k, settings=settings)
     t_new = time.perf_counter() - t0
-    with mock.patch.object(flows, "implicit_step",
-                           functools.partial(implicit_step, lapack=True)):
+    with mock.patch.object(flows, "implicit_step", baseline_step):
         t0 = time.perf_counter()
         old = gradient_flow(p, k, settings=settings)
         t_old = time.perf_counter() - t0
     straight = float(np.linalg.norm(p.start - p.goal))
     gap = float(np.max(np.abs(new.path[-1] - old.path[-1]))) if len(new.path) == len(
         old.path) else float("nan")
-    print(f"{n} discs, k={k:g}: new step {new.status.value} in {new.steps} steps, "
+    print(f"{n} discs, k={k:g}: LAPACK step {new.status.value} in {new.steps} steps, "
           f"{t_new:.2f} s ({t_new / max(new.steps, 1) * 1e3:.2f} ms/step), ratio "
-          f"{new.length() / straight:.4f}; LAPACK step {old.status.value} in {old.steps} "
+          f"{new.length() / straight:.4f}; BLAS-free step {old.status.value} in {old.steps} "
           f"steps, {t_old:.2f} s ({t_old / max(old.steps, 1) * 1e3:.2f} ms/step), ratio "
           f"{old.length() / straight:.4f}; old/new time {t_old / t_new:.2f}x; "
           f"end points differ by {gap:.1e}")
@@ -219,20 +229,21 @@ def paths_new_vs_old(n: int, k: float, seeds: int) -> None:
     t0 = time.perf_counter()
     new = np.array([float(experiments.run(spec)["ratio"]) for spec in specs])
     t_new = time.perf_counter() - t0
-    with mock.patch.object(flows, "implicit_step",
-                           functools.partial(implicit_step, lapack=True)):
+    with mock.patch.object(flows, "implicit_step", baseline_step):
         t0 = time.perf_counter()
         old = np.array([float(experiments.run(spec)["ratio"]) for spec in specs])
         t_old = time.perf_counter() - t0
-    print(f"{n} discs, k={k:g}, seeds 0..{seeds - 1}: mean ratio new {new.mean():.6f}, "
-          f"LAPACK step {old.mean():.6f}; largest per-run difference "
-          f"{np.max(np.abs(new - old)):.1e}; time {t_new:.2f} s / {t_old:.2f} s")
+    print(f"{n} discs, k={k:g}, seeds 0..{seeds - 1}: mean ratio LAPACK {new.mean():.6f}, "
+          f"BLAS-free {old.mean():.6f}; largest per-run difference "
+          f"{np.max(np.abs(new - old)):.1e}; time {t_new:.2f} s / {t_old:.2f} s "
+          f"(old/new {t_old / t_new:.2f}x)")
 
 
 def eigh_section(quick: bool) -> None:
-    print("\n4. eigen-decomposition without BLAS (ms per call, median of 7 batches)")
-    print("rows  kernel  np.eigh  numba-LAPACK  np/kernel  LAPACK/kernel |"
-          " step-new  step-old  old/new")
+    print("\n4. eigen-decomposition: LAPACK eigh on one BLAS thread against the BLAS-free"
+          " baseline (ms per call, median of 7 batches)")
+    print("rows  baseline  eigh-1thr  eigh-default  base/eigh |"
+          " step-base  step-eigh  base/eigh")
     for m in (14, 30, 100):
         eigh_cost(m, 200 if m < 100 else 40)
     paths_new_vs_old(7, 96.0, 5 if quick else 25)

@@ -18,6 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 import cellplan
+from cellplan.assembly.layout import rule_k
 from cellplan.assembly.options import SEQUENTIAL_TOLERANCE, GradientOptions
 from cellplan.assembly.problems import random_setup
 from cellplan.assembly.section import DiscsSection
@@ -104,9 +105,12 @@ def test_options_default_to_the_section_and_override_it(swap: cellplan.Setup) ->
     assert _traj(cellplan.plan(swap, "assembly.control")).meta["k"] == 32.0
     given = _traj(cellplan.plan(swap, "assembly.control", k=24.0, tolerance=0.01))
     assert given.meta["k"] == 24.0 and given.meta["tolerance"] == 0.01
-    # a generated scenario sets no k: the section's default applies
-    result = cellplan.plan(random_setup(3, seed=1), "assembly.control")
-    assert _traj(result).meta["k"] == SECTION_K
+    # a generated scenario sets no k: the section's default (None) means the rule
+    setup = random_setup(3, seed=1)
+    result = cellplan.plan(setup, "assembly.control")
+    problem = result.solution.problem
+    assert SECTION_K is None
+    assert _traj(result).meta["k"] == rule_k(problem.radii, problem.workspace)
     # escapes: one default, the options model's, which the planner runs with
     planned = cellplan.plan(swap, "assembly.gradient")
     assert planned.options["escapes"] == GradientOptions().escapes == 6
@@ -195,7 +199,10 @@ def test_assemble_random_uses_the_section_default_k(tmp_path: Path) -> None:
         "--random", "3", "--algorithm", "control", "--frames", "2", "-o", str(tmp_path)
     )
     assert code == 0
-    assert json.loads((tmp_path / "metrics.json").read_text())["k"] == SECTION_K
+    setup = random_setup(3)
+    problem = cellplan.plan(setup, "assembly.control").solution.problem
+    expected = rule_k(problem.radii, problem.workspace)
+    assert json.loads((tmp_path / "metrics.json").read_text())["k"] == expected
 
 
 def test_loading_a_disc_scenario_imports_no_algorithm_module() -> None:

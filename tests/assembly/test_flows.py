@@ -218,9 +218,13 @@ def test_lowering_k_leaves_a_spurious_minimum_and_says_so() -> None:
     assert np.linalg.norm(res.end - p.goal) < 1e-3
     assert res.min_clearance > 0 and _swept_ok(res.path, p, samples=5)
     assert res.steps == sum(s.steps for s in res.stages)
-    # the planner (escapes=6 by default) reports it, and its trajectory marks each escape
+    # the planner with this escape (escapes=6 by default; its default escape is now the
+    # place rule, issue 13) reports it, and its trajectory marks each escape
     planned = cellplan.plan(
-        generated_setup({"n": 10, "seed": 25, "gap": 0.1}), "assembly.gradient", k=256.0
+        generated_setup({"n": 10, "seed": 25, "gap": 0.1}),
+        "assembly.gradient",
+        k=256.0,
+        escape="halve-k",
     )
     stats = planned.stats
     assert stats["solved_at_k"] == 0.0 and stats["escapes"] == res.escapes

@@ -20,7 +20,7 @@ import typer
 from pydantic import BaseModel
 
 from cellplan.assembly.layout import DEFAULT_FILL
-from cellplan.assembly.options import SequentialOptions
+from cellplan.assembly.options import GradientOptions, SequentialOptions
 from cellplan.assembly.section import GeneratorSpec
 from cellplan.cliutil import JsonOpt
 from cellplan.errors import ArgumentError, Problem
@@ -38,6 +38,13 @@ def _default(model: type[BaseModel], field: str) -> Any:
 _ESCAPES_HELP = (
     "gradient and paper rule: times k may be halved when stuck (0: k alone; default "
     f"{_default(SequentialOptions, 'escapes')})"
+)
+_ESCAPE_HELP = (
+    "gradient: when stuck, place (the place rule finishes) or halve-k (default "
+    f"{_default(GradientOptions, 'escape')})"
+)
+_INTEGRATOR_HELP = (
+    f"gradient: auto | implicit | rk4 (default {_default(GradientOptions, 'integrator')})"
 )
 _RULE_HELP = f"sequential rule: paper | place (default: {_default(SequentialOptions, 'rule')})"
 _SEED_HELP = f"--random: seed (default {_default(GeneratorSpec, 'seed')})"
@@ -77,6 +84,8 @@ def register(app: typer.Typer) -> None:
         ] = None,
         rule: Annotated[str | None, typer.Option(help=_RULE_HELP)] = None,
         escapes: Annotated[int | None, typer.Option(help=_ESCAPES_HELP)] = None,
+        escape: Annotated[str | None, typer.Option(help=_ESCAPE_HELP)] = None,
+        integrator: Annotated[str | None, typer.Option(help=_INTEGRATOR_HELP)] = None,
         random_n: Annotated[int | None, typer.Option("--random", help="generate N discs")] = None,
         seed: Annotated[int | None, typer.Option(help=_SEED_HELP)] = None,
         permutation: Annotated[
@@ -130,6 +139,8 @@ def register(app: typer.Typer) -> None:
                 ("tolerance", tolerance),
                 ("rule", rule),
                 ("escapes", escapes),
+                ("escape", escape),
+                ("integrator", integrator),
             )
             if value is not None
         }

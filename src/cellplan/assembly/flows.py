@@ -43,15 +43,18 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from cellplan.assembly.eigen import implicit_step_kernel, sym_eigh_lapack, sym_eigvalsh
+from cellplan.assembly.eigen import eigvalsh, one_blas_thread, shift_for_length
 from cellplan.assembly.navigation import NavEval, clearances, evaluate, hessian_log_w, log_w
 from cellplan.assembly.problems import DiscProblem
 from cellplan.core import Status
+
+if TYPE_CHECKING:
+    from cellplan.assembly.sequential import SequentialResult
 
 Array = NDArray[np.float64]
 
@@ -144,6 +147,8 @@ class FlowResult:
     log_w: list[float] = field(default_factory=list)
     stages: list[Stage] = field(default_factory=list)
     problem: DiscProblem | None = None  # set by gradient_flow (the planners' solution)
+    #: the place rule's run that finished a stuck flow (``escape="place"``), else None
+    placement: SequentialResult | None = None
 
     @property
     def escapes(self) -> int:
@@ -227,7 +232,8 @@ def integrate(
     if settings.method == "implicit":
         if direction is not None or settings.normalize is not None:
             raise ValueError("direction and normalize need method='rk4'")
-        return _integrate_implicit(problem, b0, k, epsilon, moving, stop, settings)
+        with one_blas_thread():
+            return _integrate_implicit(problem, b0, k, epsilon, moving, stop, settings)
     radii, ws = problem.radii, problem.workspace
     mask = np.zeros((problem.n, 1))
     if moving is None:
@@ -394,7 +400,7 @@ def segment_is_safe(
     return bool(np.all(gap_min >= fraction * gaps))
 
 
-def implicit_step(g: Array, hess: Array, length: float, *, lapack: bool = False) -> Array:
+def implicit_step(g: Array, hess: Array, length: float) -> Array:
     """Linearly implicit (Rosenbrock-Euler) step of ``x' = -g`` of about the given length.
 
     ``delta = -(I / h + H_+)^(-1) g`` with ``H_+`` the Hessian with its negative
@@ -402,10 +408,14 @@ def implicit_step(g: Array, hess: Array, length: float, *, lapack: bool = False)
     that keeps them would overshoot along them and cut corners) and ``h`` chosen so
     that ``||delta|| ~= length`` (at most it): ``mu = 1/h`` is the first point of the log
     grid ``10^-12 .. 10^12`` (49 points) whose step is short enough, refined once on 17
-    geometric points below it. In the stiff directions (large positive curvature: the
-    repulsion near a contact) this is a Newton step to the valley floor instead of an
-    overshoot; along the valley it is a gradient step. The arc-length parametrisation is
-    the normalisation of Section 3.3.
+    geometric points below it (:func:`eigen.shift_for_length`). In the stiff directions
+    (large positive curvature: the repulsion near a contact) this is a Newton step to the
+    valley floor instead of an overshoot; along the valley it is a gradient step. The
+    arc-length parametrisation is the normalisation of Section 3.3.
+
+    The eigen-decomposition is LAPACK's ``eigh``; the integrators call this inside
+    :func:`eigen.one_blas_thread` (OpenBLAS's threads cost more than they give on
+    matrices of this size on a shared machine; docs/assembly.md).
 
     Parameters
     ----------
@@ -413,40 +423,12 @@ def implicit_step(g: Array, hess: Array, length: float, *, lapack: bool = False)
         Gradient ``(m,)`` and symmetric Hessian ``(m, m)`` of ``L`` at the point.
     length
         Target step length.
-    lapack
-        ``False`` (default): one numba kernel (:func:`eigen.implicit_step_kernel`):
-        Householder tridiagonalisation and implicit QR/QL with Wilkinson shifts, the
-        rotations applied to ``g`` alone; it calls no BLAS, so its cost does not depend
-        on OpenBLAS's threads (with them, a 100 x 100 LAPACK ``eigh`` took 7-20 ms on the
-        loaded 2-core machine instead of 0.6 ms single-threaded; the kernel's step takes
-        about 0.65 ms). ``True``: the previous implementation
-        (LAPACK ``eigh`` through numba, the same rule in numpy), kept as the baseline of
-        the tests and the benchmark. Both compute the same step up to rounding.
     """
-    if not lapack:
-        return implicit_step_kernel(
-            np.ascontiguousarray(g, dtype=np.float64),
-            np.ascontiguousarray(hess, dtype=np.float64),
-            float(length),
-        )
-    lam, Q = sym_eigh_lapack(np.ascontiguousarray(hess))
+    lam, q = np.linalg.eigh(hess)
     lam = np.maximum(lam, 0.0)
-    gq = Q.T @ g
-    # ||delta(mu)|| with mu = 1/h is decreasing in mu: pick mu on a log grid, refine once
-    mus = np.logspace(-12, 12, 49)
-    mu = float(mus[-1])
-    for _ in range(2):
-        lens = np.sqrt(np.sum((gq[None, :] / (mus[:, None] + lam[None, :])) ** 2, axis=1))
-        ok = np.nonzero(lens <= length)[0]
-        if len(ok) == 0:
-            mu = float(mus[-1])
-            break
-        first = int(ok[0])
-        mu = float(mus[first])
-        if first == 0:
-            break
-        mus = np.geomspace(mus[first - 1], mus[first], 17)
-    return -(Q @ (gq / (mu + lam)))
+    gq = q.T @ g
+    mu = shift_for_length(np.ascontiguousarray(gq), lam, float(length))
+    return -(q @ (gq / (mu + lam)))
 
 
 def _integrate_implicit(
@@ -527,9 +509,8 @@ def critical_point_kind(hess: Array) -> str:
 
     ``L`` is a monotone function of ``phi``, so at a critical point its Hessian has the
     same inertia as that of ``phi`` (Sec. 3: phi is Morse; its only minimum should be d).
-    The eigenvalues come from the BLAS-free kernel of :func:`implicit_step`.
     """
-    lam = sym_eigvalsh(np.ascontiguousarray(hess, dtype=np.float64))
+    lam = eigvalsh(np.ascontiguousarray(hess, dtype=np.float64))
     return "spurious minimum" if float(lam[0]) > 0.0 else "saddle"
 
 
@@ -565,6 +546,10 @@ def _rk4(
 # --- the gradient assembly algorithm (Section 4.1) -------------------------------------------
 
 
+#: What a stuck gradient stage does (``escape`` of :func:`gradient_flow`).
+Escape = Literal["place", "halve-k"]
+
+
 def gradient_flow(
     problem: DiscProblem,
     k: float,
@@ -574,6 +559,7 @@ def gradient_flow(
     direction: Callable[[Array], Array] | None = None,
     escapes: int = 0,
     escape_factor: float = 0.5,
+    escape: Escape = "halve-k",
 ) -> FlowResult:
     """All discs move together along ``-grad phi`` (equation (9)) until ``||b - d|| < tol``.
 
@@ -588,16 +574,26 @@ def gradient_flow(
     settings, direction
         Integration settings; ``direction`` replaces ``-v`` (baselines, RK4 only).
     escapes
-        How many times a ``stuck`` stage may be continued from its end point with k
-        multiplied by ``escape_factor`` (Section 3.2: k is adjusted to eliminate local
-        minima). 0 (default): the flow at k alone.
+        How many escape stages a ``stuck`` run may take. 0 (default): the flow at k
+        alone.
     escape_factor
-        Factor applied to k at each escape, in (0, 1).
+        ``halve-k``: factor applied to k at each escape, in (0, 1).
+    escape
+        ``"halve-k"``: a stuck stage continues from its end point with k multiplied by
+        ``escape_factor`` (Section 3.2: k is adjusted to eliminate local minima), at most
+        ``escapes`` times. ``"place"``: the stuck configuration is handed to the place
+        rule (:func:`sequential.sequential_assembly` with ``rule="place"``: one disc at a
+        time along checked routes onto its goal, blockers parked), which ends on the
+        goal; one escape stage (docs/assembly.md, "Escaping spurious minima").
     """
     if not 0.0 < escape_factor < 1.0:
         raise ValueError(f"escape_factor must be in (0, 1), got {escape_factor}")
+    if escape not in ("place", "halve-k"):
+        raise ValueError(f"unknown escape {escape!r}; use 'place' or 'halve-k'")
     res = _gradient_stage(problem, problem.start, k, epsilon, tol, settings, direction)
     stages = [Stage(k, res.status, res.reason, res.steps)]
+    if res.status is Status.STUCK and escapes > 0 and escape == "place":
+        return _place_escape(problem, res, stages, k, epsilon, tol, settings)
     parts = [res]
     k_now = k
     while res.status is Status.STUCK and len(stages) <= escapes:
@@ -625,6 +621,54 @@ def gradient_flow(
     )
 
 
+#: The stage name of the place rule in :attr:`FlowResult.stages`.
+PLACE_STAGE = "place rule"
+
+
+def _place_escape(
+    problem: DiscProblem,
+    stuck: FlowResult,
+    stages: list[Stage],
+    k: float,
+    epsilon: float,
+    tol: float,
+    settings: FlowSettings,
+) -> FlowResult:
+    """Finish a stuck flow with the place rule from where it stopped.
+
+    The flow's spurious minima are packed clusters with two or three discs on each
+    other's goals (docs/assembly.md); the place rule moves one disc at a time along a
+    checked route onto its goal (parking a blocker on a circle round the pattern), so
+    it leaves any such configuration and ends exactly on the goal. The flow's path and
+    the place rule's rows (one disc moving between rows) make one path.
+    """
+    from cellplan.assembly.sequential import sequential_assembly
+
+    place = sequential_assembly(
+        problem.with_start(stuck.end),
+        k,
+        "place",
+        epsilon=epsilon,
+        tol=max(tol, 1e-12),
+        settings=settings,
+    )
+    reason = PLACE_STAGE if place.status is Status.SOLVED else place.reason or PLACE_STAGE
+    stages.append(Stage(k, place.status, reason, place.switches))
+    return FlowResult(
+        place.status,
+        np.concatenate([stuck.path, place.path[1:]]),
+        stuck.steps,
+        stuck.evaluations + place.evaluations,
+        min(stuck.min_clearance, place.min_clearance),
+        stuck.log_time,
+        reason,
+        stuck.log_w,
+        stages,
+        problem,
+        place,
+    )
+
+
 def _gradient_stage(
     problem: DiscProblem,
     b0: Array,
@@ -646,3 +690,30 @@ def _gradient_stage(
         return None
 
     return integrate(problem, b0, k, epsilon, stop=stop, settings=settings, direction=direction)
+
+
+# --- the automatic integrator choice (docs/assembly.md "The integrator") ---------------------
+
+#: Goal pairs closer than this many disc radii (gap) count as tight ...
+TIGHT_GOAL_GAP = 1.0
+#: ... and RK4 is chosen when there are at most this many tight goal pairs per disc.
+RK4_MAX_TIGHT_PER_DISC = 0.5
+
+
+def choose_method(problem: DiscProblem) -> Literal["implicit", "rk4"]:
+    """The integrator of ``integrator="auto"``: RK4 unless the goal pattern is packed.
+
+    The implicit step costs an eigen-decomposition of the ``2n x 2n`` Hessian per step
+    (``O(n^3)``); RK4 four field evaluations (``O(n^2)``), but its step is bounded by the
+    repulsion stiffness, so it creeps wherever many discs are close to contact for long.
+    Near the goal every pair of neighbouring goals is at its goal gap: a packed pattern
+    (a hexagonal cluster has about 2.2 n pairs within one radius) makes RK4 creep there
+    (on the fitting grid it ran out of 10,000 steps on every hexagonal problem of 20 and
+    30 discs), while on loose goals (random goals: 0-6 such pairs) it was 1.5-9x faster
+    than the implicit step at every n from 5 to 30 (``benchmarks/fit_assembly_integrator.py``,
+    docs/assembly.md "The integrator").
+    """
+    gaps, _ = clearances(problem.goal, problem.radii, problem.workspace)
+    scale = float(np.min(problem.radii))
+    tight = int(np.count_nonzero(gaps < TIGHT_GOAL_GAP * scale)) // 2  # (i, j) and (j, i)
+    return "rk4" if tight <= RK4_MAX_TIGHT_PER_DISC * problem.n else "implicit"

@@ -279,3 +279,40 @@ def default_workspace(n: int, radius: float = 1.0, fill: float = DEFAULT_FILL) -
     if not 0.0 < fill <= 0.5:
         raise ValueError(f"fill must be in (0, 0.5], got {fill}")
     return CircleWorkspace(np.zeros(2), radius * math.sqrt(n / fill))
+
+
+# --- the default k (docs/assembly.md "The default k") ----------------------------------------
+
+#: Constant of the default-k rule ``k = K_RULE_C * n^2 / fill`` (fill: the fraction of the
+#: workspace's area the discs cover), fitted on the fitting grid of
+#: ``benchmarks/fit_assembly_k.py`` (never on the reporting sets).
+K_RULE_C = 0.05
+#: Smallest k of the rule (small problems: the paper's examples need k of tens).
+K_RULE_MIN = 16.0
+
+
+def workspace_area(ws: Workspace) -> float:
+    """Area of the workspace."""
+    if isinstance(ws, CircleWorkspace):
+        return math.pi * ws.radius**2
+    side = ws.hi - ws.lo
+    return float(side[0] * side[1])
+
+
+def rule_k(radii: Array, ws: Workspace) -> float:
+    """The default k when neither the caller nor the scenario gives one.
+
+    ``k = K_RULE_C * n^2 / fill`` with ``fill = sum(pi rho_i^2) / area``, at least
+    ``K_RULE_MIN``. Why this form: the repulsion in the flow's direction
+    ``v = (b - d) - (gamma / k) grad log beta`` (equation (8)) is weighted by
+    ``gamma / k``; ``gamma = 1/2 sum ||b_i - d_i||^2`` (equation (3)) of a start spread
+    over the workspace is about ``n`` times its squared size ``n rho^2 / fill``, i.e.
+    ``n^2 rho^2 / fill``, so k in proportion (in disc radii) keeps that weight the same
+    for every n and workspace. Too small a k pushes the discs apart into a far spurious
+    minimum, too large a one lets them graze; the constant was fitted on the fitting
+    grid (docs/assembly.md, "The default k"). The rule is scale-free (lengths enter only
+    through the fill), as the paths are ("What the paper does not fix").
+    """
+    n = int(radii.shape[0])
+    fill = float(np.sum(math.pi * radii**2)) / workspace_area(ws)
+    return max(K_RULE_MIN, K_RULE_C * n * n / fill)

@@ -29,7 +29,8 @@ class DiscOptions(Options):
 
     k: PositiveFloat | None = Field(
         default=None,
-        description="navigation-function exponent k, eq. (2) (default: the scenario's discs.k)",
+        description="navigation-function exponent k, eq. (2) (default: the scenario's discs.k, "
+        "else chosen from n and the workspace)",
     )
     tolerance: PositiveFloat | None = Field(
         default=None,
@@ -53,6 +54,18 @@ class FlowOptions(DiscOptions):
 
 class GradientOptions(FlowOptions):
     """Options of ``assembly.gradient`` (Section 4.1)."""
+
+    escape: Literal["place", "halve-k"] = Field(
+        default="place",
+        description="what a run stuck at a spurious minimum does: place (the place rule "
+        "finishes from there) or halve-k (k halved, at most `escapes` times; Sec. 3.2); "
+        "escapes=0: neither",
+    )
+    integrator: Literal["auto", "implicit", "rk4"] = Field(
+        default="auto",
+        description="step of the flow: implicit (linearly implicit, resolves stiff contacts), "
+        "rk4, or auto (chosen from the problem, docs/assembly.md 'The integrator')",
+    )
 
 
 class SequentialOptions(FlowOptions):

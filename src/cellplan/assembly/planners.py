@@ -60,6 +60,10 @@ Array = NDArray[np.float64]
 #: Default number of k-halvings after a stuck stage, read from the options model (the one
 #: source; 6 halvings take k = 1024 down to 16 at most).
 ESCAPES: int = GradientOptions.model_fields["escapes"].default
+#: Default escape of the gradient planner, read from the options model (the one source).
+ESCAPE: str = GradientOptions.model_fields["escape"].default
+#: Default integrator of the gradient planner (the options model is the one source).
+INTEGRATOR: str = GradientOptions.model_fields["integrator"].default
 
 
 # --- the planners' run functions (registered in plugin.py) -----------------------------------
@@ -76,10 +80,22 @@ def _given(value: float | None, default: float) -> float:
     return float(default if value is None else value)
 
 
+def _k(value: float | None, section: DiscsSection, problem: DiscProblem) -> float:
+    """The k of a run: the option, else the section's ``k``, else the default-k rule
+    (:func:`layout.rule_k`, the one place the rule lives)."""
+    from cellplan.assembly.layout import rule_k
+
+    if value is not None:
+        return float(value)
+    if section.k is not None:
+        return float(section.k)
+    return rule_k(problem.radii, problem.workspace)
+
+
 def plan_gradient(setup: Setup, options: GradientOptions, progress: Progress | None) -> Result:
     """``assembly.gradient``: the gradient algorithm (Section 4.1) on the scenario's discs."""
     problem, section = _problem(setup)
-    k = _given(options.k, section.k)
+    k = _k(options.k, section, problem)
     if progress is not None:
         progress(0.0, None, f"gradient flow, {problem.n} discs, k={k:g}")
     result = run_gradient(
@@ -88,6 +104,8 @@ def plan_gradient(setup: Setup, options: GradientOptions, progress: Progress | N
         _given(options.epsilon, section.epsilon),
         _given(options.tolerance, section.tolerance),
         options.escapes,
+        escape=options.escape,
+        integrator=options.integrator,
         scenario=setup.name,
     )
     if progress is not None:
@@ -98,7 +116,7 @@ def plan_gradient(setup: Setup, options: GradientOptions, progress: Progress | N
 def plan_sequential(setup: Setup, options: SequentialOptions, progress: Progress | None) -> Result:
     """``assembly.sequential``: one disc at a time (Section 4.2), rule ``paper`` or ``place``."""
     problem, section = _problem(setup)
-    k = _given(options.k, section.k)
+    k = _k(options.k, section, problem)
     tol = _given(options.tolerance, max(section.tolerance, SEQUENTIAL_TOLERANCE))
     if progress is not None:
         progress(0.0, None, f"sequential ({options.rule}), {problem.n} discs, k={k:g}")
@@ -119,7 +137,7 @@ def plan_sequential(setup: Setup, options: SequentialOptions, progress: Progress
 def plan_control(setup: Setup, options: ControlOptions, progress: Progress | None) -> Result:
     """``assembly.control``: the double-integrator controller (Section 3.4) on the discs."""
     problem, section = _problem(setup)
-    k = _given(options.k, section.k)
+    k = _k(options.k, section, problem)
     if progress is not None:
         progress(0.0, None, f"controlled assembly, {problem.n} discs, k={k:g}")
     result = run_control(
@@ -140,46 +158,71 @@ def run_gradient(
     tol: float,
     escapes: int = ESCAPES,
     *,
+    escape: str = ESCAPE,
+    integrator: str = INTEGRATOR,
     scenario: str = "",
 ) -> Result:
     """The gradient assembly algorithm (Section 4.1); ratio in the R^2n norm (Section 5.1).
 
-    A run stuck at a spurious minimum continues at k/2, k/4, ... (at most ``escapes``
-    times; Section 3.2, see :func:`flows.gradient_flow`). The statistics say so:
-    ``solved_at_k`` (1.0 when the flow at the given k alone reached the goal),
-    ``escapes`` (how often k was lowered) and ``k_final``; ``ratio`` is over the
-    whole path, every stage included.
+    A run stuck at a spurious minimum is finished by the place rule (``escape="place"``)
+    or continues at k/2, k/4, ... (``"halve-k"``, at most ``escapes`` times; Section
+    3.2); ``escapes=0``: the flow at k alone (see :func:`flows.gradient_flow`). The
+    statistics say so: ``solved_at_k`` (1.0 when the flow at the given k alone reached
+    the goal), ``escapes`` (escape stages taken), ``k_final``, ``placed`` (grasps of
+    the place rule, 0 without it); ``ratio`` is over the whole path, every stage
+    included. ``integrator``: ``implicit``, ``rk4`` or ``auto``
+    (:func:`flows.choose_method`); the statistic ``rk4`` says which ran (1.0: RK4).
     """
-    from cellplan.assembly.flows import gradient_flow
+    from cellplan.assembly.flows import FlowSettings, choose_method, gradient_flow
 
     t0 = time.perf_counter()
-    res = gradient_flow(problem, k, epsilon, tol, escapes=escapes)
+    method = choose_method(problem) if integrator == "auto" else integrator
+    res = gradient_flow(
+        problem,
+        k,
+        epsilon,
+        tol,
+        settings=FlowSettings(method=method),  # type: ignore[arg-type]
+        escapes=escapes,
+        escape=escape,  # type: ignore[arg-type]
+    )
     straight = float(np.linalg.norm(problem.start - problem.goal))
     first = res.stages[0]
     stats = {
         "ratio": res.length() / straight if straight > 0 else 1.0,
+        "k": float(k),
+        "rk4": float(method == "rk4"),
         "solved_at_k": float(first.status is Status.SOLVED),
         "escapes": float(res.escapes),
         "k_final": float(res.stages[-1].k),
+        "placed": float(res.placement.switches if res.placement is not None else 0),
         "length": res.length(),
         "min_clearance": res.min_clearance,
         "steps": float(res.steps),
         "evaluations": float(res.evaluations),
         "log10_flow_time": float(res.log_time / np.log(10.0)) if np.isfinite(res.log_time) else 0.0,
+        "stuck_error": float(np.linalg.norm(res.path[res.steps] - problem.goal))
+        if res.escapes
+        else 0.0,
         "final_error": float(np.linalg.norm(res.end - problem.goal)),
         "wall_s": time.perf_counter() - t0,
     }
-    events = _escape_events(res.stages, _stage_starts(res.stages))
-    traj = _trajectory(
-        res.path,
-        _arc_length(res.path),
-        "path",
-        np.zeros(len(res.path), dtype=np.int64),
-        ("all discs",),
-        events,
-        _meta(scenario, problem, k, epsilon, tol),
-    )
-    message = _flow_message(res.status, res.reason, res.stages, stats, "steps")
+    meta = _meta(scenario, problem, k, epsilon, tol)
+    if res.placement is None:
+        events = _escape_events(res.stages, _stage_starts(res.stages))
+        traj = _trajectory(
+            res.path,
+            _arc_length(res.path),
+            "path",
+            np.zeros(len(res.path), dtype=np.int64),
+            ("all discs",),
+            events,
+            meta,
+        )
+        message = _flow_message(res.status, res.reason, res.stages, stats, "steps")
+    else:
+        traj = _placed_trajectory(res.path, res.steps, res.placement, meta)
+        message = _place_message(res.status, res.stages, stats)
     return Result(res.status, message, stats=stats, solution=res, trajectory=traj)
 
 
@@ -295,6 +338,22 @@ def _flow_message(
     return f"{head}; {stats['final_error']:.3g} from the goal after {int(stats[unit])} {unit}"
 
 
+def _place_message(status: Status, stages: Sequence[Stage], stats: dict[str, float]) -> str:
+    """One line for a flow finished (or not) by the place rule."""
+    flow, place = stages[0], stages[-1]
+    quality = f"ratio {stats['ratio']:.3f}, min clearance {stats['min_clearance']:.3g}"
+    why = (
+        f"the flow was stuck {_where(flow.reason, flow.k)} {stats['stuck_error']:.3g} from "
+        f"the goal after {int(stats['steps'])} steps"
+    )
+    if status is Status.SOLVED:
+        return f"assembled: {quality}; {why}, the place rule finished in {place.steps} grasps"
+    return (
+        f"{why}; the place rule then stopped ({place.reason}) after {place.steps} grasps, "
+        f"{stats['final_error']:.3g} from the goal"
+    )
+
+
 def _where(reason: str, k: float) -> str:
     """``at a spurious minimum at k=32``, ``at a saddle ...``, or ``at k=32 (reason)``."""
     if reason in ("spurious minimum", "saddle"):
@@ -383,6 +442,23 @@ def _escape_events(stages: Sequence[Stage], starts: Sequence[int]) -> list[Event
         Event(int(start), "escape", f"k={stage.k:g}")
         for stage, start in zip(stages[1:], starts[1:], strict=True)
     ]
+
+
+def _placed_trajectory(
+    path: Array, flow_steps: int, place: SequentialResult, meta: dict[str, Any]
+) -> Trajectory:
+    """A flow (rows ``0..flow_steps``, mode ``all discs``) finished by the place rule
+    (one disc moving per row: mode ``disc i``); events ``escape`` and ``grasp``."""
+    n = path.shape[1]
+    modes = ("all discs", *tuple(f"disc {i + 1}" for i in range(n)))
+    mode = np.zeros(len(path), dtype=np.int64)
+    events = [Event(flow_steps, "escape", "place rule")]
+    row = flow_steps
+    for g in place.grasps:
+        events.append(Event(row, "grasp", f"disc {g.disc + 1}"))
+        mode[row + 1 : row + len(g.path)] = g.disc + 1
+        row += len(g.path) - 1
+    return _trajectory(path, _arc_length(path), "path", mode, modes, events, meta)
 
 
 def _sequential_trajectory(res: SequentialResult, meta: dict[str, Any]) -> Trajectory:

@@ -102,12 +102,13 @@ PLANNERS = (
 def describe(setup: Setup) -> Mapping[str, str]:
     """``cellplan validate`` lines: the discs, listed or generated, and k."""
     d = setup.scenario.discs
+    k = "from n and the workspace" if d.k is None else f"{d.k:g}"
     if d.discs is not None:
-        return {"discs": f"{len(d.discs)} listed, boundary {d.boundary.type}, k = {d.k:g}"}
+        return {"discs": f"{len(d.discs)} listed, boundary {d.boundary.type}, k = {k}"}
     g = d.generate
     return {
         "discs": f"{g.n} generated (seed {g.seed}, {g.pattern} goals, {g.starts} starts), "
-        f"boundary {d.boundary.type}, k = {d.k:g}"
+        f"boundary {d.boundary.type}, k = {k}"
     }
 
 

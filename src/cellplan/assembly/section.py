@@ -78,10 +78,13 @@ class DiscsSection(StrictModel):
     boundary: Boundary = Field(default_factory=lambda: WorkcellBoundary(type="workcell"))
     discs: list[DiscSpec] | None = Field(default=None, min_length=1)
     generate: GeneratorSpec | None = None
-    # The one default of k for files, `assemble --random` and the planners (docs/assembly.md,
-    # "The default k"): at k=64 every 100-start run of 7 and of 10 discs in the default
-    # workspace is solved by the flow at k alone; 7 discs get their best 25-start mean ratio.
-    k: PositiveFloat = Field(default=64.0, description="navigation-function exponent k, eq. (2)")
+    # k: None means the rule of layout.rule_k (docs/assembly.md, "The default k"), the one
+    # default of files, `assemble --random` and the planners called without k.
+    k: PositiveFloat | None = Field(
+        default=None,
+        description="navigation-function exponent k, eq. (2) (default: chosen from n and the "
+        "workspace, docs/assembly.md 'The default k')",
+    )
     epsilon: PositiveFloat = Field(default=1e-3, description="normalisation epsilon, Sec. 3.3")
     tolerance: PositiveFloat = Field(
         default=1e-3, description="success when ||b - d|| (R^2n) is below this"

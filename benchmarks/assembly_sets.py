@@ -1,0 +1,175 @@
+"""Seeded problem sets of the disc-assembly planners (issue 13): reporting sets and a fitting grid.
+
+Run: ``.venv/bin/python benchmarks/assembly_sets.py [--set report|fit] [--n 7 12 ...]
+[--opt k=128 ...] [--planner assembly.gradient] [--csv out.csv]`` plans every problem of
+the set with ``cellplan.plan(setup, planner, **opts)`` (no options: the defaults of
+``cellplan assemble``) and prints one line per run and a summary per n (solved, mean and
+max seconds per run, mean path-length ratio of the solved runs).
+
+Every problem is a scenario with a ``discs: generate:`` section
+(:func:`cellplan.assembly.problems.generated_setup`, discs cover 5% of a circular
+workspace, unit discs), so it is planned exactly like ``cellplan assemble --random``.
+The eight kinds are the issue's grid:
+
+* goals ``hex`` (a hexagonal cluster, gap between neighbours 0.01 or 0.1 radius) or
+  ``random`` (random legal goals, no two closer than the gap 0.01 or 0.1 radius);
+* starts ``random`` (random legal positions) or ``permutation`` (a random permutation of
+  the goals, Section 5.2.2).
+
+**Reporting sets** (:func:`reporting_set`): n = 7, 12, 15, 25 with seeds 0-19, and
+n = 50 with seeds 0-9; seed ``s`` has kind ``KINDS[s % 8]``, so each kind appears 2-3
+times per n (at n = 50 once or twice). The targets of the issue are measured here only.
+
+**Fitting grid** (:func:`fitting_set`): other sizes (n = 5, 10, 20, 30) and other seeds
+(1000-1015, each kind twice per n). Rules (the default k, the escape, the integrator
+choice) are fitted on this grid and never on the reporting sets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+#: (goal pattern, gap in radii, starts): the issue's 2 x 2 x 2 grid of problem kinds
+KINDS: tuple[tuple[str, float, str], ...] = tuple(
+    (pattern, gap, starts)
+    for pattern in ("hex", "random")
+    for gap in (0.01, 0.1)
+    for starts in ("random", "permutation")
+)
+
+REPORT_SIZES: dict[int, range] = {
+    7: range(20),
+    12: range(20),
+    15: range(20),
+    25: range(20),
+    50: range(10),
+}
+FIT_SIZES: dict[int, range] = {
+    5: range(1000, 1016),
+    10: range(1000, 1016),
+    20: range(1000, 1016),
+    30: range(1000, 1008),
+}
+
+
+@dataclass(frozen=True)
+class Case:
+    """One generated problem: its size, seed and kind, and the generator fields."""
+
+    n: int
+    seed: int
+    pattern: str
+    gap: float
+    starts: str
+
+    @property
+    def label(self) -> str:
+        return f"n{self.n}-s{self.seed}-{self.pattern}{self.gap:g}-{self.starts[:4]}"
+
+    def generate(self) -> dict[str, Any]:
+        """The ``discs.generate`` fields of this problem."""
+        fields: dict[str, Any] = {
+            "n": self.n,
+            "seed": self.seed,
+            "pattern": self.pattern,
+            "starts": self.starts,
+        }
+        if self.pattern == "hex":
+            fields["gap"] = self.gap
+        else:
+            # random goals: the gap is the smallest goal (and start) gap of the sampler
+            fields["min_start_gap"] = self.gap
+        return fields
+
+    def setup(self) -> Any:
+        from cellplan.assembly.problems import generated_setup
+
+        return generated_setup(self.generate(), name=self.label)
+
+
+def _cases(sizes: dict[int, range]) -> list[Case]:
+    return [Case(n, s, *KINDS[s % len(KINDS)]) for n, seeds in sizes.items() for s in seeds]
+
+
+def reporting_set(sizes: list[int] | None = None) -> list[Case]:
+    """The reporting problems (targets are measured here; never fit on them)."""
+    return _cases({n: r for n, r in REPORT_SIZES.items() if sizes is None or n in sizes})
+
+
+def fitting_set(sizes: list[int] | None = None) -> list[Case]:
+    """The fitting grid: other sizes and seeds than :func:`reporting_set`."""
+    return _cases({n: r for n, r in FIT_SIZES.items() if sizes is None or n in sizes})
+
+
+def _value(text: str) -> Any:
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return {"none": None, "true": True, "false": False}.get(text.lower(), text)
+
+
+def main(argv: list[str] | None = None) -> int:
+    import cellplan
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--set", choices=("report", "fit"), default="report")
+    ap.add_argument("--n", type=int, nargs="*", help="sizes (default: all of the set)")
+    ap.add_argument("--seeds", type=int, nargs="*", help="only these seeds")
+    ap.add_argument("--planner", default="assembly.gradient")
+    ap.add_argument("--opt", nargs="*", default=[], help="planner options, name=value")
+    ap.add_argument("--csv", help="write one row per run here")
+    args = ap.parse_args(argv)
+    opts = {k: _value(v) for k, v in (o.split("=", 1) for o in args.opt)}
+    cases = (reporting_set if args.set == "report" else fitting_set)(args.n)
+    if args.seeds:
+        cases = [c for c in cases if c.seed in args.seeds]
+    print(f"set={args.set} planner={args.planner} options={opts or 'defaults'}", flush=True)
+    rows: list[dict[str, Any]] = []
+    for case in cases:
+        t0 = time.perf_counter()
+        res = cellplan.plan(case.setup(), args.planner, **opts)
+        wall = time.perf_counter() - t0
+        row = {
+            "label": case.label,
+            "n": case.n,
+            "seed": case.seed,
+            "pattern": case.pattern,
+            "gap": case.gap,
+            "starts": case.starts,
+            "status": res.status.value,
+            "wall_s": wall,
+            "ratio": res.stats.get("ratio", float("nan")),
+            "k": res.stats.get("k", float("nan")),
+            "message": res.message,
+        }
+        rows.append(row)
+        print(f"{case.label:32s} {row['status']:16s} {wall:7.2f} s  {res.message}", flush=True)
+    print("\n| n | solved | mean s/run | max s | mean ratio (solved) |")
+    print("|---|---|---|---|---|")
+    for n in sorted({r["n"] for r in rows}):
+        mine = [r for r in rows if r["n"] == n]
+        ok = [r for r in mine if r["status"] == "solved"]
+        walls = [r["wall_s"] for r in mine]
+        ratio = statistics.fmean(r["ratio"] for r in ok) if ok else float("nan")
+        print(
+            f"| {n} | {len(ok)}/{len(mine)} | {statistics.fmean(walls):.2f} | "
+            f"{max(walls):.2f} | {ratio:.3f} |"
+        )
+    if args.csv:
+        with open(args.csv, "w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
