@@ -152,7 +152,7 @@ def test_report_of_a_tiny_sweep(tmp_path):
     # tables: summary per paper, claims, the piece's table, failures, machine
     (summary,) = [t["rows"] for t in page.tables if t["class"] == "summary"]
     assert [row[1:4] for row in summary] == [["1", "12", "2"], ["0", "0", "0"], ["1", "12", "2"]]
-    assert [row[4:] for row in summary] == [["1", "1"], ["0", "0"], ["1", "1"]]
+    assert [row[4:] for row in summary] == [["1", "1", "0"], ["0", "0", "0"], ["1", "1", "0"]]
     claims = [t["rows"] for t in page.tables if t["caption"] == "The paper beside cellplan"]
     assert len(claims) == 2
     for rows in claims:
@@ -235,3 +235,31 @@ def test_markdown_code_spans_become_code_and_text_is_escaped():
     assert html == (
         "<p>Run <code>cellplan demo -o &lt;dir&gt;</code> now.</p><p>A lone ` stays.</p>"
     )
+
+
+@pytest.mark.parametrize(
+    ("low", "high", "n", "expected"),
+    [
+        (0.1, 0.3, 10, True),  # the whole interval above 0
+        (-0.3, -0.1, 10, False),  # the whole interval below
+        (-0.1, 0.3, 10, None),  # straddles: not enough runs to decide
+        (0.1, 0.3, 3, None),  # too few runs
+        (float("nan"), 0.3, 10, None),
+    ],
+)
+def test_decide_interval(low, high, n, expected):
+    from cellplan.core import decide_interval
+
+    assert decide_interval(low, high, n, above=0.0) is expected
+
+
+def test_verdicts_state_their_basis():
+    from cellplan.core import Claim
+    from cellplan.report import verdict
+
+    undecided = Claim("c", "p", "o", None, "interval contains 0", n=3, rule="95% CI above 0")
+    assert verdict(undecided) == (
+        "? not enough runs to decide: interval contains 0 [n = 3; rule: 95% CI above 0]"
+    )
+    differs = Claim("c", "p", "o", False, "half", n=25, explanation="docs/assembly.md#ratio")
+    assert verdict(differs) == "✘ differs: half (why: docs/assembly.md#ratio) [n = 25]"

@@ -278,13 +278,56 @@ class RunSpec:
 
 @dataclass(frozen=True)
 class Claim:
-    """One checkable claim, ours beside the paper's, with a plain verdict."""
+    """One checkable claim, ours beside the paper's, with a verdict and what it rests on.
+
+    Attributes
+    ----------
+    reproduced
+        True (reproduced), False (differs) or None (not enough runs to decide: the
+        interval from the runs contains both outcomes, or there are too few runs).
+    n
+        Number of runs the verdict rests on (0 when it is not a statistical claim).
+    rule
+        The decision rule, e.g. "95% interval of the mean reduction above 0".
+    explanation
+        Where a "differs" verdict is explained (a docs/ path and anchor).
+    """
 
     claim: str
     paper: str
     ours: str
-    reproduced: bool
+    reproduced: bool | None
     detail: str = ""
+    n: int = 0
+    rule: str = ""
+    explanation: str = ""
+
+
+def decide_interval(
+    low: float,
+    high: float,
+    n: int,
+    *,
+    above: float | None = None,
+    below: float | None = None,
+    min_runs: int = 5,
+) -> bool | None:
+    """The verdict of "the quantity is above ``above`` (and/or below ``below``)".
+
+    ``[low, high]`` is an interval from ``n`` runs (a 95% confidence interval, say).
+    Reproduced when the whole interval satisfies the claim, differs when the whole
+    interval contradicts it, and undecided (None) when it straddles a bound or when
+    fewer than ``min_runs`` runs stand behind it.
+    """
+    if n < min_runs or not (math.isfinite(low) and math.isfinite(high)):
+        return None
+    inside = (above is None or low > above) and (below is None or high < below)
+    outside = (above is not None and high <= above) or (below is not None and low >= below)
+    if inside:
+        return True
+    if outside:
+        return False
+    return None
 
 
 @dataclass

@@ -207,19 +207,22 @@ def _summary_table(found: Sequence[PaperExperiments], pieces: Sequence[Experimen
     for paper in papers:
         items = [p for p in pieces if p.run.experiment.paper == paper]
         claims = [c for p in items if p.piece for c in p.piece.claims]
-        good = sum(1 for c in claims if c.reproduced)
+        good = sum(1 for c in claims if c.reproduced is True)
+        bad = sum(1 for c in claims if c.reproduced is False)
+        open_ = len(claims) - good - bad
         runs = sum(len(p.run.rows) for p in items)
         failed = sum(p.run.n_failed for p in items)
         name = paper_info(paper).title
         rows.append(
             f'<tr><td><a href="#paper-{_e(paper)}">{_e(name)}</a></td><td>{len(items)}</td>'
             f"<td>{runs}</td><td>{failed}</td>"
-            f'<td class="ok">{good}</td><td class="{"bad" if len(claims) - good else ""}">'
-            f"{len(claims) - good}</td></tr>"
+            f'<td class="ok">{good}</td><td class="{"bad" if bad else ""}">{bad}</td>'
+            f'<td class="{"undecided" if open_ else ""}">{open_}</td></tr>'
         )
     return (
         '<table class="summary"><thead><tr><th>paper</th><th>experiments</th><th>runs</th>'
-        "<th>failed runs</th><th>claims reproduced</th><th>claims that differ</th></tr></thead>"
+        "<th>failed runs</th><th>claims reproduced</th><th>claims that differ</th>"
+        "<th>not enough runs to decide</th></tr></thead>"
         f"<tbody>{''.join(rows)}</tbody></table>"
     )
 
@@ -309,16 +312,30 @@ def _what_was_run(run: ExperimentRun) -> str:
 
 
 def verdict(claim: Claim) -> str:
-    """The plain verdict line: ``✔ reproduced`` or ``✘ differs: how``."""
-    if claim.reproduced:
-        return "✔ reproduced" + (f": {claim.detail}" if claim.detail else "")
-    return "✘ differs: " + (claim.detail or f"the paper has {claim.paper}, we get {claim.ours}")
+    """The plain verdict line with its basis: ``✔ reproduced``, ``✘ differs: how``, or
+    ``? not enough runs to decide``, then the sample size and the decision rule."""
+    if claim.reproduced is None:
+        text = "? not enough runs to decide" + (f": {claim.detail}" if claim.detail else "")
+    elif claim.reproduced:
+        text = "✔ reproduced" + (f": {claim.detail}" if claim.detail else "")
+    else:
+        text = "✘ differs: " + (claim.detail or f"the paper has {claim.paper}, we get {claim.ours}")
+        if claim.explanation:
+            text += f" (why: {claim.explanation})"
+    basis = [f"n = {claim.n}"] if claim.n else []
+    if claim.rule:
+        basis.append(f"rule: {claim.rule}")
+    return text + (f" [{'; '.join(basis)}]" if basis else "")
+
+
+def _verdict_class(claim: Claim) -> str:
+    return {True: "ok", False: "bad", None: "undecided"}[claim.reproduced]
 
 
 def _verdict_list(items: Sequence[ExperimentReport]) -> str:
     """Every claim of a paper on one line each, linking to its experiment."""
     lines = [
-        f'<li class="{"ok" if c.reproduced else "bad"}">{_e(c.claim)} — {_e(verdict(c))} '
+        f'<li class="{_verdict_class(c)}">{_e(c.claim)} — {_e(verdict(c))} '
         f'(<a href="#exp-{_e(item.run.experiment.name)}">{_e(item.run.experiment.name)}</a>)</li>'
         for item in items
         if item.piece is not None
@@ -332,7 +349,7 @@ def _verdict_list(items: Sequence[ExperimentReport]) -> str:
 def _claims_table(claims: Sequence[Claim]) -> str:
     rows = []
     for claim in claims:
-        cls = "ok" if claim.reproduced else "bad"
+        cls = _verdict_class(claim)
         rows.append(
             f"<tr><td>{_e(claim.claim)}</td><td>{_e(claim.paper)}</td><td>{_e(claim.ours)}</td>"
             f'<td class="verdict {cls}">{_e(verdict(claim))}</td></tr>'
@@ -504,7 +521,7 @@ table{border-collapse:collapse;margin:.8rem 0;font-size:.9rem}
 caption{text-align:left;font-weight:600;padding:.2rem 0}
 th,td{border:1px solid #d0d7de;padding:.25rem .5rem;vertical-align:top;text-align:left}
 th{background:#f6f8fa}
-td.ok,li.ok{color:#116329}td.bad,li.bad{color:#82071e}
+td.ok,li.ok{color:#116329}td.bad,li.bad{color:#82071e}td.undecided,li.undecided{color:#7d4e00}
 .verdicts{border:1px solid #d0d7de;border-radius:4px;padding:.4rem .8rem;margin:.8rem 0}
 .verdicts ul{margin:.3rem 0;padding-left:1.2rem}
 td.verdict{font-weight:600}
