@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean install docs
+.PHONY: demo test lint bench clean install docs browser-test
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -29,6 +29,14 @@ lint: $(STAMP)
 # The API reference, from the docstrings (numpydoc), into build/api; a warning fails it.
 docs: $(STAMP)
 	$(BIN)/python docs/build_api.py build/api
+
+# The demo report in a real headless browser (Chromium from Debian's packages).
+browser-test: $(STAMP)
+	command -v chromium-headless-shell >/dev/null || \
+		(apt-get update -qq && apt-get install -y -qq chromium-headless-shell)
+	$(BIN)/python -m pip install -q -e '.[dev,browser]'
+	CELLPLAN_SCREENSHOT=build/report-screenshot.png $(BIN)/python -m pytest -m slow -s \
+		tests/test_report_browser.py
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
