@@ -161,3 +161,10 @@ def test_output_paths_that_cannot_be_written_are_one_line(cellplan, tmp_path):
     r = cellplan("show", "strategies_tiny", "-o", str(blocker / "cell.png"))
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
     assert str(blocker) in r.stderr
+
+
+def test_cspace_slice_out_of_range_is_one_line(cellplan, tmp_path):
+    r = cellplan("cspace", "strategies_p3", "--slice", "-1", "-o", str(tmp_path / "c.png"))
+    assert r.returncode == 2
+    assert r.stderr.strip().startswith("error: --slice: must be in [0, ")
+    assert not (tmp_path / "c.png").exists()

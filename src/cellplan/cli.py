@@ -158,6 +158,9 @@ def cspace(
         )
     shape = parse_cells(cells, cell.robot.dim) if cells else cell.default_cells
     grid = Grid.for_robot(cell.robot, shape)
+    if slice_index is not None and (grid.ndim != 3 or not 0 <= slice_index < grid.shape[2]):
+        limit = f"[0, {grid.shape[2] - 1}]" if grid.ndim == 3 else "a 3-D C-space only"
+        raise ArgumentError(f"must be in {limit}, got {slice_index}", "--slice")
     free = free_bitmap(cell, grid, carrying=carrying)
     plots.save_cspace(
         cell,
@@ -166,6 +169,7 @@ def cspace(
         output,
         slice_index=slice_index,
         title_extra=f"carrying {carrying}" if carrying else "empty",
+        carrying=carrying is not None,
     )
     out.print(f"wrote {output}  (free fraction {free.mean():.3f})")
 

@@ -17,6 +17,7 @@ import numpy as np
 from shapely.geometry.base import BaseGeometry
 
 from cellplan import units
+from cellplan.errors import ArgumentError
 from cellplan.fileio import atomic_path
 
 if TYPE_CHECKING:
@@ -186,8 +187,8 @@ def draw_workcell(
     ax.set_xlim(xmin - pad, xmax + pad)
     ax.set_ylim(ymin - pad, ymax + pad)
     ax.set_aspect("equal")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
+    ax.set_xlabel("x (workcell units)")
+    ax.set_ylabel("y (workcell units)")
 
 
 def _rect(xmin: float, ymin: float, xmax: float, ymax: float) -> Any:
@@ -250,7 +251,7 @@ def save_workcell(
 def _axis_extent(grid: Grid, i: int, robot_axis: str) -> tuple[float, float, str]:
     lo, hi = float(grid.lower[i]), float(grid.upper[i])
     if robot_axis in ("x", "y"):
-        return lo, hi, robot_axis
+        return lo, hi, f"{robot_axis} (workcell units)"
     return units.degrees(lo), units.degrees(hi), f"{robot_axis} (deg)"
 
 
@@ -280,6 +281,23 @@ def draw_cspace_slice(
         ax.set_title(title, fontsize=9)
 
 
+def cspace_legend(fig: Figure, carrying: bool) -> None:
+    """The legend of C-space pictures: what light and dark mean, below the axes."""
+    from matplotlib.patches import Patch
+
+    blocked = "blocked: the robot touches an obstacle or leaves the bounds"
+    if carrying:
+        blocked = (
+            "blocked: the robot or the carried part touches an obstacle or another source "
+            "(other sources are obstacles while carrying), or leaves the bounds"
+        )
+    handles = [
+        Patch(facecolor=COLORS["free"], edgecolor="#888888", label="free configuration"),
+        Patch(facecolor=COLORS["blocked"], label=blocked),
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncols=1, fontsize=9, frameon=False)
+
+
 def save_cspace(
     cell: Workcell,
     grid: Grid,
@@ -287,11 +305,13 @@ def save_cspace(
     path: str | Path,
     slice_index: int | None = None,
     title_extra: str = "",
+    carrying: bool = False,
 ) -> Path:
     """The workcell beside its free-configuration bitmap (2-D), or slices of a 3-D one.
 
     For 3-D spaces, ``slice_index`` picks one slice along the last axis; by
-    default six evenly spaced slices are drawn.
+    default six evenly spaced slices are drawn. A legend says what light and dark
+    mean (``carrying``: other sources count as obstacles).
     """
     names = cell.robot.axis_names
     if grid.ndim == 2:
@@ -306,6 +326,7 @@ def save_cspace(
             (names[0], names[1]),
             f"free configurations ({title_extra}): {free.mean():.1%} free",
         )
+        cspace_legend(fig, carrying)
         return save_figure(fig, path)
     if grid.ndim != 3:
         raise ValueError("C-space pictures are for 2-D and 3-D spaces")
@@ -316,7 +337,7 @@ def save_cspace(
         else list(np.linspace(0, n - 1, 6).round().astype(int))
     )
     if any(not 0 <= k < n for k in picks):
-        raise ValueError(f"slice index must be in [0, {n - 1}]")
+        raise ArgumentError(f"must be in [0, {n - 1}] for this grid", "--slice")
     ncols = min(3, len(picks)) + 1
     nrows = math.ceil(len(picks) / (ncols - 1))
     fig, axes = new_figure(ncols=ncols, nrows=nrows, size=3.6)
@@ -340,6 +361,7 @@ def save_cspace(
     for idx in range(len(picks), nrows * (ncols - 1)):
         axes[idx // (ncols - 1), 1 + idx % (ncols - 1)].axis("off")
     fig.suptitle(f"free configurations ({title_extra}), {free.mean():.1%} of {grid.size} cells")
+    cspace_legend(fig, carrying)
     return save_figure(fig, path)
 
 
