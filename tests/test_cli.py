@@ -168,3 +168,11 @@ def test_cspace_slice_out_of_range_is_one_line(cellplan, tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().startswith("error: --slice: must be in [0, ")
     assert not (tmp_path / "c.png").exists()
+
+
+@pytest.mark.parametrize("name", ["discs_seven", "adaptive_fig3", "strategies_tiny"])
+def test_show_draws_every_kind_of_scenario(cellplan, tmp_path, name):
+    out = tmp_path / f"{name}.png"
+    r = cellplan("show", name, "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert out.stat().st_size > 10_000

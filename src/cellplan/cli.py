@@ -123,13 +123,13 @@ def validate(scenario: ScenarioArg, as_json: JsonOpt = False) -> None:
 
 @app.command()
 def show(scenario: ScenarioArg, output: OutputOpt = Path("workcell.png")) -> None:
-    """Draw the workcell: obstacles, sources, destinations, robot at start, a carried part."""
+    """Draw the scenario: the workcell, the robot at its start carrying a part, and what
+    each section adds (discs' starts and goals, adaptive goals and workcell changes)."""
     from cellplan import plots
     from cellplan.api import load
 
     check_image_path(output)
-    cell = load(scenario).workcell
-    plots.save_workcell(cell, output)
+    plots.save_scenario(load(scenario), output)
     out.print(f"wrote {output}")
 
 

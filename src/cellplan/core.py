@@ -242,6 +242,9 @@ class Package:
     showcase
         ``showcase(folder) -> [ShowcaseItem]``: one run of the package's planners on
         bundled scenarios through the API, with pictures, for the demo report.
+    draw
+        ``draw(setup, ax) -> [legend handles]``: draws the package's section onto the
+        workcell picture of ``cellplan show`` (discs' starts and goals, goals and changes).
     """
 
     name: str
@@ -256,6 +259,7 @@ class Package:
     paper_runs: int = 1
     describe: Callable[[Setup], Mapping[str, str]] | None = None
     showcase: Callable[[Any], Sequence[ShowcaseItem]] | None = None
+    draw: Callable[[Setup, Any], Sequence[Any]] | None = None
 
 
 # --- experiments -----------------------------------------------------------------------------

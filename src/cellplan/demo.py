@@ -96,7 +96,7 @@ def draw_bundled_workcells(folder: Path) -> Any:
         anchor="workcells",
     )
     from cellplan.api import load
-    from cellplan.plots import save_workcell
+    from cellplan.plots import save_scenario
 
     names = scenario_names()
     if not names:
@@ -104,11 +104,7 @@ def draw_bundled_workcells(folder: Path) -> Any:
     for name in names:
         target = folder / f"{name}.png"
         try:
-            setup = load(name)
-            if not setup.has_robot:
-                section.notes.append(f"{name}: no robot (its discs are drawn in the showcase)")
-                continue
-            save_workcell(setup.workcell, target)
+            save_scenario(load(name), target)
         except Exception as exc:  # one bad scenario must not hide the rest of the demo
             section.errors.append(f"{name}: {type(exc).__name__}: {exc}")
             continue

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from cellplan.cspace import Grid
+    from cellplan.setup import Setup
     from cellplan.trajectory import Trajectory
     from cellplan.workcell import Workcell
 
@@ -242,6 +243,54 @@ def save_workcell(
         handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
     )
     ax.set_title(cell.name or "workcell")
+    return save_figure(fig, path)
+
+
+def save_scenario(setup: Setup, path: str | Path) -> Path:
+    """Everything a scenario describes: the workcell with the robot at its start (when it
+    has one) and what each package's section adds (:attr:`cellplan.core.Package.draw`)."""
+    from matplotlib.patches import Patch
+
+    from cellplan.registry import packages
+
+    fig, axes = new_figure(size=6.0)
+    fig.set_size_inches(8.5, 6.0)
+    ax = axes[0, 0]
+    sc = setup.scenario
+    handles: list[Any] = [Patch(color=COLORS["obstacle"], label="obstacle")]
+    if setup.has_robot:
+        cell = setup.workcell
+        draw_workcell(ax, cell)
+        carrying = next(iter(cell.parts), None)
+        draw_robot(ax, cell, cell.robot.start, carrying)
+        if cell.sources:
+            handles.append(Patch(color=COLORS["source"], alpha=0.5, label="source"))
+        if cell.destinations:
+            handles.append(Patch(color=COLORS["destination"], alpha=0.5, label="destination"))
+        handles.append(Patch(color=COLORS["robot"], label=f"robot ({cell.robot.kind}) at start"))
+        if carrying is not None:
+            handles.append(Patch(color=COLORS["part"], label=f"carried part {carrying}"))
+    else:
+        b = sc.workcell.bounds
+        ax.add_patch(_rect(b.xmin, b.ymin, b.xmax, b.ymax))
+        for name, shape in sc.workcell.obstacles.items():
+            geom = shape.to_shapely()
+            draw_geometry(ax, geom, facecolor=COLORS["obstacle"], edgecolor="black", lw=0.8)
+            _label(ax, geom, name, "black")
+        pad = 0.02 * max(b.xmax - b.xmin, b.ymax - b.ymin)
+        ax.set_xlim(b.xmin - pad, b.xmax + pad)
+        ax.set_ylim(b.ymin - pad, b.ymax + pad)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (workcell units)")
+        ax.set_ylabel("y (workcell units)")
+    present = sc.section_names()
+    for pkg in packages().values():
+        if pkg.draw is not None and pkg.section in present:
+            handles.extend(pkg.draw(setup, ax))
+    ax.legend(
+        handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
+    )
+    ax.set_title(sc.name or setup.name)
     return save_figure(fig, path)
 
 

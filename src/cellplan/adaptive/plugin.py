@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+from cellplan.adaptive.drawing import draw_adaptive
 from cellplan.adaptive.planners import (
     AdaptiveOptions,
     PeerOptions,
@@ -105,6 +106,7 @@ PACKAGE = Package(
     ),
     describe=describe,
     showcase=_showcase,
+    draw=draw_adaptive,
     experiments="cellplan.adaptive.experiments",
     commands="cellplan.adaptive.commands",
     paper_runs=100,

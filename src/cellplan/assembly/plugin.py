@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
+from cellplan.assembly.drawing import draw_discs
 from cellplan.assembly.options import ControlOptions, GradientOptions, SequentialOptions
 from cellplan.assembly.section import DiscsSection
 from cellplan.core import Options, Package, PlannerSpec, Progress, Result, ShowcaseItem
@@ -125,4 +126,5 @@ PACKAGE = Package(
     paper_runs=25,
     describe=describe,
     showcase=_showcase,
+    draw=draw_discs,
 )
