@@ -27,7 +27,8 @@ def draw_discs(setup: Setup, ax: Any) -> list[Any]:
         ax.add_patch(Circle(s, r, fill=False, edgecolor="#c0392b", lw=1.4, ls="--"))
         ax.annotate(str(i + 1), s, ha="center", va="center", fontsize=7, color="#c0392b")
         ax.annotate(str(i + 1), g, ha="center", va="center", fontsize=7, color="#1f3b73")
-    return handles + [
+    return [
+        *handles,
         Line2D([], [], marker="o", ls="none", mfc="none", mec="#c0392b", label="disc at start"),
         Line2D([], [], marker="o", ls="none", color="#3b6fb6", alpha=0.5, label="disc at goal"),
     ]
