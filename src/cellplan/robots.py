@@ -16,9 +16,17 @@ Kinds (strategies paper, Section V; adaptive paper, Section 4):
   axis non-periodic; an optional fixed end-effector orientation keeps the
   gripper frame at one world orientation (problem 5).
 
-Arm links are rectangles ``[0, L] x [-w/2, w/2]`` in their joint frame. Links of
-the same arm are not checked against each other: planar arms of this kind
-(SCARA-like) move their links in stacked planes.
+Arm links are rectangles ``[0, L] x [-w/2, w/2]`` in their joint frame, or capsules:
+the same rectangle with round end caps, discs of radius ``w/2`` centred on the link's
+two joints (every point within ``w/2`` of the segment from joint to joint; built
+exactly, as one convex polygon and two discs). Links of the same arm are not checked
+against each other: planar arms of this kind (SCARA-like) move their links in stacked
+planes.
+
+A revolute joint without limits, or with limits spanning the full turn, is periodic:
+``periodic[i]`` is true and its angle lives on the circle (-pi, pi]. Inverse kinematics
+returns such angles wrapped; an angle of a limited joint is returned as the turn
+(``q + 2 pi k``) that lies within its limits, if one does.
 """
 
 from __future__ import annotations
@@ -199,6 +207,8 @@ class PlanarArm(Robot):
     lengths: FloatArray = field(default_factory=lambda: np.zeros(0))
     widths: FloatArray = field(default_factory=lambda: np.zeros(0))
     tool_orientation: float | None = None
+    capsules: tuple[bool, ...] = ()
+    """Which links are capsules (empty: all rectangles)."""
 
     @property
     def n_links(self) -> int:
@@ -240,6 +250,10 @@ class PlanarArm(Robot):
         beyond j do not move link j.
         """
         reach = np.hypot(self.lengths, self.widths / 2)
+        if any(self.capsules):
+            # a capsule's farthest point from its joint is the far cap's rim
+            caps = np.array(self.capsules, dtype=bool)
+            reach = np.where(caps, self.lengths + self.widths / 2, reach)
         along = np.cumsum(self.lengths) - self.lengths  # chain length from the base to joint i
         lever = along[:, None] - along[None, :] + reach[:, None]
         return np.where(np.tril(np.ones((self.n_links, self.n_links), bool)), lever, 0.0)
@@ -256,6 +270,19 @@ class PlanarArm(Robot):
         """``+1`` where joint 2 bends counter-clockwise (q_2 >= 0), ``-1`` otherwise."""
         q = as_batch(q, self.dim)
         return np.where(q[:, 1] >= 0.0, 1, -1)
+
+    def _into_limits(self, q: FloatArray) -> FloatArray:
+        """Each limited joint's angle moved by a whole turn into its limits where one fits
+        (a joint limited to [0, 350] degrees takes -90 degrees as 270)."""
+        for i, per in enumerate(self.periodic):
+            if per:
+                continue
+            lo, hi = self.lower[i], self.upper[i]
+            turns = np.ceil((lo - q[..., i]) / (2 * math.pi))
+            shifted = q[..., i] + turns * 2 * math.pi
+            fits = (turns != 0) & (shifted <= hi) & ((q[..., i] < lo) | (q[..., i] > hi))
+            q[..., i] = np.where(fits, shifted, q[..., i])
+        return q
 
     def ik(
         self, x: FloatArray, y: FloatArray, phi: FloatArray | None = None
@@ -298,6 +325,7 @@ class PlanarArm(Robot):
             sols[:, b, 1] = s2
             if n == 3:
                 sols[:, b, 2] = wrap_angle(phi_arr - q1 - s2)
+        sols = self._into_limits(sols)
         valid = np.repeat(reachable[:, None], 2, axis=1)
         valid &= self.within_limits(sols.reshape(-1, n)).reshape(-1, 2)
         return sols, valid
@@ -310,8 +338,12 @@ def planar_arm(
     joint_limits: list[tuple[float, float]] | None,
     start: list[float],
     tool_orientation: float | None = None,
+    shapes: list[str] | None = None,
 ) -> PlanarArm:
-    """Build a :class:`PlanarArm`; angles in radians, ``None`` limits meaning a full turn."""
+    """Build a :class:`PlanarArm`; angles in radians, ``None`` limits meaning a full turn.
+
+    ``shapes``: ``"rectangle"`` (the default) or ``"capsule"`` per link.
+    """
     n = len(lengths)
     lower = np.full(n, -math.pi)
     upper = np.full(n, math.pi)
@@ -321,11 +353,11 @@ def planar_arm(
         if hi - lo < 2 * math.pi - 1e-9:
             lower[i], upper[i] = lo, hi
             periodic[i] = False
+    kinds = list(shapes) if shapes is not None else ["rectangle"] * n
+    if len(kinds) != n or any(k not in ("rectangle", "capsule") for k in kinds):
+        raise ValueError(f"shapes must be 'rectangle' or 'capsule' per link, got {shapes!r}")
     bodies = tuple(
-        ShapeSet.from_polygons(
-            [np.array([[0, -w / 2], [ln, -w / 2], [ln, w / 2], [0, w / 2]], float)]
-        )
-        for ln, w in zip(lengths, widths, strict=True)
+        link_shape(ln, w, kind) for ln, w, kind in zip(lengths, widths, kinds, strict=True)
     )
     return PlanarArm(
         kind="arm",
@@ -339,7 +371,25 @@ def planar_arm(
         lengths=np.array(lengths, float),
         widths=np.array(widths, float),
         tool_orientation=tool_orientation,
+        capsules=tuple(k == "capsule" for k in kinds) if "capsule" in kinds else (),
     )
+
+
+def link_shape(length: float, width: float, kind: str = "rectangle") -> ShapeSet:
+    """A link in its joint frame: the rectangle ``[0, L] x [-w/2, w/2]``, plus, for a
+    capsule, discs of radius ``w/2`` on both joints (its round end caps)."""
+    box = ShapeSet.from_polygons(
+        [np.array([[0, -width / 2], [length, -width / 2], [length, width / 2], [0, width / 2]])]
+    )
+    if kind == "rectangle":
+        return box
+    caps = ShapeSet(
+        np.zeros((0, 3, 2)),
+        np.zeros(0, np.int64),
+        np.array([[0.0, 0.0], [length, 0.0]]),
+        np.full(2, width / 2),
+    )
+    return ShapeSet.union([box, caps])
 
 
 def robot_from_spec(spec: RobotSpec, bounds: tuple[float, float, float, float]) -> Robot:
@@ -362,4 +412,5 @@ def robot_from_spec(spec: RobotSpec, bounds: tuple[float, float, float, float]) 
         else [(units.radians(a), units.radians(b)) for a, b in limits],
         start=[units.radians(v) for v in spec.start],
         tool_orientation=None if eo is None else units.radians(eo),
+        shapes=[link.shape for link in spec.links],
     )

@@ -32,7 +32,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Union, get_args, get_origin
 
 import yaml
-from pydantic import BaseModel, Field, ValidationError, create_model
+from pydantic import (
+    BaseModel,
+    Field,
+    SerializerFunctionWrapHandler,
+    ValidationError,
+    create_model,
+    model_serializer,
+)
 
 from cellplan.errors import Problem, ScenarioError
 from cellplan.schema import (
@@ -139,10 +146,22 @@ class RotatingRobotSpec(StrictModel):
 
 
 class LinkSpec(StrictModel):
-    """One link of a planar arm: a rectangle from its joint, ``length`` long, ``width`` wide."""
+    """One link of a planar arm: a rectangle from its joint, ``length`` long, ``width`` wide;
+    or a capsule, that rectangle with round end caps (discs of diameter ``width`` centred
+    on the link's two joints)."""
 
     length: PositiveFloat
     width: PositiveFloat
+    shape: Literal["rectangle", "capsule"] = "rectangle"
+
+    @model_serializer(mode="wrap")
+    def _omit_default_shape(self, handler: SerializerFunctionWrapHandler) -> Any:
+        # A rectangle link dumps as before the shape field existed, so digests of
+        # existing scenarios (saved strategies, experience databases) do not change.
+        data = handler(self)
+        if isinstance(data, dict) and data.get("shape") == "rectangle":
+            data.pop("shape")
+        return data
 
 
 class ArmRobotSpec(StrictModel):

@@ -10,7 +10,10 @@ the ``do forever`` loop of Figure 1 for a goal:
    first ``v`` with Reach(v, w) becomes ``w_hat``;
 3. otherwise S(u, w): ``w_hat`` = the best vertex by h (the nearest one whose
    configuration is free now), Solve(w_hat, w), Abstract, Augment; ``w_hat``
-   becomes the last vertex of the chain;
+   becomes the last vertex of the chain. Solve from the best vertex gets a share of
+   the budget; if it fails (the vertex may sit in a pocket a change sealed), S tries
+   the robot's own vertex û and the next free vertices by h, up to
+   :data:`S_STARTS` starts sharing ``max_solve_checks`` (recorded per task);
 4. T(u, w) (Section 2.4, steps 1(a), 1(b), 2, 3), then Execute the path
    ``u, u_hat, Gamma, w_hat, w`` after corner cutting (Section 2.6); the path is
    re-checked, uncounted and without clearance, at a quarter of the resolution.
@@ -24,7 +27,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,11 +36,14 @@ from cellplan.adaptive.abstract import abstract
 from cellplan.adaptive.counters import CheckCounter
 from cellplan.adaptive.graph import BLOCKED, FREE, ExperienceGraph
 from cellplan.adaptive.reach import path_is_free, reach, reach_potential
-from cellplan.adaptive.solve import solve_rrtconnect, solve_two_segment
+from cellplan.adaptive.solve import SolveInfo, solve_rrtconnect, solve_two_segment
 from cellplan.adaptive.space import FloatArray, PlanSpace
 from cellplan.adaptive.world import Tag, World
 
 Hook = Callable[[str], None]
+
+S_STARTS = 4
+"""Start vertices S tries before it gives up; they share ``max_solve_checks``."""
 
 
 def derive_seed(*parts: int) -> int:
@@ -75,6 +81,8 @@ class TaskResult:
     path: FloatArray | None = None
     path_ok: bool = True
     note: str = ""
+    s_fallbacks: int = 0
+    """Start vertices S tried after Solve from the best one failed."""
 
 
 class Adapter:
@@ -93,9 +101,14 @@ class Adapter:
         self.hook = hook
         robot = world.robot
         self.space = PlanSpace(
-            world.is_free, robot.lower, robot.upper, settings.resolution, self.counter
+            world.is_free,
+            robot.lower,
+            robot.upper,
+            settings.resolution,
+            self.counter,
+            tuple(robot.periodic),
         )
-        self.graph = ExperienceGraph()
+        self._graph = ExperienceGraph(periodic=self.space.periodic)
         self.u = np.asarray(robot.start, dtype=float).copy()
         self.u_hat = self.new_vertex(self.u)
         self.link_gen = world.gen
@@ -107,6 +120,19 @@ class Adapter:
         # Reach(v, goal) results of the current generation, by (vertex id, goal name).
         self.goal_links: dict[tuple[int, str], bool] = {}
         self._links_gen = world.gen
+        self.last_solve = SolveInfo()
+        self.s_fallbacks = 0
+        self.s_failure = ""
+
+    @property
+    def graph(self) -> ExperienceGraph:
+        """G; a graph assigned here (Repair's A0, a database) measures with this space."""
+        return self._graph
+
+    @graph.setter
+    def graph(self, graph: ExperienceGraph) -> None:
+        graph.periodic = self.space.periodic
+        self._graph = graph
 
     # --- primitives ------------------------------------------------------------------------
 
@@ -134,13 +160,26 @@ class Adapter:
                 return path
         return np.stack([np.asarray(a, float), np.asarray(b, float)])
 
-    def solve(self, a: FloatArray, b: FloatArray) -> FloatArray | None:
-        """Solve(a, b) with the configured global planner, seeded per call (counted)."""
+    def solve(self, a: FloatArray, b: FloatArray, budget: int | None = None) -> FloatArray | None:
+        """Solve(a, b) with the configured global planner, seeded per call (counted).
+
+        ``budget``: collision checks this call may make (default ``max_solve_checks``);
+        how the call ended is left in :attr:`last_solve`.
+        """
         self._solve_calls += 1
+        info = SolveInfo()
+        self.last_solve = info
         if self.settings.solve == "two_segment":
-            return solve_two_segment(self.space, a, b)
+            before = self.counter.total
+            path = solve_two_segment(self.space, a, b)
+            info.outcome, info.checks = (
+                "solved" if path is not None else "no_path",
+                self.counter.total - before,
+            )
+            return path
         seed = derive_seed(self.settings.seed, self.tasks_done, self._solve_calls)
-        return solve_rrtconnect(self.space, a, b, seed, self.settings.max_solve_checks)
+        limit = self.settings.max_solve_checks if budget is None else budget
+        return solve_rrtconnect(self.space, a, b, seed, limit, info=info)
 
     def vertex_free(self, vid: int) -> bool:
         """Is a vertex's configuration free in this generation? (one counted check, cached)."""
@@ -202,17 +241,77 @@ class Adapter:
             self._links_gen = self.gen
         return self.goal_links
 
+    def s_starts(self, w: FloatArray) -> Iterator[int]:
+        """S's start vertices: the best free vertex by h, then û, then the next free ones.
+
+        Lazy, so that a first Solve that succeeds costs exactly one free-vertex scan.
+        """
+        tried: set[int] = set()
+        order = self.graph.by_heuristic(w)
+        first = next((v for v in order if self.vertex_free(v)), None)
+        if first is None:
+            return
+        tried.add(first)
+        yield first
+        if self.u_hat in self.graph.vertices and self.u_hat not in tried:
+            if self.vertex_free(self.u_hat):
+                tried.add(self.u_hat)
+                yield self.u_hat
+        for v in order:
+            if v not in tried and self.vertex_free(v):
+                tried.add(v)
+                yield v
+
     def plan_s(self, w: FloatArray) -> int | None:
-        """S(u, w): Solve from the best free vertex by h, Abstract, Augment; the new w_hat."""
+        """S(u, w): Solve from the best free vertex by h, Abstract, Augment; the new w_hat.
+
+        Solve from the best vertex gets ``max_solve_checks / S_STARTS`` checks. If it
+        fails, S tries the next start (û, then free vertices by h), each with an equal
+        share of what is left, up to :data:`S_STARTS` starts; what is still left then
+        goes to one more call from the best vertex (a new seed). The calls of one S
+        never exceed ``max_solve_checks`` in all. The starts tried after the first are
+        counted in :attr:`s_fallbacks`; :attr:`s_failure` says why S failed.
+        """
+        self.s_failure = ""
+        total = self.settings.max_solve_checks
+        left = total
+        path: FloatArray | None = None
+        start: int | None = None
+        tried: list[int] = []
+        outcomes: list[str] = []
         with self.counter.charge("solve"):
-            start = next((v for v in self.graph.by_heuristic(w) if self.vertex_free(v)), None)
-            if start is None:
+            for k, v in enumerate(self.s_starts(w)):
+                if k >= S_STARTS:
+                    break
+                share = left // (S_STARTS - k)
+                if k:
+                    self.s_fallbacks += 1
+                path = self.solve(self.graph.vertices[v].q, w, share)
+                tried.append(v)
+                outcomes.append(self.last_solve.outcome)
+                left -= self.last_solve.checks
+                if path is not None:
+                    start = v
+                    break
+            if not tried:
+                self.s_failure = "no vertex of G is free in the changed workcell"
                 return None
-            path = self.solve(self.graph.vertices[start].q, w)
-        if path is None:
+            if path is None and left >= min(total, 1000) and self.settings.solve != "two_segment":
+                path = self.solve(self.graph.vertices[tried[0]].q, w, left)
+                outcomes.append(self.last_solve.outcome)
+                left -= self.last_solve.checks
+                start = tried[0] if path is not None else None
+        if path is None or start is None:
+            why = "wall-time guard" if "time" in outcomes else "check budget"
+            self.s_failure = (
+                f"Solve found no path from {len(tried)} start vertex"
+                f"{'' if len(tried) == 1 else 'es'} of G within its {why} "
+                f"({total - left} of {total} checks)"
+            )
             return None
         chain = self.abstract(path)
         if chain is None:
+            self.s_failure = "Abstract could not cut Solve's path into Reach segments"
             return None
         self._emit("augment")
         return self.augment(start, chain)[-1]
@@ -298,15 +397,20 @@ class Adapter:
         calls0 = self._solve_calls
         w = np.asarray(w, dtype=float)
         res = TaskResult(goal, False)
+        fallbacks0 = self.s_fallbacks
         w_hat = self.plan_r(w, goal)
         if w_hat is None:
             w_hat = self.plan_s(w)
             if w_hat is None:
-                res.note = "Solve failed"
+                res.note = self.s_failure
         if w_hat is not None:
             gamma = self.trace(w_hat)
             if gamma is None:
-                res.note = "T failed"
+                res.note = (
+                    "T could not join the robot's vertex to the goal's: G's sequences were "
+                    f"blocked and Solve found no path within its {self.last_solve.checks} checks "
+                    f"({self.last_solve.outcome})"
+                )
             else:
                 if self.settings.corner_cutting and len(gamma) > 2:
                     gamma = self.cut_corners(gamma)
@@ -315,6 +419,8 @@ class Adapter:
                 # checks exactly, without the clearance Reach demands of its samples.
                 exact = self.space.with_is_free(self.world.is_free_exact)
                 res.path_ok = path_is_free(exact, res.path, refine=4)
+                if not res.path_ok:
+                    res.note = "the executed path touches an obstacle at the 4x finer re-check"
                 res.success = True
                 self.u = w.copy()
                 self.u_hat = w_hat
@@ -324,20 +430,25 @@ class Adapter:
         after = self.counter.snapshot()
         res.costs = {k: after[k] - before[k] for k in after}
         res.solve_calls = self._solve_calls - calls0
+        res.s_fallbacks = self.s_fallbacks - fallbacks0
         res.seconds = time.perf_counter() - t0
         res.vertices = len(self.graph)
         res.edges = len(self.graph.usable_edges())
         return res
 
     def execute(self, gamma: list[int], w: FloatArray) -> FloatArray:
-        """R[u, w]: the polyline u, Gamma..., w through Reach's local paths."""
+        """R[u, w]: the polyline u, Gamma..., w through Reach's local paths.
+
+        On periodic coordinates the polyline is unwrapped (each step the short way
+        round, as Reach checked it), so its angles are continuous from ``u``.
+        """
         points = [self.u] + [self.graph.vertices[v].q for v in gamma] + [w]
         pieces = [points[0][None, :]]
         for a, b in itertools.pairwise(points):
-            if float(np.linalg.norm(b - a)) <= 0.0:
+            if float(np.linalg.norm(self.space.difference(a, b))) <= 0.0:
                 continue
             pieces.append(self.local_path(a, b)[1:])
-        return np.concatenate(pieces)
+        return self.space.unwrap(np.concatenate(pieces))
 
     # --- environment changes ---------------------------------------------------------------
 
@@ -371,5 +482,6 @@ class Adapter:
             "edges": float(len(self.graph.usable_edges())),
             "checks": float(self.counter.total),
             "solve_calls": float(self._solve_calls),
+            "s_fallbacks": float(self.s_fallbacks),
             "generation": float(self.gen),
         }

@@ -305,6 +305,7 @@ class ExperiencePlanner:
             "checks": float(checks),
             **{f"{k}_checks": float(v) for k, v in res.costs.items() if k != "baseline"},
             "solve_calls": float(res.solve_calls),
+            "s_fallbacks": float(res.s_fallbacks),
             "vertices": float(res.vertices),
             "edges": float(res.edges),
             "path_length": float(traj.t[-1] - traj.t[0]),
@@ -320,13 +321,13 @@ class ExperiencePlanner:
             message = f"reached {label} along {segments} {cost}"
             status = Status.SOLVED
         elif res.success:
-            message = f"reached {label}, but the executed path failed the 4x finer re-check"
+            message = (
+                f"reached {label}, but the executed path touches an obstacle at the 4x finer "
+                f"re-check (exact contact test) {cost}"
+            )
             status = Status.FAILED
         else:
-            message = (
-                f"no path to {label}: {res.note} within {self.settings.max_solve_checks} "
-                "checks per Solve call"
-            )
+            message = f"no path to {label}: {res.note} {cost}"
             status = Status.FAILED
         options = {
             "repair": self.settings.repair,
@@ -366,7 +367,8 @@ class ExperiencePlanner:
         arr = units.check_configurations(q, self.world.robot.axis_names, name)
         if arr.shape[0] != 1:
             raise ArgumentError(f"expected one configuration, got {arr.shape[0]}", name)
-        out = np.asarray(arr[0], dtype=float)
+        # a periodic joint's angle is a point on the circle: 3.5 rad is -2.78 rad
+        out = np.asarray(self.world.robot.wrap(arr[0]), dtype=float)
         self._check_free(out, name)
         return out
 

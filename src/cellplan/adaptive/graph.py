@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cellplan.adaptive.space import FloatArray
+from cellplan.geometry import wrap_angle
 
 UNKNOWN = "unknown"
 FREE = "free"
@@ -56,6 +57,8 @@ class ExperienceGraph:
     vertices: dict[int, Vertex] = field(default_factory=dict)
     edges: dict[tuple[int, int], Edge] = field(default_factory=dict)
     next_id: int = 0
+    periodic: tuple[bool, ...] = ()
+    """Which coordinates wrap round (distances take the short way there); empty: none."""
     _adj: dict[int, set[int]] = field(default_factory=dict)
     _cache: tuple[list[int], FloatArray] | None = None
 
@@ -142,12 +145,20 @@ class ExperienceGraph:
             self._cache = (ids, Q)
         return self._cache
 
+    def difference(self, a: FloatArray, B: FloatArray) -> FloatArray:
+        """``B - a``, the short way round on periodic coordinates."""
+        D = np.asarray(B, dtype=float) - np.asarray(a, dtype=float)
+        if any(self.periodic):
+            mask = np.array(self.periodic, dtype=bool)
+            D[..., mask] = wrap_angle(D[..., mask])
+        return D
+
     def by_heuristic(self, q: FloatArray) -> list[int]:
         """Vertex ids nearest to ``q`` first: the heuristic h = h1 of Section 3."""
         ids, Q = self.arrays()
         if not ids:
             return []
-        d = np.linalg.norm(Q - np.asarray(q, dtype=float), axis=1)
+        d = np.linalg.norm(self.difference(np.asarray(q, dtype=float), Q), axis=1)
         return [ids[k] for k in np.argsort(d, kind="stable")]
 
     def component(self, vid: int) -> set[int]:
@@ -184,7 +195,7 @@ class ExperienceGraph:
                 continue
             qv = self.vertices[v].q
             for n in self._adj[v]:
-                nd = d + float(np.linalg.norm(self.vertices[n].q - qv))
+                nd = d + float(np.linalg.norm(self.difference(qv, self.vertices[n].q)))
                 if nd < dist.get(n, np.inf):
                     dist[n] = nd
                     prev[n] = v
@@ -198,7 +209,7 @@ class ExperienceGraph:
 
     def copy(self) -> ExperienceGraph:
         """A deep copy (vertices, edges and adjacency)."""
-        g = ExperienceGraph(next_id=self.next_id)
+        g = ExperienceGraph(next_id=self.next_id, periodic=self.periodic)
         for v in self.vertices.values():
             g.add_vertex(v.q, v.obj, v.rel, v.branch, vid=v.id)
         for (a, b), e in self.edges.items():

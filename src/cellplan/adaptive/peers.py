@@ -22,7 +22,7 @@ from cellplan.adaptive.runner import (
     settings_for,
     task_count,
 )
-from cellplan.adaptive.solve import PRMSession, solve_rrtconnect
+from cellplan.adaptive.solve import PRMSession, SolveInfo, solve_rrtconnect
 from cellplan.adaptive.space import PlanSpace
 from cellplan.adaptive.world import World, preflight
 from cellplan.core import Progress
@@ -53,7 +53,12 @@ def run_peer(
     world = World(scenario, settings.resolution)
     counter = CheckCounter()
     space = PlanSpace(
-        world.is_free, world.robot.lower, world.robot.upper, settings.resolution, counter
+        world.is_free,
+        world.robot.lower,
+        world.robot.upper,
+        settings.resolution,
+        counter,
+        tuple(world.robot.periodic),
     )
     changes = sec.ordered_changes()
     u = np.asarray(world.robot.start, float)
@@ -75,18 +80,27 @@ def run_peer(
             assert w is not None
             before = counter.total
             u_before = u.copy()
+            info = SolveInfo()
             if peer == "prm":
                 if prm is None:
                     prm = PRMSession(space, derive_seed(settings.seed, t, 77))
                 path = prm.query(u, w)
+                note = "" if path is not None else "PRM found no path within its time limit"
             else:
                 path = solve_rrtconnect(
-                    space, u, w, derive_seed(settings.seed, t, 1_000_003), settings.max_solve_checks
+                    space,
+                    u,
+                    w,
+                    derive_seed(settings.seed, t, 1_000_003),
+                    settings.max_solve_checks,
+                    info=info,
                 )
+                note = "" if path is not None else _why(info, settings.max_solve_checks)
             if path is not None:
                 u, current = w, goal
+                path = space.unwrap(path)
             if paths is not None:
-                res = TaskResult(goal, path is not None, path=path)
+                res = TaskResult(goal, path is not None, path=path, note=note)
                 paths.append(TaskPath(t + 1, goal, u_before, res, changed))
             if progress is not None:
                 progress(t + 1, n, goal)
@@ -101,3 +115,12 @@ def run_peer(
         if prm is not None:
             prm.close()
     return rows
+
+
+def _why(info: SolveInfo, budget: int) -> str:
+    """Why a Solve call failed, in words."""
+    if info.outcome == "endpoint":
+        return "an end of the task is in collision"
+    if info.outcome == "time":
+        return f"Solve stopped at its wall-time guard after {info.checks} checks"
+    return f"Solve found no path within its budget of {budget} checks"

@@ -75,11 +75,15 @@ def run_adaptive_planner(
     setup: Setup, options: AdaptiveOptions, progress: Progress | None = None
 ) -> Result:
     """Adapt over the scenario's tasks (see the module docstring)."""
-    from cellplan.adaptive.runner import cumulative_ratio, run_adaptive, task_count
+    from cellplan.adaptive.runner import cumulative_ratio, run_adaptive, settings_for, task_count
     from cellplan.adaptive.store import ExperienceStore
+    from cellplan.adaptive.world import preflight
 
     sc = setup.scenario
     n_tasks = task_count(sc, options.tasks)
+    # Every check first: a scenario that fails them must not leave a database file
+    # behind (it would then refuse the corrected scenario).
+    preflight(sc, settings_for(sc, options.repair, options.seed).resolution)
     store = ExperienceStore(options.db, sc) if options.db is not None else None
 
     def on_task(done: int, total: int, row: dict[str, Any]) -> None:
@@ -104,6 +108,7 @@ def run_adaptive_planner(
             options.baseline,
             on_task,
             snapshot_at=snapshot_at,
+            checked=True,
         )
     finally:
         if store is not None:
@@ -130,13 +135,17 @@ def run_adaptive_planner(
         stats["solve_only_checks"] = float(sum(float(r["baseline"]) for r in rows))
         if stats["solve_only_checks"] > 0:
             stats["ratio"] = float(cumulative_ratio(rows)[-1])
+    stats["s_fallbacks"] = float(sum(int(r.get("s_fallbacks") or 0) for r in rows))
     failed = [(int(r["task"]), str(r["goal"])) for r in rows if not (r["success"] and r["path_ok"])]
     gc.collect()
     ratio = f", cumulative cost ratio {stats['ratio']:.3f}" if "ratio" in stats else ""
     if failed:
+        first = next(r for r in rows if not (r["success"] and r["path_ok"]))
+        why = str(first.get("note") or "no reason recorded (a database from before reasons)")
         return Result(
             Status.FAILED,
-            f"{len(failed)} of {len(rows)} tasks failed: {_task_list(failed)}",
+            f"{len(failed)} of {len(rows)} tasks failed: {_task_list(failed)}; "
+            f"task {int(first['task'])}: {why}",
             stats=stats,
             solution=planner,
             trajectory=traj,
@@ -171,9 +180,11 @@ def _run_peer(setup: Setup, options: PeerOptions, progress: Progress | None, pee
         (int(r["task"]), p.goal) for r, p in zip(rows, paths, strict=True) if not r["success"]
     ]
     if failed:
+        why = next(p.result.note for r, p in zip(rows, paths, strict=True) if not r["success"])
         return Result(
             Status.FAILED,
-            f"{len(failed)} of {len(rows)} tasks failed: {_task_list(failed)}",
+            f"{len(failed)} of {len(rows)} tasks failed: {_task_list(failed)}; "
+            f"task {failed[0][0]}: {why}",
             stats=stats,
             solution=rows,
             trajectory=traj,

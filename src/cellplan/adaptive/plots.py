@@ -27,8 +27,9 @@ STRATEGY_COLORS = {
 
 
 def _tool_trace(cell: Workcell, qa: np.ndarray, qb: np.ndarray, samples: int = 16) -> np.ndarray:
+    # the robot's difference: periodic joints go the short way round, as Reach does
     t = np.linspace(0.0, 1.0, samples)[:, None]
-    return cell.robot.tool_pose(qa + t * (qb - qa))[:, :2]
+    return cell.robot.tool_pose(cell.robot.wrap(qa + t * cell.robot.difference(qa, qb)))[:, :2]
 
 
 def draw_graph(ax: Any, snap: Snapshot, title: str = "") -> None:

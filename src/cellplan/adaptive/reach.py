@@ -3,10 +3,11 @@
 ``reach(space, a, b)`` succeeds iff every configuration of the straight segment
 ``ab`` discretised at ``space.resolution`` is free: the segment is cut into
 ``n = ceil(|b - a| / resolution)`` equal steps and its ``n + 1`` points are
-checked. The points are tested in bisection order (both ends, the middle, the
-quarter points, ...), one batch per level, so a blocked segment usually fails
-after a few checks. The predicate depends only on the unordered pair, so Reach
-is symmetric as the paper requires.
+checked. On a periodic coordinate the segment takes the short way round
+(:meth:`~.space.PlanSpace.difference`). The points are tested in bisection order
+(both ends, the middle, the quarter points, ...), one batch per level, so a
+blocked segment usually fails after a few checks. The predicate depends only on
+the unordered pair, so Reach is symmetric as the paper requires.
 
 ``reach_potential`` is the potential-field hill-climbing variant: greedy steps
 down the attractive potential ``|q - goal|`` among the free neighbours on a
@@ -55,29 +56,38 @@ def bisection_levels(n: int) -> tuple[NDArray[np.intp], ...]:
     return tuple(levels)
 
 
-def segment_steps(a: FloatArray, b: FloatArray, resolution: float) -> int:
-    """Number of steps ``n`` of the discretised segment ``ab`` (at least 1 unless a == b)."""
-    length = float(np.linalg.norm(np.asarray(b, dtype=float) - np.asarray(a, dtype=float)))
+def segment_steps(
+    a: FloatArray, b: FloatArray, resolution: float, space: PlanSpace | None = None
+) -> int:
+    """Number of steps ``n`` of the discretised segment ``ab`` (at least 1 unless a == b);
+    with ``space``, periodic coordinates take the short way round."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    gap = b - a if space is None else space.difference(a, b)
+    length = float(np.linalg.norm(gap))
     return int(math.ceil(length / resolution - 1e-9)) if length > 0 else 0
 
 
-def segment_points(a: FloatArray, b: FloatArray, resolution: float) -> FloatArray:
-    """The ``n + 1`` configurations of the discretised segment ``ab``, in order from ``a``."""
+def segment_points(
+    a: FloatArray, b: FloatArray, resolution: float, space: PlanSpace | None = None
+) -> FloatArray:
+    """The ``n + 1`` configurations of the discretised segment ``ab``, in order from ``a``
+    (with ``space``: the short way round on periodic coordinates, not wrapped)."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
-    n = segment_steps(a, b, resolution)
+    n = segment_steps(a, b, resolution, space)
     if n == 0:
         return a[None, :].copy()
     t = np.arange(n + 1, dtype=float) / n
-    return a + t[:, None] * (b - a)
+    return a + t[:, None] * (b - a if space is None else space.difference(a, b))
 
 
 def reach(space: PlanSpace, a: FloatArray, b: FloatArray) -> bool:
     """Reach(a, b): is the straight segment free at ``space.resolution``? (counted)."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
-    n = segment_steps(a, b, space.resolution)
-    direction = b - a
+    n = segment_steps(a, b, space.resolution, space)
+    direction = space.difference(a, b)
     for idx in bisection_levels(n):
         t = idx / n if n else np.zeros(1)
         if not np.all(space.free(a + t[:, None] * direction)):
@@ -86,12 +96,13 @@ def reach(space: PlanSpace, a: FloatArray, b: FloatArray) -> bool:
 
 
 def path_is_free(space: PlanSpace, path: FloatArray, refine: int = 4) -> bool:
-    """Uncounted re-check of a polyline at ``resolution / refine`` (for executed paths)."""
+    """Uncounted re-check of a polyline at ``resolution / refine`` (for executed paths;
+    each segment the short way round on periodic coordinates, as Reach went)."""
     path = np.atleast_2d(np.asarray(path, dtype=float))
     if path.shape[0] == 1:
         return bool(space.free_uncounted(path)[0])
     res = space.resolution / refine
-    pts = [segment_points(path[i], path[i + 1], res) for i in range(path.shape[0] - 1)]
+    pts = [segment_points(path[i], path[i + 1], res, space) for i in range(path.shape[0] - 1)]
     return bool(np.all(space.free_uncounted(np.concatenate(pts))))
 
 
@@ -120,16 +131,16 @@ def reach_potential(
     q = start.copy()
     path = [q.copy()]
     for _ in range(max_steps):
-        gap = goal - q
+        gap = space.difference(q, goal)
         dist = float(np.linalg.norm(gap))
         if dist <= step:
             if not space.free(goal[None, :])[0]:
                 return None
             path.append(goal.copy())
-            out = np.array(path)
+            out = space.wrap(np.array(path))
             return out[::-1] if flip else out
         cands = np.concatenate([(q + gap / dist * step)[None, :], q + axes])
-        pot = np.linalg.norm(goal - cands, axis=1)
+        pot = space.distance(goal, cands)
         order = np.argsort(pot, kind="stable")
         cands, pot = cands[order], pot[order]
         better = pot < dist - 1e-12

@@ -133,6 +133,7 @@ def run_adaptive(
     on_task: TaskCallback | None = None,
     hook: Hook | None = None,
     snapshot_at: Callable[[int], bool] | None = None,
+    checked: bool = False,
 ) -> RunOutcome:
     """Run Adapt over the scenario's tasks; see the module docstring.
 
@@ -145,11 +146,16 @@ def run_adaptive(
     snapshot_at
         ``snapshot_at(t)`` true: keep a copy of G (and the world's object poses)
         after task ``t`` in the outcome, for pictures.
+    checked
+        The caller has already run :func:`~.world.preflight` on the scenario (it
+        does so before creating the database file, so that a scenario that fails its
+        checks leaves no file behind).
     """
     sec = _section(scenario)
     settings = settings_for(scenario, repair_strategy, seed)
     n_tasks = task_count(scenario, tasks)
-    preflight(scenario, settings.resolution)
+    if not checked:
+        preflight(scenario, settings.resolution)
     planner = ExperiencePlanner(scenario, settings.repair, seed=settings.seed, hook=hook)
     world, adapter, counter = planner.world, planner.adapter, planner.counter
     changes = sec.ordered_changes()
@@ -345,6 +351,8 @@ def _row(t: int, res: TaskResult, base_cost: int, gen: int) -> Row:
         "edges": res.edges,
         "path_ok": int(res.path_ok),
         "generation": gen,
+        "s_fallbacks": res.s_fallbacks,
+        "note": res.note,
     }
 
 

@@ -1,12 +1,23 @@
 """Solve, the global planner (Section 2), and the point-robot toy Solve of Section 3.
 
 :func:`solve_rrtconnect` runs OMPL's RRTConnect on a ``RealVectorStateSpace``
-with the bounds of the :class:`~.space.PlanSpace`. Its validity checker is the
-counted ``space.free``, and OMPL's discrete motion validator is set to the same
-resolution as Reach (``longest valid segment = resolution``), so every segment
-of a returned path passes Reach. Seeding goes through ``ompl.util.RNG.setSeed``
-immediately before the planner is built, so a call repeats exactly for a given
-seed. The planner stops after ``max_checks`` checks (a deterministic budget).
+with the bounds of the :class:`~.space.PlanSpace`, or, when some coordinate is
+periodic, on a compound space with one ``SO2StateSpace`` per periodic coordinate
+and a one-dimensional real interval per other one (OMPL then interpolates and
+measures periodic coordinates the short way round, like Reach). Its validity
+checker is the counted ``space.free``, and OMPL's discrete motion validator is set
+to the same resolution as Reach (``longest valid segment = resolution``; on the
+compound space OMPL's distance is the sum over coordinates, never shorter than
+Reach's Euclidean one, so its steps are no longer). Seeding goes through
+``ompl.util.RNG.setSeed`` immediately before the planner is built, so a call
+repeats exactly for a given seed.
+
+Budget: the planner stops after ``max_checks`` collision checks, a deterministic,
+load-independent budget (the default, :data:`DEFAULT_MAX_CHECKS`); the wall-time
+limit ``max_seconds`` (:data:`TIME_GUARD_SECONDS`) is only a guard against a
+runaway call, far above what the check budget takes on a loaded machine, and a
+call it stops says so in its :class:`SolveInfo` (its result then depends on the
+machine's speed).
 
 :func:`solve_two_segment` is the paper's toy Solve: success iff the two points
 are joined by at most two straight segments; it returns the shortest such path
@@ -20,15 +31,31 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from cellplan.adaptive.reach import reach
 from cellplan.adaptive.space import FloatArray, PlanSpace
+from cellplan.geometry import wrap_angle
 
 DEFAULT_MAX_CHECKS = 200_000
+TIME_GUARD_SECONDS = 600.0
+"""Wall-time guard of one Solve call: 200,000 checks take 4-15 s on the 2-core
+development machine, loaded or not; the guard only stops a runaway call."""
 BEND_LATTICE = 40
+
+
+@dataclass
+class SolveInfo:
+    """How one Solve call ended: ``outcome`` is ``solved``, ``endpoint`` (an end is not
+    free), ``budget`` (``max_checks`` spent), ``time`` (the wall-time guard fired) or
+    ``no_path`` (the planner gave up); ``checks`` it made, ``seconds`` it took."""
+
+    outcome: str = "no_path"
+    checks: int = 0
+    seconds: float = 0.0
 
 
 def _ompl() -> tuple[Any, Any, Any]:
@@ -40,21 +67,51 @@ def _ompl() -> tuple[Any, Any, Any]:
     return ob, og, ou
 
 
+def _state_space(space: PlanSpace) -> Any:
+    """OMPL's state space for ``space``: real vectors, or SO2 x intervals if some axis wraps."""
+    ob, _, _ = _ompl()
+    dim = space.dim
+    if not space.any_periodic:
+        state_space = ob.RealVectorStateSpace(dim)
+        bounds = ob.RealVectorBounds(dim)
+        for i in range(dim):
+            bounds.setLow(i, float(space.lower[i]))
+            bounds.setHigh(i, float(space.upper[i]))
+        state_space.setBounds(bounds)
+        return state_space
+    state_space = ob.CompoundStateSpace()
+    for i, per in enumerate(space.periodic):
+        if per:
+            state_space.addSubspace(ob.SO2StateSpace(), 1.0)
+        else:
+            sub = ob.RealVectorStateSpace(1)
+            bounds = ob.RealVectorBounds(1)
+            bounds.setLow(float(space.lower[i]))
+            bounds.setHigh(float(space.upper[i]))
+            sub.setBounds(bounds)
+            state_space.addSubspace(sub, 1.0)
+    return state_space
+
+
+def _read_state(state: Any, periodic: tuple[bool, ...]) -> FloatArray:
+    """The floats of an OMPL state, copied out (the state object is OMPL's)."""
+    if not any(periodic):
+        return np.array([state[i] for i in range(len(periodic))], dtype=float)
+    return np.array(
+        [state[i].value if per else state[i][0] for i, per in enumerate(periodic)], dtype=float
+    )
+
+
 def _space_information(space: PlanSpace) -> tuple[Any, Any]:
     """OMPL space information over ``space`` with a counted validity checker."""
     ob, _, _ = _ompl()
-    dim = space.dim
-    state_space = ob.RealVectorStateSpace(dim)
-    bounds = ob.RealVectorBounds(dim)
-    for i in range(dim):
-        bounds.setLow(i, float(space.lower[i]))
-        bounds.setHigh(i, float(space.upper[i]))
-    state_space.setBounds(bounds)
+    state_space = _state_space(space)
     si = ob.SpaceInformation(state_space)
+    periodic = space.periodic
 
     def valid(state: Any) -> bool:
         # Copy the floats out at once: the state object is OMPL's and may be reused.
-        q = np.array([state[i] for i in range(dim)], dtype=float)
+        q = _read_state(state, periodic)
         return bool(space.free(q[None, :])[0])
 
     si.setStateValidityChecker(valid)
@@ -63,16 +120,21 @@ def _space_information(space: PlanSpace) -> tuple[Any, Any]:
     return si, state_space
 
 
-def _state(state_space: Any, q: FloatArray) -> Any:
+def _state(state_space: Any, q: FloatArray, periodic: tuple[bool, ...]) -> Any:
     st = state_space.allocState()
     for i, v in enumerate(q):
-        st[i] = float(v)
+        if not any(periodic):
+            st[i] = float(v)
+        elif periodic[i]:
+            st[i].value = float(wrap_angle(float(v)))
+        else:
+            st[i][0] = float(v)
     return st
 
 
-def _path_array(path: Any, dim: int) -> FloatArray:
+def _path_array(path: Any, periodic: tuple[bool, ...]) -> FloatArray:
     n = path.getStateCount()
-    return np.array([[path.getState(k)[i] for i in range(dim)] for k in range(n)], dtype=float)
+    return np.array([_read_state(path.getState(k), periodic) for k in range(n)], dtype=float)
 
 
 def solve_rrtconnect(
@@ -81,22 +143,30 @@ def solve_rrtconnect(
     b: FloatArray,
     seed: int,
     max_checks: int = DEFAULT_MAX_CHECKS,
-    max_seconds: float = 30.0,
+    max_seconds: float = TIME_GUARD_SECONDS,
     planner_range: float | None = None,
+    info: SolveInfo | None = None,
 ) -> FloatArray | None:
     """Solve(a, b) with OMPL RRTConnect: waypoints ``(m, dim)`` from ``a`` to ``b``, or ``None``.
 
     The endpoints are checked first (counted); a colliding endpoint fails at once.
+    The call stops after ``max_checks`` checks (the budget) or, as a guard only, after
+    ``max_seconds``; ``info``, if given, receives how it ended. On periodic coordinates
+    consecutive waypoints are joined the short way round (they are wrapped to (-pi, pi]).
     """
+    info = SolveInfo() if info is None else info
+    t0 = time.perf_counter()
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     if not np.all(space.free(np.stack([a, b]))):
+        info.outcome, info.checks = "endpoint", 2
         return None
     ob, og, ou = _ompl()
     ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)
     si, state_space = _space_information(space)
+    periodic = space.periodic
     pdef = ob.ProblemDefinition(si)
-    pdef.setStartAndGoalStates(_state(state_space, a), _state(state_space, b))
+    pdef.setStartAndGoalStates(_state(state_space, a, periodic), _state(state_space, b, periodic))
     planner = og.RRTConnect(si)
     if planner_range is not None:
         planner.setRange(planner_range)
@@ -105,14 +175,25 @@ def solve_rrtconnect(
     start_count = space.counter.total + space.counter.counts["baseline"]
     deadline = time.perf_counter() + max_seconds
 
+    def used() -> int:
+        return int(space.counter.total + space.counter.counts["baseline"] - start_count)
+
     def stop() -> bool:
-        used = space.counter.total + space.counter.counts["baseline"] - start_count
-        return used >= max_checks or time.perf_counter() > deadline
+        return used() >= max_checks or time.perf_counter() > deadline
 
     status = planner.solve(ob.PlannerTerminationCondition(stop))
+    info.checks = used() + 2
+    info.seconds = time.perf_counter() - t0
     if not pdef.hasExactSolution() or "Exact" not in str(status):
+        if used() >= max_checks:
+            info.outcome = "budget"
+        elif time.perf_counter() > deadline:
+            info.outcome = "time"
+        else:
+            info.outcome = "no_path"
         return None
-    path = _path_array(pdef.getSolutionPath(), space.dim)
+    info.outcome = "solved"
+    path = _path_array(pdef.getSolutionPath(), periodic)
     path[0], path[-1] = a, b
     return path
 
@@ -166,8 +247,11 @@ class PRMSession:
         b = np.asarray(b, dtype=float)
         if not np.all(self.space.free(np.stack([a, b]))):
             return None
+        periodic = self.space.periodic
         pdef = ob.ProblemDefinition(self._si)
-        pdef.setStartAndGoalStates(_state(self._state_space, a), _state(self._state_space, b))
+        pdef.setStartAndGoalStates(
+            _state(self._state_space, a, periodic), _state(self._state_space, b, periodic)
+        )
         self._pdef = pdef
         self._planner.clearQuery()
         self._planner.setProblemDefinition(pdef)
@@ -178,7 +262,7 @@ class PRMSession:
         self._planner.solve(ob.timedPlannerTerminationCondition(max_seconds))
         if not pdef.hasExactSolution():
             return None
-        path = _path_array(pdef.getSolutionPath(), self.space.dim)
+        path = _path_array(pdef.getSolutionPath(), periodic)
         path[0], path[-1] = a, b
         return path
 

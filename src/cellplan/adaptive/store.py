@@ -75,8 +75,13 @@ TASK_COLUMNS = (
     "edges",
     "path_ok",
     "generation",
+    "s_fallbacks",
+    "note",
 )
-_TEXT_COLUMNS = {"goal"}
+_TEXT_COLUMNS = {"goal", "note"}
+#: Task columns added after schema version 1 first shipped; an older file gains them
+#: (empty) when it is opened, so its rows read like new ones.
+_ADDED_COLUMNS = {"s_fallbacks": "REAL DEFAULT 0", "note": "TEXT DEFAULT ''"}
 
 _SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -192,6 +197,7 @@ class ExperienceStore:
                 self._create()
             else:
                 self._check_signature()
+                self._add_columns()
         except sqlite3.DatabaseError as exc:
             self.close()
             raise PersistenceError(
@@ -212,6 +218,14 @@ class ExperienceStore:
                 **self._sig,
             }
             self.conn.executemany("INSERT INTO meta VALUES (?, ?)", rows.items())
+
+    def _add_columns(self) -> None:
+        have = {r[1] for r in self.conn.execute("PRAGMA table_info(tasks)")}
+        missing = [c for c in _ADDED_COLUMNS if c not in have]
+        if missing:
+            with self.transaction():
+                for c in missing:
+                    self.conn.execute(f"ALTER TABLE tasks ADD COLUMN {c} {_ADDED_COLUMNS[c]}")
 
     def _check_foreign(self) -> None:
         tables = {
