@@ -1,8 +1,8 @@
 """Benchmark of the assembly package: log-space vs plain linear-space phi, time vs n.
 
 Run: ``.venv/bin/python benchmarks/bench_assembly.py`` (add ``--quick`` for a short run;
-``--only-eigh`` for section 4 alone). No environment variable is needed: the implicit step
-calls no BLAS (section 4).
+``--only-eigh`` for section 4 alone). No environment variable is needed: the flows limit
+the BLAS to one thread themselves (section 4).
 
 1. Where each formulation fails. For n discs (random legal starts; a hexagonal goal
    cluster up to 15 discs, random legal goals beyond), the same RK4 gradient-flow
@@ -71,8 +71,9 @@ def k_for(n: int) -> float:
 def problem_for(n: int, seed: int) -> DiscProblem:
     """Hexagonal goal cluster (gap 0.1) up to 15 discs; random legal goals beyond."""
     pattern: Literal["hex", "random"] = "hex" if n <= 15 else "random"
-    return generate_problem(GeneratorSpec(n=n, seed=seed, gap=0.1, pattern=pattern),
-                            default_workspace(n))
+    return generate_problem(
+        GeneratorSpec(n=n, seed=seed, gap=0.1, pattern=pattern), default_workspace(n)
+    )
 
 
 def representable(log_value: float) -> str:
@@ -99,11 +100,13 @@ def compare(n: int, seed: int, max_steps: int) -> None:
     imp_res = gradient_flow(p, k, settings=FlowSettings(max_steps=max_steps))
     t_imp = time.perf_counter() - t0
     straight = float(np.linalg.norm(p.start - p.goal))
-    print(f"{n:>3} {k:>5g} {representable(pairs + bnd):>9} {representable(k * ev.log_gamma):>9}"
-          f" {log_res.status.value:>16} {log_res.length() / straight:6.3f} {t_log:7.2f}"
-          f" {lin_res.status.value:>16} {lin_res.reason[:18]:>18} {t_lin:7.2f}"
-          f" {t_lin / t_log:6.2f} | {imp_res.status.value:>8} {imp_res.length() / straight:6.3f}"
-          f" {t_imp:6.2f}")
+    print(
+        f"{n:>3} {k:>5g} {representable(pairs + bnd):>9} {representable(k * ev.log_gamma):>9}"
+        f" {log_res.status.value:>16} {log_res.length() / straight:6.3f} {t_log:7.2f}"
+        f" {lin_res.status.value:>16} {lin_res.reason[:18]:>18} {t_lin:7.2f}"
+        f" {t_lin / t_log:6.2f} | {imp_res.status.value:>8} {imp_res.length() / straight:6.3f}"
+        f" {t_imp:6.2f}"
+    )
 
 
 def eval_cost(n: int, reps: int) -> None:
@@ -123,8 +126,9 @@ def eval_cost(n: int, reps: int) -> None:
 def fifteen(seeds: int, ks: tuple[float, ...], baseline_k: float) -> None:
     """Time per 15-disc run; the RK4 integrator (20,000-step budget) as the baseline."""
 
-    def sweep(k: float, settings: FlowSettings, escapes: int
-              ) -> tuple[np.ndarray, list[float], int, list[float]]:
+    def sweep(
+        k: float, settings: FlowSettings, escapes: int
+    ) -> tuple[np.ndarray, list[float], int, list[float]]:
         times, ratios, ok, at_k = [], [], 0, []
         for seed in range(seeds):
             p = problem_for(15, seed)
@@ -142,19 +146,25 @@ def fifteen(seeds: int, ks: tuple[float, ...], baseline_k: float) -> None:
     for k in ks:
         t, r, ok, at_k = sweep(k, FlowSettings(max_steps=20000), ESCAPES)
         results[k] = t
-        print(f"15 discs, k={k:g}, implicit: {len(at_k)}/{seeds} solved at k, {ok}/{seeds} "
-              f"with k lowered when stuck; s/run mean {t.mean():.3f}, median "
-              f"{np.median(t):.3f}, max {t.max():.3f}; ratio (all solved) "
-              f"{np.mean(r) if r else float('nan'):.3f}, (solved at k) "
-              f"{np.mean(at_k) if at_k else float('nan'):.3f}")
+        print(
+            f"15 discs, k={k:g}, implicit: {len(at_k)}/{seeds} solved at k, {ok}/{seeds} "
+            f"with k lowered when stuck; s/run mean {t.mean():.3f}, median "
+            f"{np.median(t):.3f}, max {t.max():.3f}; ratio (all solved) "
+            f"{np.mean(r) if r else float('nan'):.3f}, (solved at k) "
+            f"{np.mean(at_k) if at_k else float('nan'):.3f}"
+        )
     t, r, ok, _ = sweep(baseline_k, FlowSettings(max_steps=20000, method="rk4"), 0)
-    print(f"15 discs, k={baseline_k:g}, RK4 baseline: {ok}/{seeds} solved, s/run mean "
-          f"{t.mean():.3f}, median {np.median(t):.3f}, max {t.max():.3f}; ratio (solved) "
-          f"{np.mean(r) if r else float('nan'):.3f}")
+    print(
+        f"15 discs, k={baseline_k:g}, RK4 baseline: {ok}/{seeds} solved, s/run mean "
+        f"{t.mean():.3f}, median {np.median(t):.3f}, max {t.max():.3f}; ratio (solved) "
+        f"{np.mean(r) if r else float('nan'):.3f}"
+    )
     if baseline_k in results:
-        print(f"   mean time RK4 / implicit at k={baseline_k:g}: "
-              f"{t.mean() / results[baseline_k].mean():.1f}x; paper ~300 s per run "
-              f"(SPARCstation-1, not comparable)")
+        print(
+            f"   mean time RK4 / implicit at k={baseline_k:g}: "
+            f"{t.mean() / results[baseline_k].mean():.1f}x; paper ~300 s per run "
+            f"(SPARCstation-1, not comparable)"
+        )
 
 
 def per_call_ms(fn: Callable[[], object], reps: int) -> float:
@@ -192,8 +202,10 @@ def eigh_cost(m: int, reps: int) -> None:
     with eigen.one_blas_thread():
         one = per_call_ms(lambda: np.linalg.eigh(hess), reps)
         step_new = per_call_ms(lambda: implicit_step(g, hess, 0.05), reps)
-    print(f"{m:>4} {old:9.4f} {one:9.4f} {threads:9.4f} {old / one:7.2f} |"
-          f" {step_old:9.4f} {step_new:9.4f} {step_old / step_new:7.2f}")
+    print(
+        f"{m:>4} {old:9.4f} {one:9.4f} {threads:9.4f} {old / one:7.2f} |"
+        f" {step_old:9.4f} {step_new:9.4f} {step_old / step_new:7.2f}"
+    )
 
 
 def flow_new_vs_old(n: int, max_steps: int) -> None:
@@ -210,21 +222,28 @@ def flow_new_vs_old(n: int, max_steps: int) -> None:
         old = gradient_flow(p, k, settings=settings)
         t_old = time.perf_counter() - t0
     straight = float(np.linalg.norm(p.start - p.goal))
-    gap = float(np.max(np.abs(new.path[-1] - old.path[-1]))) if len(new.path) == len(
-        old.path) else float("nan")
-    print(f"{n} discs, k={k:g}: LAPACK step {new.status.value} in {new.steps} steps, "
-          f"{t_new:.2f} s ({t_new / max(new.steps, 1) * 1e3:.2f} ms/step), ratio "
-          f"{new.length() / straight:.4f}; BLAS-free step {old.status.value} in {old.steps} "
-          f"steps, {t_old:.2f} s ({t_old / max(old.steps, 1) * 1e3:.2f} ms/step), ratio "
-          f"{old.length() / straight:.4f}; old/new time {t_old / t_new:.2f}x; "
-          f"end points differ by {gap:.1e}")
+    gap = (
+        float(np.max(np.abs(new.path[-1] - old.path[-1])))
+        if len(new.path) == len(old.path)
+        else float("nan")
+    )
+    print(
+        f"{n} discs, k={k:g}: LAPACK step {new.status.value} in {new.steps} steps, "
+        f"{t_new:.2f} s ({t_new / max(new.steps, 1) * 1e3:.2f} ms/step), ratio "
+        f"{new.length() / straight:.4f}; BLAS-free step {old.status.value} in {old.steps} "
+        f"steps, {t_old:.2f} s ({t_old / max(old.steps, 1) * 1e3:.2f} ms/step), ratio "
+        f"{old.length() / straight:.4f}; old/new time {t_old / t_new:.2f}x; "
+        f"end points differ by {gap:.1e}"
+    )
 
 
 def paths_new_vs_old(n: int, k: float, seeds: int) -> None:
     """The experiment ``assembly.ratio_vs_k`` (planner runs, escapes included) with both
     steps: the paths must agree to rounding."""
-    specs = [RunSpec("assembly.ratio_vs_k", {"algorithm": "gradient", "n": n, "k": k}, s)
-             for s in range(seeds)]
+    specs = [
+        RunSpec("assembly.ratio_vs_k", {"algorithm": "gradient", "n": n, "k": k}, s)
+        for s in range(seeds)
+    ]
     experiments.run(specs[0])  # compile outside the timing
     t0 = time.perf_counter()
     new = np.array([float(experiments.run(spec)["ratio"]) for spec in specs])
@@ -233,17 +252,20 @@ def paths_new_vs_old(n: int, k: float, seeds: int) -> None:
         t0 = time.perf_counter()
         old = np.array([float(experiments.run(spec)["ratio"]) for spec in specs])
         t_old = time.perf_counter() - t0
-    print(f"{n} discs, k={k:g}, seeds 0..{seeds - 1}: mean ratio LAPACK {new.mean():.6f}, "
-          f"BLAS-free {old.mean():.6f}; largest per-run difference "
-          f"{np.max(np.abs(new - old)):.1e}; time {t_new:.2f} s / {t_old:.2f} s "
-          f"(old/new {t_old / t_new:.2f}x)")
+    print(
+        f"{n} discs, k={k:g}, seeds 0..{seeds - 1}: mean ratio LAPACK {new.mean():.6f}, "
+        f"BLAS-free {old.mean():.6f}; largest per-run difference "
+        f"{np.max(np.abs(new - old)):.1e}; time {t_new:.2f} s / {t_old:.2f} s "
+        f"(old/new {t_old / t_new:.2f}x)"
+    )
 
 
 def eigh_section(quick: bool) -> None:
-    print("\n4. eigen-decomposition: LAPACK eigh on one BLAS thread against the BLAS-free"
-          " baseline (ms per call, median of 7 batches)")
-    print("rows  baseline  eigh-1thr  eigh-default  base/eigh |"
-          " step-base  step-eigh  base/eigh")
+    print(
+        "\n4. eigen-decomposition: LAPACK eigh on one BLAS thread against the BLAS-free"
+        " baseline (ms per call, median of 7 batches)"
+    )
+    print("rows  baseline  eigh-1thr  eigh-default  base/eigh | step-base  step-eigh  base/eigh")
     for m in (14, 30, 100):
         eigh_cost(m, 200 if m < 100 else 40)
     paths_new_vs_old(7, 96.0, 5 if quick else 25)
@@ -261,8 +283,10 @@ def main() -> None:
     sizes = (3, 7, 15) if args.quick else (3, 5, 7, 10, 15, 20, 30, 50)
     max_steps = 4000 if args.quick else 60000
     print("1. log-space vs linear-space phi along the same integrator (seed 0)")
-    print("  n     k  beta(b0)  gamma^k   log-space RK4  ratio  time_s   linear-space RK4"
-          "             reason  time_s lin/log | implicit  ratio time_s")
+    print(
+        "  n     k  beta(b0)  gamma^k   log-space RK4  ratio  time_s   linear-space RK4"
+        "             reason  time_s lin/log | implicit  ratio time_s"
+    )
     for n in sizes:
         compare(n, 0, max_steps)
     print("\n2. one gradient evaluation, microseconds (log / linear)")

@@ -144,3 +144,39 @@ def test_the_planner_reports_the_integrator_it_ran() -> None:
     assert implicit.stats["rk4"] == 0.0 and implicit.status is Status.SOLVED
     # the same paths up to the integrators' accuracy
     assert auto.stats["ratio"] == pytest.approx(implicit.stats["ratio"], rel=0.01)
+
+
+def test_when_the_place_rule_cannot_unpack_the_cluster_it_spreads_it_first(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A zero grasp budget from the stuck point stands in for a walled-in cluster (a
+    50-disc one cycles for 1,000 grasps); the discs are then spread by one straight
+    scaling move and placed from there."""
+    from cellplan.assembly import flows
+
+    monkeypatch.setattr(flows, "PLACE_GRASPS_PER_DISC", 0)
+    setup = generated_setup({"n": 8, "seed": 27, "gap": 0.01})
+    res = cellplan.plan(setup, "assembly.gradient", k=128.0)
+    problem = res.solution.problem
+    run = res.solution
+    assert res.status is Status.SOLVED
+    assert run.stages[0].reason == "spurious minimum"
+    assert run.stages[1].reason.startswith("place rule: ")
+    assert run.stages[2].reason == "place rule after spreading the cluster"
+    assert "after the cluster was spread the place rule finished in" in res.message
+    assert "the flow was stuck at a spurious minimum at k=128" in res.message
+    # the path: the flow to the stuck point, one spreading move, the place rule
+    steps = int(res.stats["steps"])
+    stuck, spread = run.path[steps], run.path[steps + 1]
+    np.testing.assert_array_equal(stuck, run.stuck_at)
+    centre = problem.goal.mean(axis=0)
+    f = np.linalg.norm(spread - centre, axis=1) / np.linalg.norm(stuck - centre, axis=1)
+    np.testing.assert_allclose(f, f[0])
+    assert f[0] > 1.0
+    # along the move every gap grows (checked at intermediate points) and stays legal
+    for t in np.linspace(0.0, 1.0, 11):
+        gaps, bgap = clearances(stuck + t * (spread - stuck), problem.radii, problem.workspace)
+        assert np.all(bgap > 0)
+        assert np.all(gaps >= clearances(stuck, problem.radii, problem.workspace)[0] - 1e-12)
+    np.testing.assert_allclose(run.end, problem.goal, atol=1e-9)
+    assert [e.kind for e in res.trajectory.events[:2]] == ["escape", "spread"]

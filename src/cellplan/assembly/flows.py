@@ -26,16 +26,17 @@ Outcomes: ``solved`` (goal tolerance reached), ``stuck`` (a critical point other
 the goal, classified ``spurious minimum`` or ``saddle`` by the Hessian, or no progress,
 or a collapsed step), ``budget_exhausted`` (step budget spent).
 
-Escaping spurious minima by lowering k (:func:`gradient_flow`, ``escapes > 0``). Section
-3.2: the design parameter k "will be adjusted ... to eliminate local minima". A run that
-ends ``stuck`` at k continues from where it stopped along ``-grad phi`` of the same
-construction with ``k * escape_factor`` (default 1/2), as often as ``escapes`` allows.
-The stuck points we see are true minima of phi at that k (positive definite Hessian:
-two discs of a packed cluster on each other's goals; perturbed points flow back), so
-no perturbation can leave them, while phi at a smaller k (stronger repulsion relative
-to the attraction) is in general not critical there. Every stage is the
-paper's gradient algorithm with one k; :attr:`FlowResult.stages` records each stage's
-k and outcome, so a caller reports whether the first k alone solved the problem.
+Escaping spurious minima (:func:`gradient_flow`, ``escapes > 0``). The stuck points we
+see are true minima of phi at that k (positive definite Hessian: two discs of a packed
+cluster on each other's goals; perturbed points flow back), so no perturbation leaves
+them. ``escape="halve-k"`` (Section 3.2: k "will be adjusted ... to eliminate local
+minima"): the run continues from where it stopped with ``k * escape_factor``, as often
+as ``escapes`` allows; every stage is the paper's gradient algorithm with one k and
+:attr:`FlowResult.stages` records each. On packed clusters of 12 or more discs this
+spreads the discs instead of assembling them (issue 13). ``escape="place"`` (the
+planner's default): the place rule of :mod:`cellplan.assembly.sequential` finishes from
+the stuck point, or, when it cannot unpack the cluster, after one collision-free
+spreading move (:func:`expand_cluster`); docs/assembly.md, "Escaping spurious minima".
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellplan.assembly.eigen import eigvalsh, one_blas_thread, shift_for_length
+from cellplan.assembly.layout import legality_problems
 from cellplan.assembly.navigation import NavEval, clearances, evaluate, hessian_log_w, log_w
 from cellplan.assembly.problems import DiscProblem
 from cellplan.core import Status
@@ -149,6 +151,8 @@ class FlowResult:
     problem: DiscProblem | None = None  # set by gradient_flow (the planners' solution)
     #: the place rule's run that finished a stuck flow (``escape="place"``), else None
     placement: SequentialResult | None = None
+    #: where the flow was stuck when the place rule took over (``escape="place"``)
+    stuck_at: Array | None = None
 
     @property
     def escapes(self) -> int:
@@ -161,7 +165,7 @@ class FlowResult:
 
     def length(self) -> float:
         """Path length in R^2n (Section 5.1)."""
-        seg = np.diff(self.path, axis=0).reshape(len(self.path) - 1, -1)
+        seg = np.diff(self.path, axis=0).reshape(len(self.path) - 1, self.path[0].size)
         return float(np.sum(np.linalg.norm(seg, axis=1)))
 
     def disc_lengths(self) -> Array:
@@ -621,8 +625,15 @@ def gradient_flow(
     )
 
 
-#: The stage name of the place rule in :attr:`FlowResult.stages`.
+#: The stage names of the place rule in :attr:`FlowResult.stages`: from the stuck point,
+#: and (when that fails) after the cluster was spread (:func:`expand_cluster`).
 PLACE_STAGE = "place rule"
+PLACE_SPREAD = "place rule after spreading the cluster"
+#: Grasp budget of the place rule from a stuck point, per disc. On the fitting grid and
+#: the reporting sets up to 50 discs a successful escape took at most 1.65 grasps per
+#: disc; where the place rule cannot unpack a stuck cluster it cycles (1,000 grasps and
+#: 40 s on a 50-disc cluster), so it is cut short and the fallback runs.
+PLACE_GRASPS_PER_DISC = 3
 
 
 def _place_escape(
@@ -634,39 +645,87 @@ def _place_escape(
     tol: float,
     settings: FlowSettings,
 ) -> FlowResult:
-    """Finish a stuck flow with the place rule from where it stopped.
+    """Finish a stuck flow with the place rule, from where it stopped or from the start.
 
     The flow's spurious minima are packed clusters with two or three discs on each
     other's goals (docs/assembly.md); the place rule moves one disc at a time along a
     checked route onto its goal (parking a blocker on a circle round the pattern), so
-    it leaves any such configuration and ends exactly on the goal. The flow's path and
-    the place rule's rows (one disc moving between rows) make one path.
+    it leaves such a configuration and ends exactly on the goal; the flow's path and the
+    place rule's rows (one disc moving between rows) make one path. A disc walled in
+    by its packed neighbours cannot be parked, though: when the place rule from the
+    stuck point has not finished within ``PLACE_GRASPS_PER_DISC * n`` grasps, its
+    partial run is dropped, the stuck configuration is spread by one straight,
+    collision-free scaling about the goals' centroid (:func:`expand_cluster`), and the
+    place rule runs from there (its own budget of 20 n grasps); the stages record both
+    attempts.
     """
     from cellplan.assembly.sequential import sequential_assembly
 
-    place = sequential_assembly(
-        problem.with_start(stuck.end),
-        k,
-        "place",
-        epsilon=epsilon,
-        tol=max(tol, 1e-12),
-        settings=settings,
-    )
-    reason = PLACE_STAGE if place.status is Status.SOLVED else place.reason or PLACE_STAGE
-    stages.append(Stage(k, place.status, reason, place.switches))
+    def place(start: Array, budget: int | None) -> SequentialResult:
+        return sequential_assembly(
+            problem.with_start(start),
+            k,
+            "place",
+            epsilon=epsilon,
+            tol=max(tol, 1e-12),
+            settings=settings,
+            max_switches=budget,
+        )
+
+    run = place(stuck.end, PLACE_GRASPS_PER_DISC * problem.n)
+    stages.append(Stage(k, run.status, _place_reason(run, PLACE_STAGE), run.switches))
+    head, evals = stuck.path, stuck.evaluations + run.evaluations
+    if run.status is not Status.SOLVED:
+        # drop the place rule's partial run; spread the cluster (all discs together,
+        # straight), then place from there
+        spread = expand_cluster(stuck.end, problem)
+        head = np.concatenate([stuck.path, spread[None]])
+        run = place(spread, None)  # the place rule's own budget (20 n grasps)
+        evals += run.evaluations
+        stages.append(Stage(k, run.status, _place_reason(run, PLACE_SPREAD), run.switches))
+    gaps, bgap = clearances(head[-1], problem.radii, problem.workspace)
+    clear = min(stuck.min_clearance, float(np.min(gaps)), float(np.min(bgap)))
     return FlowResult(
-        place.status,
-        np.concatenate([stuck.path, place.path[1:]]),
+        run.status,
+        np.concatenate([head, run.path[1:]]),
         stuck.steps,
-        stuck.evaluations + place.evaluations,
-        min(stuck.min_clearance, place.min_clearance),
+        evals,
+        min(clear, run.min_clearance),
         stuck.log_time,
-        reason,
+        stages[-1].reason,
         stuck.log_w,
         stages,
         problem,
-        place,
+        run,
+        stuck.end.copy(),
     )
+
+
+#: Largest factor by which :func:`expand_cluster` scales the configuration.
+SPREAD_FACTOR = 2.5
+
+
+def expand_cluster(b: Array, problem: DiscProblem) -> Array:
+    """The configuration scaled by a factor ``f > 1`` about the goals' centroid.
+
+    Along the straight motion ``b -> c + f (b - c)`` every pairwise centre distance grows
+    in proportion (``(1 + t (f - 1)) ||b_i - b_j||``), so no gap shrinks, and each disc's
+    legal centres form a convex set (the workspace shrunk by its radius), so a move
+    whose end points are legal stays legal. ``f`` is the largest of ``SPREAD_FACTOR``,
+    then smaller factors down to 1.1, whose end point lies inside the workspace; with
+    ``f = 2.5`` neighbours of a packed cluster get gaps of at least 3 radii, room for the
+    place rule's routes. Returns ``b`` itself when no factor fits.
+    """
+    centre = problem.goal.mean(axis=0)
+    for f in np.linspace(SPREAD_FACTOR, 1.1, 15):
+        target = centre + f * (b - centre)
+        if not legality_problems(target, problem.radii, problem.workspace):
+            return target
+    return b.copy()
+
+
+def _place_reason(run: SequentialResult, name: str) -> str:
+    return name if run.status is Status.SOLVED else f"{name}: {run.reason or run.status.value}"
 
 
 def _gradient_stage(

@@ -49,7 +49,7 @@ from cellplan.trajectory import Event, Trajectory
 
 if TYPE_CHECKING:
     from cellplan.assembly.control import ControlResult
-    from cellplan.assembly.flows import Stage
+    from cellplan.assembly.flows import FlowResult, Stage
     from cellplan.assembly.problems import DiscProblem
     from cellplan.assembly.section import DiscsSection
     from cellplan.assembly.sequential import SequentialResult
@@ -201,7 +201,7 @@ def run_gradient(
         "steps": float(res.steps),
         "evaluations": float(res.evaluations),
         "log10_flow_time": float(res.log_time / np.log(10.0)) if np.isfinite(res.log_time) else 0.0,
-        "stuck_error": float(np.linalg.norm(res.path[res.steps] - problem.goal))
+        "stuck_error": float(np.linalg.norm(_stuck_point(res) - problem.goal))
         if res.escapes
         else 0.0,
         "final_error": float(np.linalg.norm(res.end - problem.goal)),
@@ -338,19 +338,36 @@ def _flow_message(
     return f"{head}; {stats['final_error']:.3g} from the goal after {int(stats[unit])} {unit}"
 
 
+def _stuck_point(res: FlowResult) -> Array:
+    """Where the last flow stage stopped before an escape."""
+    if res.stuck_at is not None:
+        return res.stuck_at
+    return res.path[sum(s.steps for s in res.stages[:-1])]
+
+
 def _place_message(status: Status, stages: Sequence[Stage], stats: dict[str, float]) -> str:
-    """One line for a flow finished (or not) by the place rule."""
-    flow, place = stages[0], stages[-1]
+    """One line for a flow finished (or not) by the place rule (from the stuck point, or
+    after that failed, from the start)."""
+    flow, place = stages[0], stages[1]
     quality = f"ratio {stats['ratio']:.3f}, min clearance {stats['min_clearance']:.3g}"
     why = (
         f"the flow was stuck {_where(flow.reason, flow.k)} {stats['stuck_error']:.3g} from "
-        f"the goal after {int(stats['steps'])} steps"
+        f"the goal after {flow.steps} steps"
     )
-    if status is Status.SOLVED:
+    if len(stages) == 2 and status is Status.SOLVED:
         return f"assembled: {quality}; {why}, the place rule finished in {place.steps} grasps"
+    failed = f"the place rule from there stopped after {place.steps} grasps ({place.reason})"
+    if len(stages) == 2:
+        return f"{why}; {failed}, {stats['final_error']:.3g} from the goal"
+    last = stages[2]
+    if status is Status.SOLVED:
+        return (
+            f"assembled: {quality}; {why}, {failed}; after the cluster was spread the place "
+            f"rule finished in {last.steps} grasps"
+        )
     return (
-        f"{why}; the place rule then stopped ({place.reason}) after {place.steps} grasps, "
-        f"{stats['final_error']:.3g} from the goal"
+        f"{why}; {failed}; after the cluster was spread the place rule stopped too after "
+        f"{last.steps} grasps ({last.reason}), {stats['final_error']:.3g} from the goal"
     )
 
 
@@ -448,12 +465,15 @@ def _placed_trajectory(
     path: Array, flow_steps: int, place: SequentialResult, meta: dict[str, Any]
 ) -> Trajectory:
     """A flow (rows ``0..flow_steps``, mode ``all discs``) finished by the place rule
-    (one disc moving per row: mode ``disc i``); events ``escape`` and ``grasp``."""
+    (one disc moving per row: mode ``disc i``), possibly after one spreading move of all
+    discs (mode ``all discs``); events ``escape``, ``spread`` and ``grasp``."""
     n = path.shape[1]
-    modes = ("all discs", *tuple(f"disc {i + 1}" for i in range(n)))
+    modes = ("all discs", *(f"disc {i + 1}" for i in range(n)))
     mode = np.zeros(len(path), dtype=np.int64)
     events = [Event(flow_steps, "escape", "place rule")]
-    row = flow_steps
+    row = len(path) - len(place.path)  # where the place rule's run starts
+    if row > flow_steps:
+        events.append(Event(flow_steps, "spread", "all discs scaled about the goals' centroid"))
     for g in place.grasps:
         events.append(Event(row, "grasp", f"disc {g.disc + 1}"))
         mode[row + 1 : row + len(g.path)] = g.disc + 1
