@@ -36,7 +36,8 @@ def _default(model: type[BaseModel], field: str) -> Any:
 # Help texts quote the defaults from their one source (module level: typer resolves the
 # annotations in this module's namespace).
 _ESCAPES_HELP = (
-    "gradient and paper rule: times k may be halved when stuck (0: k alone; default "
+    "halve-k escape and paper rule: times k may be halved when stuck (0: no escape, k "
+    "alone; default "
     f"{_default(SequentialOptions, 'escapes')})"
 )
 _ESCAPE_HELP = (

@@ -48,7 +48,8 @@ class FlowOptions(DiscOptions):
     )
     escapes: Escapes = Field(
         default=6,
-        description="times k may be halved after a stuck stage (Sec. 3.2); 0: k alone",
+        description="times k may be halved after a stuck stage (Sec. 3.2: escape halve-k, "
+        "paper rule); 0: no escape at all (k alone)",
     )
 
 
