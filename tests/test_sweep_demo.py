@@ -175,15 +175,12 @@ def test_showcase_runs_each_package_and_reports_failures(tmp_path):
     assert html.count('class="error"') == 1
 
 
-def test_quick_with_runs_is_refused(tmp_path):
-    from cellplan.cli import app
-
-    with pytest.raises(ArgumentError) as err:
-        app(
-            ["reproduce", "assembly", "--quick", "--runs", "5", "-o", str(tmp_path)],
-            standalone_mode=False,
-        )
-    assert [p.field for p in err.value.problems] == ["--runs"]
+def test_quick_honours_runs_in_every_experiment():
+    """``--quick --runs N`` runs N seeds per point in every package's quick version."""
+    for found in ex.discover():
+        for exp in found.experiments:
+            seeds = {spec.seed for spec in exp.make_runs(4, True)}
+            assert seeds == {0, 1, 2, 3}, exp.name
 
 
 def test_interrupt_is_one_line_with_the_cached_count(tmp_path, monkeypatch, capsys):

@@ -187,14 +187,6 @@ def register(app: typer.Typer) -> None:
             attempt(lambda: check_scheduler_address(scheduler))
             if serial:
                 problems.append(Problem("--serial", "--serial and --scheduler exclude each other"))
-        if quick and runs is not None:
-            problems.append(
-                Problem(
-                    "--runs",
-                    "--quick runs each experiment's small version with its own "
-                    "seeds; give --runs without --quick",
-                )
-            )
         if problems or papers is None:
             raise ArgumentError(problems)
         names = [n.strip() for n in (only or "").split(",") if n.strip()]

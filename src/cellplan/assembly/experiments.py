@@ -90,7 +90,7 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
 
 def _runs_ratio_vs_k(runs: int, quick: bool) -> list[RunSpec]:
     grid = {5: (16.0, 64.0)} if quick else K_BY_N
-    seeds = range(2 if quick else runs)
+    seeds = range(runs)
     return [
         RunSpec("assembly.ratio_vs_k", {"algorithm": "gradient", "n": n, "k": k}, s)
         for n, ks in grid.items()
@@ -102,7 +102,7 @@ def _runs_ratio_vs_k(runs: int, quick: bool) -> list[RunSpec]:
 def _runs_sensitivity(runs: int, quick: bool) -> list[RunSpec]:
     grid = {5: 64.0} if quick else K_SENS
     fills = (0.05, 0.0125) if quick else FILLS
-    seeds = range(2 if quick else runs)
+    seeds = range(runs)
     cells = [(f, START_GAPS[0]) for f in fills] + [(0.05, g) for g in START_GAPS[1:]]
     return [
         RunSpec(
@@ -118,7 +118,7 @@ def _runs_sensitivity(runs: int, quick: bool) -> list[RunSpec]:
 
 def _runs_ratio_vs_beta(runs: int, quick: bool) -> list[RunSpec]:
     betas, ks, n = ((-2.0, -16.0), (48.0,), 5) if quick else (BETAS, K_BETA, 7)
-    seeds = range(2 if quick else runs)
+    seeds = range(runs)
     return [
         RunSpec(
             "assembly.ratio_vs_beta", {"algorithm": "gradient", "n": n, "k": k, "log10_beta": b}, s
@@ -131,7 +131,7 @@ def _runs_ratio_vs_beta(runs: int, quick: bool) -> list[RunSpec]:
 
 def _runs_sequential(runs: int, quick: bool) -> list[RunSpec]:
     betas, ks, n = ((-2.0, -16.0), (32.0,), 3) if quick else (BETAS, K_BETA, 7)
-    seeds = range(2 if quick else runs)
+    seeds = range(runs)
     return [
         RunSpec(
             "assembly.sequential",
@@ -147,7 +147,7 @@ def _runs_sequential(runs: int, quick: bool) -> list[RunSpec]:
 
 def _runs_permutation(runs: int, quick: bool) -> list[RunSpec]:
     n, betas, k = (3, (-9.0,), 32.0) if quick else (7, (-16.0, -44.0), 64.0)
-    seeds = range(2 if quick else runs)
+    seeds = range(runs)
     specs: list[RunSpec] = []
     for b in betas:
         for starts in ("random", "permutation"):
