@@ -10,10 +10,10 @@ the ``do forever`` loop of Figure 1 for a goal:
    first ``v`` with Reach(v, w) becomes ``w_hat``;
 3. otherwise S(u, w): ``w_hat`` = the best vertex by h (the nearest one whose
    configuration is free now), Solve(w_hat, w), Abstract, Augment; ``w_hat``
-   becomes the last vertex of the chain. Solve from the best vertex gets a share of
-   the budget; if it fails (the vertex may sit in a pocket a change sealed), S tries
-   the robot's own vertex û and the next free vertices by h, up to
-   :data:`S_STARTS` starts sharing ``max_solve_checks`` (recorded per task);
+   becomes the last vertex of the chain. Solve runs in rounds of growing budget
+   from up to :data:`S_STARTS` starts (the best vertex, û, the next by h), so a best
+   vertex sealed in a pocket by a change costs a small bounded Solve before S plans
+   from the others; all of S stays within ``max_solve_checks`` (recorded per task);
 4. T(u, w) (Section 2.4, steps 1(a), 1(b), 2, 3), then Execute the path
    ``u, u_hat, Gamma, w_hat, w`` after corner cutting (Section 2.6); the path is
    re-checked, uncounted and without clearance, at a quarter of the resolution.
@@ -43,7 +43,10 @@ from cellplan.adaptive.world import Tag, World
 Hook = Callable[[str], None]
 
 S_STARTS = 4
-"""Start vertices S tries before it gives up; they share ``max_solve_checks``."""
+"""Start vertices S tries Solve from; they share ``max_solve_checks``."""
+S_FIRST_SHARE = 64
+"""S's first Solve call gets ``max_solve_checks / S_FIRST_SHARE`` checks (3,125 of the
+default 200,000; every Solve of the Figure 5 experiment needs at most 795)."""
 
 
 def derive_seed(*parts: int) -> int:
@@ -265,48 +268,57 @@ class Adapter:
     def plan_s(self, w: FloatArray) -> int | None:
         """S(u, w): Solve from the best free vertex by h, Abstract, Augment; the new w_hat.
 
-        Solve from the best vertex gets ``max_solve_checks / S_STARTS`` checks. If it
-        fails, S tries the next start (û, then free vertices by h), each with an equal
-        share of what is left, up to :data:`S_STARTS` starts; what is still left then
-        goes to one more call from the best vertex (a new seed). The calls of one S
-        never exceed ``max_solve_checks`` in all. The starts tried after the first are
+        Solve runs in rounds of growing budget: in round r each of up to
+        :data:`S_STARTS` starts (the best free vertex by h, then û, then the next
+        free vertices by h; :meth:`s_starts`) gets ``max_solve_checks / S_FIRST_SHARE
+        * 4**r`` checks, until one succeeds or S has spent ``max_solve_checks`` in all.
+        A best vertex sealed in a pocket by a change thus costs a small bounded Solve
+        before S plans from the others. The Solve calls after the first failed one are
         counted in :attr:`s_fallbacks`; :attr:`s_failure` says why S failed.
         """
         self.s_failure = ""
         total = self.settings.max_solve_checks
         left = total
+        share = max(1, total // S_FIRST_SHARE)
         path: FloatArray | None = None
         start: int | None = None
-        tried: list[int] = []
+        starts: list[int] = []
+        pending = self.s_starts(w)
         outcomes: list[str] = []
+        calls = 0
+        # the toy Solve is deterministic and unbudgeted: one round, each start once
+        toy = self.settings.solve == "two_segment"
         with self.counter.charge("solve"):
-            for k, v in enumerate(self.s_starts(w)):
-                if k >= S_STARTS:
+            while path is None and left > 0:
+                for k in range(S_STARTS):
+                    if k == len(starts):
+                        nxt = next(pending, None)
+                        if nxt is None:
+                            break
+                        starts.append(nxt)
+                    if calls:
+                        self.s_fallbacks += 1
+                    calls += 1
+                    path = self.solve(self.graph.vertices[starts[k]].q, w, min(share, left))
+                    outcomes.append(self.last_solve.outcome)
+                    left -= self.last_solve.checks
+                    if path is not None:
+                        start = starts[k]
+                        break
+                    if left <= 0:
+                        break
+                if toy or not starts:
                     break
-                share = left // (S_STARTS - k)
-                if k:
-                    self.s_fallbacks += 1
-                path = self.solve(self.graph.vertices[v].q, w, share)
-                tried.append(v)
-                outcomes.append(self.last_solve.outcome)
-                left -= self.last_solve.checks
-                if path is not None:
-                    start = v
-                    break
-            if not tried:
-                self.s_failure = "no vertex of G is free in the changed workcell"
-                return None
-            if path is None and left >= min(total, 1000) and self.settings.solve != "two_segment":
-                path = self.solve(self.graph.vertices[tried[0]].q, w, left)
-                outcomes.append(self.last_solve.outcome)
-                left -= self.last_solve.checks
-                start = tried[0] if path is not None else None
+                share *= 4
+        if not starts:
+            self.s_failure = "no vertex of G is free in the changed workcell"
+            return None
         if path is None or start is None:
             why = "wall-time guard" if "time" in outcomes else "check budget"
             self.s_failure = (
-                f"Solve found no path from {len(tried)} start vertex"
-                f"{'' if len(tried) == 1 else 'es'} of G within its {why} "
-                f"({total - left} of {total} checks)"
+                f"Solve found no path from {len(starts)} start vertex"
+                f"{'' if len(starts) == 1 else 'es'} of G in {calls} calls within its {why} "
+                f"({total - left} checks; budget {total})"
             )
             return None
         chain = self.abstract(path)
