@@ -112,7 +112,11 @@ class AdaptiveSection(StrictModel):
     )
     corner_cutting: bool = True
     max_chain: Annotated[int, Field(ge=1)] | None = None
-    max_solve_checks: Annotated[int, Field(ge=100)] = 200_000
+    max_solve_checks: Annotated[int, Field(ge=100)] = Field(
+        200_000,
+        description="Solve's budget in collision checks per S or T step (deterministic, "
+        "load-independent; a 600 s wall-time guard only stops runaway calls)",
+    )
 
     def ordered_changes(self) -> list[tuple[int, Change]]:
         """Changes with their index in the file, by task number (stable)."""
