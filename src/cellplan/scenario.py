@@ -211,7 +211,7 @@ class CSpaceSpec(StrictModel):
     """Default configuration-space resolution (cells per axis) for bitmaps and reports."""
 
     cells: list[Cells] | None = Field(
-        None,
+        default=None,
         description="cells per C-space axis (default: 128 x 128 point and translating robots, "
         "64 x 64 x 32 rotating, 64 per arm joint)",
         examples=[[100, 100]],
@@ -230,13 +230,13 @@ class ScenarioBase(StrictModel):
     """
 
     cellplan: Literal[1] = Field(description="scenario format version", examples=[1])
-    name: str = Field("", max_length=200, description="short name", examples=["my-cell"])
+    name: str = Field(default="", max_length=200, description="short name", examples=["my-cell"])
     description: str = Field(
-        "", max_length=10_000, description="what the scenario shows (free text)"
+        default="", max_length=10_000, description="what the scenario shows (free text)"
     )
     workcell: WorkcellSpec = Field(description="bounds and static obstacles")
     robot: RobotSpec | None = Field(
-        None,
+        default=None,
         description="the robot: point, translating, rotating or a planar arm (angles in "
         "degrees); none for disc assembly",
     )
@@ -250,7 +250,8 @@ class ScenarioBase(StrictModel):
         default_factory=dict, description="regions where parts are delivered, by name"
     )
     cspace: CSpaceSpec = Field(
-        default_factory=CSpaceSpec, description="configuration-space resolution of bitmaps"
+        default_factory=CSpaceSpec,
+        description="configuration-space resolution of bitmaps",
     )
 
     if TYPE_CHECKING:

@@ -41,7 +41,7 @@ class StrictModel(BaseModel):
 class PolygonShape(StrictModel):
     """A simple polygon (convex or not) given by its vertices in order."""
 
-    type: Literal["polygon"] = Field("polygon", description="shape kind")
+    type: Literal["polygon"] = Field(default="polygon", description="shape kind")
     points: list[Vec2] = Field(
         min_length=3,
         max_length=10_000,
@@ -100,8 +100,8 @@ RigidShape = Annotated[PolygonShape | BoxShape, Field(discriminator="type")]
 class Bounds(StrictModel):
     """The rectangular workcell ``[xmin, xmax] x [ymin, ymax]``."""
 
-    xmin: Coord = Field(0.0, description="left edge (workcell units)", examples=[0])
-    ymin: Coord = Field(0.0, description="bottom edge (workcell units)", examples=[0])
+    xmin: Coord = Field(default=0.0, description="left edge (workcell units)", examples=[0])
+    ymin: Coord = Field(default=0.0, description="bottom edge (workcell units)", examples=[0])
     xmax: Coord = Field(description="right edge (workcell units)", examples=[100])
     ymax: Coord = Field(description="top edge (workcell units)", examples=[100])
 

@@ -29,9 +29,13 @@ class GoalSpec(StrictModel):
     """A named goal: where the tool point must go."""
 
     at: Vec2 = Field(description="tool point in world coordinates of the initial workcell")
-    object: Name | None = Field(None, description="object the goal is attached to (moves with it)")
-    elbow: Literal[1, -1] = Field(1, description="arm IK branch: sign of joint 2")
-    orientation: float | None = Field(None, description="tool orientation, degrees (3-link arms)")
+    object: Name | None = Field(
+        default=None, description="object the goal is attached to (moves with it)"
+    )
+    elbow: Literal[1, -1] = Field(default=1, description="arm IK branch: sign of joint 2")
+    orientation: float | None = Field(
+        default=None, description="tool orientation, degrees (3-link arms)"
+    )
 
 
 class RandomTasks(StrictModel):
@@ -67,7 +71,7 @@ class RotateObject(_Change):
     object: Name
     degrees: float
     about: Vec2 | None = Field(
-        None, description="centre of rotation (default: the object's centroid)"
+        default=None, description="centre of rotation (default: the object's centroid)"
     )
 
 
@@ -105,15 +109,17 @@ class AdaptiveSection(StrictModel):
     repair: Literal["A0", "A1", "A2", "A3"] = "A3"
     solve: Literal["rrtconnect", "two_segment"] = "rrtconnect"
     reach: Literal["straight", "potential"] = "straight"
-    resolution: PositiveFloat = Field(1.0, description="Reach step: degrees (arm) or units (point)")
+    resolution: PositiveFloat = Field(
+        default=1.0, description="Reach step: degrees (arm) or units (point)"
+    )
     attach_radius: PositiveFloat | None = Field(
-        None,
+        default=None,
         description="attach a subgoal to the nearest object within this distance (None: always)",
     )
     corner_cutting: bool = True
     max_chain: Annotated[int, Field(ge=1)] | None = None
     max_solve_checks: Annotated[int, Field(ge=100)] = Field(
-        200_000,
+        default=200_000,
         description="Solve's budget in collision checks per S or T step (deterministic, "
         "load-independent; a 600 s wall-time guard only stops runaway calls)",
     )

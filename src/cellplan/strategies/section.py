@@ -39,10 +39,12 @@ class Rate(StrictModel):
     """
 
     probability: Probability | None = Field(
-        None, description="probability per stage, in [0, 1]", examples=[0.1]
+        default=None, description="probability per stage, in [0, 1]", examples=[0.1]
     )
     rate: PositiveFloat | None = Field(
-        None, description="events per unit time (Poisson), instead of probability", examples=[0.2]
+        default=None,
+        description="events per unit time (Poisson), instead of probability",
+        examples=[0.2],
     )
 
     @model_validator(mode="after")
@@ -66,7 +68,7 @@ class RequestSpec(StrictModel):
     source: Name = Field(description="a source's name", examples=["S1"])
     destination: Name = Field(description="a destination's name", examples=["D1"])
     probability: Probability | None = Field(
-        None,
+        default=None,
         description="relative probability of this request on arrival (default: uniform)",
         examples=[0.5],
     )
@@ -81,13 +83,13 @@ class FineMotionSpec(StrictModel):
     """
 
     time: NonNegativeFloat = Field(
-        1.0, description="constant part of t_f (time units)", examples=[1.5]
+        default=1.0, description="constant part of t_f (time units)", examples=[1.5]
     )
     point: Vec2 | None = Field(
-        None, description="preferred contact point (workcell units)", examples=[[15, 26]]
+        default=None, description="preferred contact point (workcell units)", examples=[[15, 26]]
     )
     rate: NonNegativeFloat = Field(
-        0.0, description="growth of t_f per workcell unit from point", examples=[0.1]
+        default=0.0, description="growth of t_f per workcell unit from point", examples=[0.1]
     )
 
 
@@ -101,7 +103,7 @@ class ActionSpec(StrictModel):
     """
 
     headings: Annotated[int, Field(ge=3, le=64)] = Field(
-        16, description="K, evenly spaced directions of a translating robot", examples=[8]
+        default=16, description="K, evenly spaced directions of a translating robot", examples=[8]
     )
 
 
@@ -109,59 +111,66 @@ class SolverSpec(StrictModel):
     """Stopping rule and method of the average-cost solver (Section IV)."""
 
     method: Literal["auto", "structured", "general"] = Field(
-        "auto",
+        default="auto",
         description="structured (layered shortest paths + NR fixed point), general (relative "
         "value iteration), or auto",
     )
     tolerance: PositiveFloat = Field(
-        1e-6, description="stop when the gain's certified bracket is narrower", examples=[1e-6]
+        default=1e-6,
+        description="stop when the gain's certified bracket is narrower",
+        examples=[1e-6],
     )
     max_sweeps: Annotated[int, Field(ge=1, le=10_000_000)] = Field(
-        20000, description="give up (not converged) after this many sweeps"
+        default=20000, description="give up (not converged) after this many sweeps"
     )
     damping: Annotated[float, Field(gt=0, le=1)] = Field(
-        1.0, description="relaxation of the outer fixed point on the gain (1: none)"
+        default=1.0, description="relaxation of the outer fixed point on the gain (1: none)"
     )
 
 
 class StrategySection(StrictModel):
     """Settings of the ``strategy:`` section (the strategies paper)."""
 
-    stage_time: PositiveFloat = Field(1.0, description="Delta t, time units per stage")
+    stage_time: PositiveFloat = Field(default=1.0, description="Delta t, time units per stage")
     speed: PositiveFloat = Field(
         description="translation per unit time (workspace units); for arms, degrees per unit time"
     )
     turn_speed: PositiveFloat | None = Field(
-        None, description="rotating robot: degrees per unit time"
+        default=None, description="rotating robot: degrees per unit time"
     )
     carry_speed_factor: dict[Name, PositiveFloat] = Field(
         default_factory=dict, description="per part: speed multiplier while carrying it"
     )
     arrival: Rate = Field(description="request arrival while in NR (transition type 1)")
     requests: Literal["all"] | list[RequestSpec] = Field(
-        "all", description="'all' (every part x source x destination, uniform) or a list"
+        default="all", description="'all' (every part x source x destination, uniform) or a list"
     )
-    destination_change: Rate | None = Field(None, description="transition type 2, per stage in C")
-    source_change: Rate | None = Field(None, description="transition type 3, per stage in W")
+    destination_change: Rate | None = Field(
+        default=None, description="transition type 2, per stage in C"
+    )
+    source_change: Rate | None = Field(
+        default=None, description="transition type 3, per stage in W"
+    )
     regions: Literal["contact", "enclosure"] = Field(
-        "contact",
+        default="contact",
         description="FMP allowed where the carried part (or gripper) touches the region "
         "(contact) or lies inside it (enclosure)",
     )
     fine_motion: FineMotionSpec = Field(
-        default_factory=FineMotionSpec, description="expected fine-motion time t_f (Sec. III-C)"
+        default_factory=FineMotionSpec,
+        description="expected fine-motion time t_f (Sec. III-C)",
     )
     fine_motion_regions: dict[Name, FineMotionSpec] = Field(
         default_factory=dict, description="per source/destination override of fine_motion"
     )
     cells: list[Cells] | None = Field(
-        None,
+        default=None,
         description="grid cells per C-space axis (default: cspace.cells, else the robot "
         "kind's default: 128 x 128 point and translating, 64 x 64 x 32 rotating, 64 per arm joint)",
     )
     actions: ActionSpec = Field(default_factory=ActionSpec, description="the action set, eq. (5)")
     home: list[float] | None = Field(
-        None,
+        default=None,
         description="home configuration of the return-home baseline, angles in degrees "
         "(default: robot.start)",
     )
