@@ -254,3 +254,20 @@ def test_huge_files_are_refused_before_reading(tmp_path, monkeypatch):
     path.write_text("cellplan: 1\n" + "# padding\n" * 20)
     with pytest.raises(ScenarioError, match="scenario files are limited"):
         load_scenario(path)
+
+
+def test_schema_describes_every_field():
+    schema = json_schema()
+    assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
+    assert schema["$id"].startswith("urn:cellplan:scenario:")
+    assert "cellplan schema" not in schema["description"]
+    models = {"Scenario": schema, **schema["$defs"]}
+    undocumented = [
+        f"{model}.{prop}"
+        for model, body in models.items()
+        for prop, spec in body.get("properties", {}).items()
+        if not spec.get("description")
+    ]
+    assert undocumented == []
+    cells = schema["$defs"]["StrategySection"]["properties"]["cells"]["description"]
+    assert "128 x 128" in cells

@@ -151,8 +151,11 @@ class LinkSpec(StrictModel):
     on the link's two joints)."""
 
     length: PositiveFloat
+    """joint-to-joint length (workcell units)"""
     width: PositiveFloat
+    """link width, the caps' diameter for capsules (workcell units)"""
     shape: Literal["rectangle", "capsule"] = "rectangle"
+    """rectangle, or capsule (round end caps)"""
 
     @model_serializer(mode="wrap")
     def _omit_default_shape(self, handler: SerializerFunctionWrapHandler) -> Any:
@@ -175,11 +178,17 @@ class ArmRobotSpec(StrictModel):
     """
 
     type: Literal["arm"]
+    """robot kind"""
     base: Vec2 = (0.0, 0.0)
+    """position of joint 1 (workcell units)"""
     links: list[LinkSpec] = Field(min_length=1)
+    """the links, from the base"""
     joint_limits: list[tuple[float, float]] | None = None
+    """per joint (lower, upper) in degrees (default: full turn, periodic)"""
     end_effector_orientation: float | None = None
+    """hold the gripper at this world orientation, degrees (problem 5)"""
     start: list[float]
+    """start joint angles, degrees"""
 
 
 RobotSpec = Annotated[

@@ -42,7 +42,9 @@ class RandomTasks(StrictModel):
     """``count`` goals drawn uniformly from the goal set, never the robot's current goal."""
 
     count: Annotated[int, Field(ge=1, le=1_000_000)]
+    """number of tasks"""
     seed: int = 0
+    """seed of the draw"""
 
 
 class _Change(StrictModel):
@@ -51,25 +53,36 @@ class _Change(StrictModel):
 
 class AddObject(_Change):
     type: Literal["add_object"]
+    """change kind"""
     object: Name
+    """name of the new object"""
     shape: Shape
+    """its shape (workcell units)"""
 
 
 class RemoveObject(_Change):
     type: Literal["remove_object"]
+    """change kind"""
     object: Name
+    """name of the object removed"""
 
 
 class MoveObject(_Change):
     type: Literal["move_object"]
+    """change kind"""
     object: Name
+    """name of the object moved"""
     by: Vec2
+    """translation (workcell units)"""
 
 
 class RotateObject(_Change):
     type: Literal["rotate_object"]
+    """change kind"""
     object: Name
+    """name of the object rotated"""
     degrees: float
+    """rotation, counter-clockwise, in degrees"""
     about: Vec2 | None = Field(
         default=None, description="centre of rotation (default: the object's centroid)"
     )
@@ -77,11 +90,17 @@ class RotateObject(_Change):
 
 class AddGoal(_Change):
     type: Literal["add_goal"]
+    """change kind"""
     goal: Name
+    """name of the new goal"""
     at: Vec2
+    """tool point (workcell units)"""
     object: Name | None = None
+    """object the goal is attached to (moves with it)"""
     elbow: Literal[1, -1] = 1
+    """arm IK branch: sign of joint 2"""
     orientation: float | None = None
+    """tool orientation, degrees (3-link arms)"""
 
     def spec(self) -> GoalSpec:
         return GoalSpec(
@@ -91,7 +110,9 @@ class AddGoal(_Change):
 
 class RemoveGoal(_Change):
     type: Literal["remove_goal"]
+    """change kind"""
     goal: Name
+    """name of the goal removed"""
 
 
 Change = Annotated[
@@ -104,11 +125,16 @@ class AdaptiveSection(StrictModel):
     """Settings of the ``adaptive:`` section (Chen 1994)."""
 
     goals: dict[Name, GoalSpec] = Field(min_length=1)
+    """named goals the tasks visit (tool points, degrees for orientations)"""
     tasks: list[Name] | RandomTasks = Field(description="explicit goal names, or random")
     changes: list[Change] = Field(default_factory=list)
+    """workcell changes after given tasks: add, remove, move, rotate objects; add, remove goals"""
     repair: Literal["A0", "A1", "A2", "A3"] = "A3"
+    """repair after a change: A0 forget, A1 verify all, A2 actively, A3 on demand (Sec. 2.5)"""
     solve: Literal["rrtconnect", "two_segment"] = "rrtconnect"
+    """the global planner S: OMPL RRTConnect, or the two-segment toy planner of Fig. 3"""
     reach: Literal["straight", "potential"] = "straight"
+    """the local planner R: a straight line in C-space, or a potential-field descent"""
     resolution: PositiveFloat = Field(
         default=1.0, description="Reach step: degrees (arm) or units (point)"
     )
@@ -117,7 +143,9 @@ class AdaptiveSection(StrictModel):
         description="attach a subgoal to the nearest object within this distance (None: always)",
     )
     corner_cutting: bool = True
+    """shorten executed paths by corner cutting (Sec. 2.6)"""
     max_chain: Annotated[int, Field(ge=1)] | None = None
+    """longest subgoal chain T follows (None: no limit)"""
     max_solve_checks: Annotated[int, Field(ge=100)] = Field(
         default=200_000,
         description="Solve's budget in collision checks per S or T step (deterministic, "

@@ -29,14 +29,18 @@ class DiscBoundary(StrictModel):
     """A circular workspace of the given centre and radius."""
 
     type: Literal["disc"]
+    """boundary kind"""
     center: Vec2 = (0.0, 0.0)
+    """centre of the circular workspace (workcell units)"""
     radius: PositiveFloat
+    """its radius (workcell units)"""
 
 
 class WorkcellBoundary(StrictModel):
     """The workcell rectangle (``workcell.bounds``) is the workspace."""
 
     type: Literal["workcell"]
+    """boundary kind: the workcell rectangle"""
 
 
 Boundary = Annotated[DiscBoundary | WorkcellBoundary, Field(discriminator="type")]
@@ -46,8 +50,11 @@ class DiscSpec(StrictModel):
     """One disc: radius, start and desired (goal) position of its centre."""
 
     radius: PositiveFloat
+    """disc radius (workcell units)"""
     start: Vec2
+    """start of the centre (workcell units)"""
     goal: Vec2
+    """goal of the centre (workcell units)"""
 
 
 class GeneratorSpec(StrictModel):
@@ -63,21 +70,32 @@ class GeneratorSpec(StrictModel):
     """
 
     n: Annotated[int, Field(ge=1, le=500)]
+    """number of discs"""
     seed: Annotated[int, Field(ge=0)] = 0
+    """seed of the generator"""
     radius: PositiveFloat = 1.0
+    """disc radius (workcell units)"""
     pattern: Literal["hex", "random"] = "hex"
+    """goal layout: hex (a packed cluster) or random"""
     gap: PositiveFloat = 0.1
+    """gap between neighbouring hex goals (workcell units)"""
     log10_beta_goal: float | None = None
+    """hex goals: log10 of the pairwise product beta(d) of eq. (4) (sets the gap)"""
     starts: Literal["random", "permutation"] = "random"
+    """random legal starts, or a permutation of the goals (Sec. 5.2.2)"""
     min_start_gap: PositiveFloat = 0.05
+    """smallest gap between random starts (workcell units)"""
 
 
 class DiscsSection(StrictModel):
     """Settings of the ``discs:`` section (a disc assembly problem and its parameters)."""
 
     boundary: Boundary = Field(default_factory=lambda: WorkcellBoundary(type="workcell"))
+    """the workspace: the workcell rectangle or a disc"""
     discs: list[DiscSpec] | None = Field(default=None, min_length=1)
+    """the discs, listed (or use generate)"""
     generate: GeneratorSpec | None = None
+    """a seeded random problem (or list discs)"""
     # k: None means the rule of layout.rule_k (docs/assembly.md, "The default k"), the one
     # default of files, `assemble --random` and the planners called without k.
     k: PositiveFloat | None = Field(
