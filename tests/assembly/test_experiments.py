@@ -61,3 +61,25 @@ def test_sequential_reports_escapes_and_both_switch_claims(tmp_path: Path) -> No
     rising = claims["paper rule: harder goals need more switches"]
     assert "easy -> hard" in rising.ours
     assert all(Path(f).is_file() for f in piece.figures)
+
+
+def test_claim_intervals_and_their_combination():
+    import numpy as np
+    from scipy.stats import t
+
+    from cellplan.assembly.experiments import _all, _difference, _interval, _ratio_interval
+
+    vals = np.array([1.1, 1.2, 1.3, 1.2, 1.2])
+    group = {"mean": vals.mean(), "std": vals.std(), "solved": 5.0, "runs": 5.0}
+    lo, hi, n = _interval(group)
+    half = t.ppf(0.975, 4) * vals.std(ddof=1) / np.sqrt(5)
+    assert n == 5 and np.isclose(lo, vals.mean() - half) and np.isclose(hi, vals.mean() + half)
+    other = {**group, "mean": group["mean"] + 1.0}
+    lo, hi, n = _difference(other, group)
+    assert lo > 0.9 and hi < 1.1 and n == 5
+    lo, hi, _ = _ratio_interval(other, group)
+    assert lo < other["mean"] / group["mean"] < hi
+    assert _all([True, True]) is True
+    assert _all([True, None]) is None
+    assert _all([None, False]) is False
+    assert _all([]) is None

@@ -24,12 +24,13 @@ Every run is a pure function of its spec: the problem is generated from the seed
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
+from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, decide_interval
 
 PAPER = "assembly"
 BETAS = (-2.0, -9.0, -16.0, -28.0, -44.0)
@@ -172,6 +173,51 @@ def _runs_permutation(runs: int, quick: bool) -> list[RunSpec]:
 # --- reports ---------------------------------------------------------------------------------
 
 
+MIN_RUNS = 5
+"""Fewest runs behind a verdict; with fewer a claim is "not enough runs to decide"."""
+
+
+def _interval(
+    s: dict[str, float], mean: str = "mean", std: str = "std", solved: str = "solved"
+) -> tuple[float, float, int]:
+    """95% interval (Student t) of a group's mean, and the runs behind it."""
+    from scipy.stats import t
+
+    n = int(s.get(solved, 0.0))
+    if n < 2 or not np.isfinite(s[mean]):
+        return float("nan"), float("nan"), n
+    half = float(t.ppf(0.975, n - 1)) * s[std] * np.sqrt(n / (n - 1)) / np.sqrt(n)
+    return s[mean] - half, s[mean] + half, n
+
+
+def _difference(a: dict[str, float], b: dict[str, float]) -> tuple[float, float, int]:
+    """95% interval (normal, Welch) of mean(a) - mean(b), and the smaller run count."""
+    na, nb = int(a["solved"]), int(b["solved"])
+    if min(na, nb) < 2:
+        return float("nan"), float("nan"), min(na, nb)
+    se = np.sqrt(a["std"] ** 2 / (na - 1) + b["std"] ** 2 / (nb - 1))
+    d = a["mean"] - b["mean"]
+    return float(d - 1.96 * se), float(d + 1.96 * se), min(na, nb)
+
+
+def _ratio_interval(a: dict[str, float], b: dict[str, float]) -> tuple[float, float, int]:
+    """95% interval (delta method) of mean(a) / mean(b), and the smaller run count."""
+    na, nb = int(a["solved"]), int(b["solved"])
+    if min(na, nb) < 2 or not (a["mean"] > 0 and b["mean"] > 0):
+        return float("nan"), float("nan"), min(na, nb)
+    f = a["mean"] / b["mean"]
+    rel = np.sqrt((a["std"] / a["mean"]) ** 2 / (na - 1) + (b["std"] / b["mean"]) ** 2 / (nb - 1))
+    return float(f * (1 - 1.96 * rel)), float(f * (1 + 1.96 * rel)), min(na, nb)
+
+
+def _all(verdicts: Any) -> bool | None:
+    """True when every verdict is True, False when any is False, else undecided."""
+    found = list(verdicts)
+    if any(v is False for v in found):
+        return False
+    return True if found and all(v is True for v in found) else None
+
+
 def _group(
     rows: list[dict[str, Scalar]], keys: tuple[str, ...], value: str
 ) -> dict[tuple[Any, ...], dict[str, float]]:
@@ -285,22 +331,35 @@ def _report_ratio_vs_k(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
                 if best
                 else "no k with every run solved"
             )
+            if best is not None:
+                lo, hi, runs = _interval(best[1], mean_key, std_key, solved_key)
+                verdict = decide_interval(lo, hi, runs, below=target)
+            else:
+                runs, verdict = int(max((s["runs"] for _, s in pts), default=0)), False
             piece.claims.append(
                 Claim(
                     claim=f"{n} discs ({label}): mean ratio at the best k is at most {target} "
                     "with every run solved",
                     paper="Fig. 3: 1.25 at the highest k (7 discs); Fig. 4: under 1.25 (10 discs)",
                     ours=ours,
-                    reproduced=bool(best and best[1][mean_key] <= target),
+                    reproduced=verdict,
+                    n=runs,
+                    rule=f"95% interval of the mean ratio at the best k lies below {target}, "
+                    "every run solved (at least 5 runs)",
                 )
             )
-        means = [s["mean"] for _, s in pts if np.isfinite(s["mean"])]
+        finite = [s for _, s in pts if np.isfinite(s["mean"])]
+        means = [s["mean"] for s in finite]
+        lo, hi, runs = _difference(finite[0], finite[-1]) if len(finite) > 1 else (0, 0, 0)
         piece.claims.append(
             Claim(
                 claim=f"{n} discs: higher k gives shorter paths",
                 paper="Sec. 5.2.1: higher k clearly yields smaller mean ratios",
                 ours=" → ".join(f"{m:.2f}" for m in means),
-                reproduced=bool(len(means) > 1 and means[-1] < means[0]),
+                reproduced=decide_interval(lo, hi, runs, above=0.0),
+                n=runs,
+                rule="95% interval of (mean ratio at the lowest k) - (at the highest k) lies "
+                "above 0 (at least 5 runs)",
             )
         )
     clear = min((s["min_clearance"] for s in stats.values()), default=float("nan"))
@@ -310,6 +369,8 @@ def _report_ratio_vs_k(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
             paper="paths are guaranteed collision-free (Sec. 5.2.1)",
             ours=f"smallest clearance {clear:.3g}",
             reproduced=bool(clear > 0),
+            n=int(sum(s["runs"] for s in stats.values())),
+            rule="the smallest clearance over every run is positive",
         )
     )
     return piece
@@ -355,13 +416,17 @@ def _report_ratio_vs_beta(rows: list[dict[str, Scalar]], outdir: Any) -> ReportP
     )
     for k in sorted({key[0] for key in stats}):
         means = [s["mean"] for key, s in stats.items() if key[0] == k]
+        runs_k = int(min(s["solved"] for key, s in stats.items() if key[0] == k))
         spread = max(means) / min(means) if means and min(means) > 0 else float("nan")
         piece.claims.append(
             Claim(
                 claim=f"k={k:g}: ratio nearly independent of beta(d)",
                 paper="Sec. 5.2.2: harder goals only marginally longer",
                 ours=f"means {min(means):.3f}-{max(means):.3f} (max/min {spread:.2f})",
-                reproduced=bool(spread <= 1.15),
+                reproduced=None if runs_k < MIN_RUNS else bool(spread <= 1.15),
+                n=runs_k,
+                rule="max/min of the mean ratios over beta(d) is at most 1.15 (at least 5 runs "
+                "per point)",
             )
         )
     return piece
@@ -418,8 +483,8 @@ def _report_sequential(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
         total = sum(s["runs"] for s in sw.values())
         if rule == "paper":
             # per k: (hardest, easiest) goal's switches; pts is sorted by log10 beta(d)
-            ends = [
-                (pts[0][1]["mean"], pts[-1][1]["mean"])
+            ends_stats = [
+                (pts[0][1], pts[-1][1])
                 for pts in (
                     sorted(
                         ((float(key[1]), st) for key, st in sw.items() if key[0] == k),
@@ -428,7 +493,15 @@ def _report_sequential(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
                     for k in sorted({key[0] for key in sw})
                 )
             ]
+            ends = [(h["mean"], e["mean"]) for h, e in ends_stats]
             easy = np.array([e for _, e in ends])
+            easy_verdict = _all(
+                decide_interval(*_interval(e), above=2.0, below=4.0) for _, e in ends_stats
+            )
+            hard_verdict = _all(
+                decide_interval(*_difference(h, e), above=0.0) for h, e in ends_stats
+            )
+            n_seq = int(min((e["solved"] for _, e in ends_stats), default=0))
             piece.claims.append(
                 Claim(
                     claim="paper rule: about three switches per disc on easy goals",
@@ -436,7 +509,10 @@ def _report_sequential(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
                     ours=f"{easy.min():.1f}-{easy.max():.1f} per disc on beta(d) = "
                     f"1e{max(float(key[1]) for key in sw):g} over k; "
                     f"{int(solved)}/{int(total)} solved",
-                    reproduced=bool(np.all(np.abs(easy - 3.0) <= 1.0)),
+                    reproduced=easy_verdict,
+                    n=n_seq,
+                    rule="at every k, the 95% interval of the mean switches per disc on the "
+                    "easiest goals lies within [2, 4] (at least 5 runs)",
                 )
             )
             piece.claims.append(
@@ -445,7 +521,10 @@ def _report_sequential(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
                     paper="Fig. 9: the switch count rises perceptibly with difficulty",
                     ours=", ".join(f"{e:.1f} -> {h:.1f}" for h, e in ends)
                     + " (easy -> hard, per k)",
-                    reproduced=bool(all(h > e for h, e in ends)),
+                    reproduced=hard_verdict,
+                    n=n_seq,
+                    rule="at every k, the 95% interval of (hard - easy) mean switches per disc "
+                    "lies above 0 (at least 5 runs)",
                 )
             )
         else:
@@ -456,6 +535,8 @@ def _report_sequential(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
                     ours=f"{per_disc.min():.2f}-{per_disc.max():.2f} per disc; "
                     f"{int(solved)}/{int(total)} solved",
                     reproduced=bool(per_disc.max() <= 2.0 and solved == total),
+                    n=int(total),
+                    rule="every mean at most 2 switches per disc and every run solved",
                 )
             )
     return piece
@@ -476,13 +557,17 @@ def _report_permutation(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPie
             if not rnd or not per:
                 continue
             factor = per["mean"] / rnd["mean"]
+            lo, hi, runs = _ratio_interval(per, rnd)
             piece.claims.append(
                 Claim(
                     claim=f"beta(d)=1e{b:g}, {alg} {rule}: permutation starts lengthen paths",
                     paper="Sec. 5.2.2: ratios nearly double those of random starts",
                     ours=f"{per['mean']:.2f} vs {rnd['mean']:.2f} (x{factor:.2f}); "
                     f"solved {int(per['solved'])}/{int(per['runs'])}",
-                    reproduced=bool(1.3 <= factor <= 3.0),
+                    reproduced=decide_interval(lo, hi, runs, above=1.3, below=3.0),
+                    n=runs,
+                    rule="95% interval of the factor (permutation / random mean ratio) lies "
+                    "within [1.3, 3] (at least 5 runs)",
                 )
             )
     return piece
@@ -503,12 +588,14 @@ def _report_sensitivity(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPie
         tables=[("ratio vs workspace and start spacing", _table(stats, keys))],
     )
     series = []
+    groups = []
     for n, k in sorted({(key[0], key[1]) for key in stats}):
         pts = sorted(
             (float(key[2]), s)
             for key, s in stats.items()
             if key[:2] == (n, k) and float(key[3]) == START_GAPS[0]
         )
+        groups.append([st for _, st in pts])
         series.append(
             (
                 f"{n} discs, k={float(k):g}",
@@ -529,14 +616,18 @@ def _report_sensitivity(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPie
             plain_ticks=True,
         )
     )
-    for label, _, mean, _ in series:
+    for (label, _, mean, _), group in zip(series, groups, strict=True):
         if len(mean) > 1:
+            steps = [_difference(b, a) for a, b in itertools.pairwise(group)]
             piece.claims.append(
                 Claim(
                     claim=f"{label}: a sparser workspace (starts further out) gives smaller ratios",
                     paper="not stated (the paper gives no workspace)",
                     ours=" → ".join(f"{m:.3f}" for m in mean) + " (fill rising)",
-                    reproduced=bool(np.all(np.diff(mean) > 0)),
+                    reproduced=_all(decide_interval(*d, above=0.0) for d in steps),
+                    n=min(d[2] for d in steps),
+                    rule="each step up in fill raises the mean ratio: every 95% interval of "
+                    "the difference lies above 0 (at least 5 runs)",
                 )
             )
     return piece
