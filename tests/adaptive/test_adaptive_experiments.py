@@ -25,3 +25,19 @@ def test_quick_fig5_runs_and_reports(tmp_path: Path) -> None:
 def test_runs_are_pure_functions_of_the_spec() -> None:
     spec = RunSpec("adaptive.fig5", {"planner": "A3", "tasks": 6, "change_after": 3}, 4)
     assert EXPERIMENTS[0].run(spec) == EXPERIMENTS[0].run(spec)
+
+
+def test_per_seed_ratios_and_their_interval():
+    import numpy as np
+
+    from cellplan.adaptive.experiments import _interval, seed_ratios
+
+    rows = [
+        {"planner": "A3", "seed": s, "a001": 10.0 + s, "a002": 12.0, "b001": 5.0, "b002": 24.0}
+        for s in range(5)
+    ] + [{"planner": "prm", "seed": 0, "a001": 1.0, "a002": 2.0}]
+    ratios = seed_ratios(rows, "A3", 2)
+    assert ratios.shape == (5, 2)
+    assert np.allclose(ratios[:, 1], 0.5) and np.allclose(ratios[:, 0], (10 + np.arange(5)) / 5)
+    lo, hi = _interval(ratios[:, 0])
+    assert lo < ratios[:, 0].mean() < hi

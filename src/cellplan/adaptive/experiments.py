@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
+from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, decide_interval
 
 STRATEGIES = ("A0", "A1", "A2", "A3")
 PEERS = ("prm",)
@@ -99,6 +99,29 @@ def curves(rows: list[dict[str, Scalar]]) -> tuple[dict[str, np.ndarray], int]:
     return out, tasks
 
 
+def seed_ratios(rows: list[dict[str, Scalar]], planner: str, tasks: int) -> np.ndarray:
+    """``(seeds, tasks)``: each seed's cumulative cost ratio, Adapt over its own Solve-only."""
+    out = []
+    for r in rows:
+        if r["planner"] != planner or "b001" not in r:
+            continue
+        a = np.array([float(r[f"a{t:03d}"]) for t in range(1, tasks + 1)])
+        b = np.array([float(r[f"b{t:03d}"]) for t in range(1, tasks + 1)])
+        out.append(a / np.maximum(b, 1.0))
+    return np.array(out).reshape(len(out), tasks)
+
+
+def _interval(values: np.ndarray) -> tuple[float, float]:
+    """95% interval (Student t) of the mean of ``values``."""
+    from scipy.stats import t
+
+    n = len(values)
+    if n < 2:
+        return float("nan"), float("nan")
+    half = float(t.ppf(0.975, n - 1)) * float(np.std(values, ddof=1)) / np.sqrt(n)
+    return float(np.mean(values) - half), float(np.mean(values) + half)
+
+
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     """Figure 5 beside the paper's numbers, with checkable claims."""
     from cellplan.adaptive.plots import save_ratio_curves
@@ -112,16 +135,25 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
         title=f"Adapt / Solve only, mean of {len([r for r in rows if r['planner'] == 'A3'])} runs",
     )
     a3 = ratio["A3"]
+    per_run = seed_ratios(rows, "A3", tasks)
+    n = len(per_run)
     claims = []
     for t, paper in PAPER.items():
         if t <= tasks:
+            lo, hi = _interval(per_run[:, t - 1])
+            # Task 1: Adapt pays its bookkeeping on top of Solve, so the ratio exceeds 1.
+            bound = {"above": 1.0} if t == 1 else {"below": paper * 1.05}
             claims.append(
                 Claim(
                     f"ratio at task {t} (A3, before the change)",
                     f"{paper:.2f}",
-                    f"{a3[t - 1]:.3f}",
-                    reproduced=bool(a3[t - 1] <= paper * 1.05) if t > 1 else bool(a3[0] > 1.0),
+                    f"{a3[t - 1]:.3f} (per-seed 95% interval {lo:.3f}-{hi:.3f})",
+                    reproduced=decide_interval(lo, hi, n, **bound),
                     detail="ours is a faster learner; the paper's value is the bound",
+                    n=n,
+                    rule="95% interval of the per-seed ratio lies "
+                    + ("above 1" if t == 1 else f"below the paper's value +5% ({paper * 1.05:.2f})")
+                    + " (at least 5 seeds)",
                 )
             )
     finals = {k: float(v[-1]) for k, v in ratio.items() if k in STRATEGIES}
@@ -131,7 +163,10 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             "after the change, A3 has the lowest cumulative ratio (within 1%)",
             "A3 < A1 < A0 (A2 approaches A3)",
             ", ".join(f"{k} {v:.3f}" for k, v in sorted(finals.items(), key=lambda kv: kv[1])),
-            reproduced=finals["A3"] <= finals[best] * 1.01,
+            reproduced=None if n < 5 else bool(finals["A3"] <= finals[best] * 1.01),
+            n=n,
+            rule="A3's final ratio of run-averaged costs within 1% of the lowest (at least 5 "
+            "seeds)",
         )
     )
     if tasks >= 80:
@@ -140,7 +175,9 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
                 "A3 ratio at task 40 <= 0.3 (target)",
                 "0.67",
                 f"{a3[39]:.3f}",
-                reproduced=bool(a3[39] <= 0.3),
+                reproduced=decide_interval(*_interval(per_run[:, 39]), n, below=0.3),
+                n=n,
+                rule="95% interval of the per-seed ratio lies below 0.3 (at least 5 seeds)",
             )
         )
         claims.append(
@@ -148,7 +185,9 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
                 "A3 ratio at task 80 <= 0.25 (target)",
                 "-",
                 f"{a3[79]:.3f}",
-                reproduced=bool(a3[79] <= 0.25),
+                reproduced=decide_interval(*_interval(per_run[:, 79]), n, below=0.25),
+                n=n,
+                rule="95% interval of the per-seed ratio lies below 0.25 (at least 5 seeds)",
             )
         )
     table: list[dict[str, Scalar]] = [
