@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cellplan.strategies.stencils import EPS_W, decode, move_corners
+from cellplan.strategies.stencils import EPS_W, decode, table_stencil
 
 
 @njit(cache=True, nogil=True)
@@ -38,9 +38,18 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
     grid = model.grid
     lay = model.layers
     live = lay.live
+    tf = lay.tf
+    valid = moves.valid
+    interior = moves.interior
+    coff = moves.coff
+    cw = moves.cw
+    heading_axis = moves.heading_axis
+    branch_layer = lay.branch_layer
+    branch_prob = lay.branch_prob
+    shape = grid.shape
     ncell = h.shape[1]
     some = subset.shape[0] > 0
-    d = grid.shape.shape[0]
+    d = shape.shape[0]
     ncorner = 1 << d
     mi = np.empty(d, np.int64)
     idx = np.empty(ncorner, np.int64)
@@ -60,63 +69,73 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
                 continue
             if some and not subset[m, c]:
                 continue
-            decode(c, grid.shape, mi)
+            decode(c, shape, mi)
             best = np.inf
             second = np.inf
             arg = -3
-            if nxt >= 0 and lay.tf[m, c] < np.inf and live[nxt, c]:
-                best = lay.tf[m, c] + h[nxt, c]
+            if nxt >= 0 and tf[m, c] < np.inf and live[nxt, c]:
+                best = tf[m, c] + h[nxt, c]
                 arg = -2
             sval = cost
             sok = True
             for b in range(b0, b1):
-                L = lay.branch_layer[b]
+                L = branch_layer[b]
                 if not live[L, c]:
                     sok = False
                     break
-                sval += lay.branch_prob[b] * h[L, c]
+                sval += branch_prob[b] * h[L, c]
             if sok and sval < best and (best == np.inf or sval < best - 1e-12 * abs(best)):
                 second = best
                 best = sval
                 arg = -1
             elif sok and sval < second:
                 second = sval
-            vb = moves.valid[kcls, c]
-            inner = moves.interior[kcls, c]
+            vb = valid[kcls, c]
+            inner = interior[kcls, c]
+            t = mi[heading_axis] if heading_axis >= 0 else 0
             for a in range(na):
                 if ((vb >> a) & 1) == 0:
                     continue
-                nc = move_corners(
-                    kcls,
-                    a,
-                    c,
-                    mi,
-                    inner,
-                    moves.offs,
-                    moves.fr,
-                    moves.coff,
-                    moves.cw,
-                    moves.heading_axis,
-                    grid.shape,
-                    grid.periodic,
-                    idx,
-                    w,
-                )
+                # Written out as in sweeps.sweep_policy (an inlined helper is slower here).
+                if inner:
+                    nc = 0
+                    for jj in range(ncorner):
+                        wj = cw[kcls, a, t, jj]
+                        if wj <= EPS_W:
+                            break
+                        idx[jj] = c + coff[kcls, a, t, jj]
+                        w[jj] = wj
+                        nc += 1
+                else:
+                    nc = table_stencil(
+                        kcls,
+                        a,
+                        mi,
+                        moves.offs,
+                        moves.fr,
+                        heading_axis,
+                        shape,
+                        grid.periodic,
+                        idx,
+                        w,
+                    )
                 val = cost
                 ok = True
                 for b in range(b0, b1):
-                    L = lay.branch_layer[b]
+                    L = branch_layer[b]
                     ssum = 0.0
                     vsum = 0.0
                     for j in range(nc):
                         wj = w[j]
-                        if wj > EPS_W and live[L, idx[j]]:
-                            ssum += wj
-                            vsum += wj * h[L, idx[j]]
+                        if wj > EPS_W:
+                            i = idx[j]
+                            if live[L, i]:
+                                ssum += wj
+                                vsum += wj * h[L, i]
                     if ssum <= EPS_W:
                         ok = False
                         break
-                    val += lay.branch_prob[b] * vsum / ssum
+                    val += branch_prob[b] * vsum / ssum
                 if ok and val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
                     second = best
                     best = val

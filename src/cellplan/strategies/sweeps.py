@@ -309,7 +309,11 @@ def other_branches(m, h, D, E, ED, start, stop, model):  # pragma: no cover - nu
     grid = model.grid
     lay = model.layers
     live = lay.live
-    d = grid.shape.shape[0]
+    cw = moves.cw
+    coff = moves.coff
+    heading_axis = moves.heading_axis
+    shape = grid.shape
+    d = shape.shape[0]
     ncorner = 1 << d
     kcls = lay.vcls[m]
     na = moves.nact[kcls]
@@ -342,25 +346,24 @@ def other_branches(m, h, D, E, ED, start, stop, model):  # pragma: no cover - nu
             ED[c, 0] = sder
         vb = moves.valid[kcls, c]
         inner = moves.interior[kcls, c]
+        t = mi[heading_axis] if heading_axis >= 0 else 0
         for a in range(na):
             if ((vb >> a) & 1) == 0:
                 continue
-            nc = move_corners(
-                kcls,
-                a,
-                c,
-                mi,
-                inner,
-                moves.offs,
-                moves.fr,
-                moves.coff,
-                moves.cw,
-                moves.heading_axis,
-                grid.shape,
-                grid.periodic,
-                idx,
-                w,
-            )
+            # Written out, as in sweep_policy (an inlined helper is slower here).
+            if inner:
+                nc = 0
+                for jj in range(ncorner):
+                    wj = cw[kcls, a, t, jj]
+                    if wj <= EPS_W:
+                        break
+                    idx[jj] = c + coff[kcls, a, t, jj]
+                    w[jj] = wj
+                    nc += 1
+            else:
+                nc = table_stencil(
+                    kcls, a, mi, moves.offs, moves.fr, heading_axis, shape, grid.periodic, idx, w
+                )
             val = 0.0
             der = 0.0
             ok = True
