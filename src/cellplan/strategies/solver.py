@@ -462,10 +462,12 @@ class _ShapeMixer:
         self.g: list[float] = []
 
     def push(self, x: np.ndarray, f: np.ndarray, d: np.ndarray, g: float) -> None:
-        for hist, item in ((self.x, x), (self.f, f), (self.d, d), (self.g, g)):
-            hist.append(item)  # type: ignore[attr-defined]
-            if len(hist) > self.depth + 1:
-                del hist[0]
+        self.x.append(x)
+        self.f.append(f)
+        self.d.append(d)
+        self.g.append(g)
+        if len(self.g) > self.depth + 1:
+            del self.x[0], self.f[0], self.d[0], self.g[0]
 
     def mix(self, g: float) -> np.ndarray:
         f_now = [f + (g - gi) * di for f, di, gi in zip(self.f, self.d, self.g, strict=True)]

@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
-import numba
+from numba.core import config as numba_config
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -37,7 +37,9 @@ SERIAL_BELOW = 20_000
 def default_threads() -> int:
     """The thread count by default: numba's ``NUMBA_NUM_THREADS``, at most the CPUs usable."""
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return max(1, min(int(numba.config.NUMBA_NUM_THREADS), usable or 1))
+    # numba's setting (its environment variable, or the CPU count) read at import.
+    configured = int(getattr(numba_config, "NUMBA_NUM_THREADS", usable or 1))
+    return max(1, min(configured, usable or 1))
 
 
 class Workers:
