@@ -375,10 +375,11 @@ class _Layers:
             self.sweeps += sum(c[0] for c in counts)
             self.evaluations += sum(c[1] for c in counts)
             log.debug("layers %s: (full sweeps, evaluations) %s", reps, counts)
-        for m in self.order:
-            if self.groups[m] != m:
-                self.h[m] = self.h[self.groups[m]]
-                self.D[m] = self.D[self.groups[m]]
+            # Copies of the layers solved once, before the W layers read their C layers.
+            for m in self.order:
+                if self.groups[m] != m and self.groups[m] in reps:
+                    self.h[m] = self.h[self.groups[m]]
+                    self.D[m] = self.D[self.groups[m]]
 
     def _gauss_seidel(self, m: int, g: float, accuracy: float, model: Model) -> None:
         d = len(self.mdp.shape)
