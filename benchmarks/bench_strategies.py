@@ -27,6 +27,7 @@ structured P1 solves are timed best of 3 (the machine is shared); the others onc
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import resource
 import time
@@ -262,17 +263,24 @@ def storm_model(ex: ExplicitMDP, chunk: int = 2_000_000) -> Any:
     return models.SparseMdp[float](components)
 
 
+@functools.cache
+def _storm_settings(tol: float) -> None:
+    """Storm's LRA solver: value iteration, absolute precision ``tol`` (settable once)."""
+    import stormpy.developer
+
+    stormpy.developer.set_from_exploded_string(
+        ["--lra:nondetmethod", "vi", "--lra:precision", repr(tol), "--lra:absolute"]
+    )
+
+
 def storm_lra(model: Any, tol: float) -> tuple[float, float]:
     """``R{"cost"}min=? [ LRA ]`` by Storm's value iteration, absolute precision ``tol``.
 
     Returns (seconds, gain at the initial state): the model-checking call alone.
     """
     import stormpy
-    import stormpy.developer
 
-    stormpy.developer.set_from_exploded_string(
-        ["--lra:nondetmethod", "vi", "--lra:precision", repr(tol), "--lra:absolute"]
-    )
+    _storm_settings(tol)
     env = stormpy.Environment()
     prop = stormpy.parse_properties('R{"cost"}min=? [ LRA ]')[0]
     t = time.perf_counter()
