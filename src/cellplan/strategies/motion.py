@@ -21,8 +21,8 @@ from cellplan.strategies.stencils import MAX_DIM, centre, displacement
 def motion_ok(q, dq, free, shape, lower, upper, spacing, periodic, ibuf):  # pragma: no cover
     """Swept check of the segment ``q -> q + dq`` against the bitmap ``free`` (1-D, flat).
 
-    The grid's arrays come one by one (a low-level helper called per action: numba passes
-    a named tuple to a callee by copying it, which costs more than the check);
+    The grid's arrays come one by one: a low-level helper called per action, where a
+    bundle argument cost more than the check itself;
     ``ibuf`` is int scratch of length ``3 * MAX_DIM``.
     """
     d = shape.shape[0]
