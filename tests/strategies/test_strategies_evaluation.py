@@ -82,10 +82,7 @@ def test_dijkstra_values_are_shortest_paths_on_the_main_corner_graph():
     h[nxt] = np.linspace(0.0, 1.0, h.shape[1])  # some terminal values
     h[m] = np.inf
     pol = np.full(h.shape, -3, np.int16)
-    reached = coldstart.dijkstra_layer(
-        m, h, g, pol, mdp.live, mdp.valid, mdp.coff, mdp.interior, mdp.nact,
-        mdp.heading_axis, mdp.vcls, mdp.cost, mdp.fmp_next, mdp.tf, mdp.shape,
-    )  # fmt: skip
+    reached = coldstart.dijkstra_layer(m, h, g, pol, mdp.kernel_args())
     assert reached > 0
     # The reference: networkx Dijkstra from a super source, every move a stage.
     step = float(mdp.cost[m]) - g

@@ -64,36 +64,29 @@ def _pop(keys, vals, n):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def dijkstra_layer(
-    m,
-    h,
-    g,
-    pol,
-    live,
-    valid,
-    coff,
-    interior,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    shape,
-):  # pragma: no cover - numba
+def dijkstra_layer(m, h, g, pol, model):  # pragma: no cover - numba
     """Values ``h[m]`` and actions ``pol[m]`` of layer ``m`` by Dijkstra (see module doc).
 
     Only cells the label-setting pass reaches are written; returns their number (0 when
     the stage cost ``cost[m] - g`` is not positive, where Dijkstra does not apply).
     """
-    step = cost[m] - g
-    nxt = fmp_next[m]
+    moves = model.moves
+    lay = model.layers
+    live = lay.live
+    tf = lay.tf
+    valid = moves.valid
+    coff = moves.coff
+    interior = moves.interior
+    heading_axis = moves.heading_axis
+    shape = model.grid.shape
+    step = lay.cost[m] - g
+    nxt = lay.fmp_next[m]
     if step <= 0.0 or nxt < 0:
         return 0
     ncell = live.shape[1]
     d = shape.shape[0]
-    kcls = vcls[m]
-    na = nact[kcls]
+    kcls = lay.vcls[m]
+    na = moves.nact[kcls]
     n_t = coff.shape[2]
     dist = np.full(ncell, np.inf)
     done = np.zeros(ncell, np.bool_)

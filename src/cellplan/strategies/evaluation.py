@@ -50,20 +50,24 @@ def live_cells(livem):  # pragma: no cover - numba
 def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - numba
     """The linear system of the policy ``pol[m]`` on layer ``m`` (other layers fixed).
 
-    The same update as :func:`cellplan.strategies.kernels.sweep_policy` restricted to the
+    The same update as :func:`cellplan.strategies.sweeps.sweep_policy` restricted to the
     recorded action, written as ``(ptr, succ, wt)`` (rows of ``W`` over the local indices
     of ``cells``), ``const``, ``dconst`` and ``fixed`` (cells without a usable action keep
     their value).
     """
-    (
-        live, _valid, offs, fr, coff, cw, interior, _nact, heading_axis, vcls, cost, fmp_next, tf,
-        branch_ptr, branch_layer, branch_prob, shape, periodic,
-    ) = model  # fmt: skip
+    moves = model.moves
+    grid = model.grid
+    lay = model.layers
+    live = lay.live
+    tf = lay.tf
+    branch_layer = lay.branch_layer
+    branch_prob = lay.branch_prob
+    shape = grid.shape
     d = shape.shape[0]
     n = cells.shape[0]
     ncorner = 1 << d
-    b0 = branch_ptr[m]
-    b1 = branch_ptr[m + 1]
+    b0 = lay.branch_ptr[m]
+    b1 = lay.branch_ptr[m + 1]
     nself = 0
     for b in range(b0, b1):
         if branch_layer[b] == m and branch_prob[b] > 0.0:
@@ -78,9 +82,9 @@ def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - nu
     mi = np.empty(d, np.int64)
     idx = np.empty(ncorner, np.int64)
     w = np.empty(ncorner)
-    kcls = vcls[m]
-    nxt = fmp_next[m]
-    step_cost = cost[m] - g
+    kcls = lay.vcls[m]
+    nxt = lay.fmp_next[m]
+    step_cost = lay.cost[m] - g
     ne = 0
     for v in range(n):
         c = cells[v]
@@ -115,9 +119,21 @@ def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - nu
             dconst[v] = dv
         elif pa >= 0:
             decode(c, shape, mi)
-            inner = interior[kcls, c]
             nc = move_corners(
-                kcls, pa, c, mi, inner, offs, fr, coff, cw, heading_axis, shape, periodic, idx, w
+                kcls,
+                pa,
+                c,
+                mi,
+                moves.interior[kcls, c],
+                moves.offs,
+                moves.fr,
+                moves.coff,
+                moves.cw,
+                moves.heading_axis,
+                grid.shape,
+                grid.periodic,
+                idx,
+                w,
             )
             cv = step_cost
             dv = -1.0
@@ -158,15 +174,15 @@ def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - nu
 
 @njit(cache=True)
 def self_system(m, h, D, g, E, ED, pself, pol, cells, local, model):  # pragma: no cover - numba
-    """The linear system of ``pol[m]`` for the NR update of :func:`kernels.sweep_self`.
+    """The linear system of ``pol[m]`` for the NR update of :func:`.sweeps.sweep_self`.
 
     Stay is solved exactly, ``h = (l - g + E[c, 0]) / (1 - pself)`` (a constant here); a
     move costs ``l - g + E[c, 1 + a] + pself * h[m](x')``.
     """
-    (
-        live, _valid, offs, fr, coff, cw, interior, _nact, heading_axis, vcls, cost, _fmp_next, _tf,
-        _branch_ptr, _branch_layer, _branch_prob, shape, periodic,
-    ) = model  # fmt: skip
+    moves = model.moves
+    grid = model.grid
+    live = model.layers.live
+    shape = grid.shape
     d = shape.shape[0]
     n = cells.shape[0]
     ncorner = 1 << d
@@ -179,8 +195,8 @@ def self_system(m, h, D, g, E, ED, pself, pol, cells, local, model):  # pragma: 
     mi = np.empty(d, np.int64)
     idx = np.empty(ncorner, np.int64)
     w = np.empty(ncorner)
-    kcls = vcls[m]
-    step_cost = cost[m] - g
+    kcls = model.layers.vcls[m]
+    step_cost = model.layers.cost[m] - g
     ne = 0
     for v in range(n):
         c = cells[v]
@@ -198,20 +214,19 @@ def self_system(m, h, D, g, E, ED, pself, pol, cells, local, model):  # pragma: 
             dconst[v] = -1.0 + ED[c, 1 + pa]
             if pself > 0.0:
                 decode(c, shape, mi)
-                inner = interior[kcls, c]
                 nc = move_corners(
                     kcls,
                     pa,
                     c,
                     mi,
-                    inner,
-                    offs,
-                    fr,
-                    coff,
-                    cw,
-                    heading_axis,
-                    shape,
-                    periodic,
+                    moves.interior[kcls, c],
+                    moves.offs,
+                    moves.fr,
+                    moves.coff,
+                    moves.cw,
+                    moves.heading_axis,
+                    grid.shape,
+                    grid.periodic,
                     idx,
                     w,
                 )

@@ -13,8 +13,9 @@ cycles between two actions for ever (docs/strategies.md, "Executing P3 off the g
 :class:`Executor` keeps (9) as the scoring rule and adds three things in the layers that
 have a request to finish (W and C):
 
-* a lookahead (:func:`lookahead`): every motion sequence of up to ``D`` stages that stays
-  in the strategy's domain (each motion passes the swept check and ends in a live cell),
+* a lookahead (:func:`cellplan.strategies.points.lookahead`): every motion sequence of
+  up to ``D`` stages that stays in the strategy's domain (each motion passes the swept
+  check and ends in a live cell),
   scored in the average-cost form of (9): stage losses less the gain ``g`` per stage,
   plus the interpolated cost-to-go where it ends (or FMP there);
 * commitment: the best sequence is carried out to its end unless the mode changes or a
@@ -43,10 +44,11 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from numba import njit
 
-from cellplan.strategies import kernels, stencils
+from cellplan.strategies import stencils
+from cellplan.strategies.interpolation import interp
 from cellplan.strategies.model import LayeredMDP
+from cellplan.strategies.points import action_values_at, lookahead
 from cellplan.strategies.strategy import FMP, Strategy, best_action
 
 # Fraction of one stage's progress (l - g) below which an inconsistency is left alone.
@@ -54,186 +56,6 @@ RAISE_FRACTION = 0.5
 # Motion sequences examined per stage by the lookahead, and its deepest horizon.
 LEAF_BUDGET = 400
 MAX_DEPTH = 6
-
-
-@njit(cache=True)
-def _leaf(
-    q,
-    m,
-    h,
-    live,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    lower,
-    spacing,
-    periodic,
-    idx,
-    w,
-    ibuf,
-    frac,
-):  # pragma: no cover - numba
-    """Expected interpolated cost-to-go after a motion in layer ``m`` (NaN: unsupported)."""
-    n = stencils.stencil(q, shape, lower, spacing, periodic, idx, w, ibuf, frac)
-    val = 0.0
-    for b in range(branch_ptr[m], branch_ptr[m + 1]):
-        L = branch_layer[b]
-        v = kernels.interp(h[L], live[L], idx, w, n)
-        if np.isnan(v):
-            return np.nan
-        val += branch_prob[b] * v
-    return val
-
-
-@njit(cache=True)
-def lookahead(
-    q,
-    m,
-    depth,
-    h,
-    live,
-    free,
-    disp,
-    nact,
-    heading_axis,
-    vcls,
-    cost,
-    fmp_next,
-    tf,
-    fmp_root,
-    offset,
-    branch_ptr,
-    branch_layer,
-    branch_prob,
-    shape,
-    lower,
-    upper,
-    spacing,
-    periodic,
-    collect,
-    nodes,
-    fmp_ok,
-    seq,
-):  # pragma: no cover - numba
-    """The best motion sequence of up to ``depth`` stages from ``q`` (a lookahead on (9)).
-
-    The value of a sequence is its stage losses less ``offset`` per stage (the gain, as in
-    the average-cost form of (9)) plus the interpolated cost-to-go where it ends: after
-    ``depth`` motions, or by FMP at a configuration whose cell allows it (at ``q`` itself
-    only if ``fmp_root``). Every motion must pass the swept check and end in a cell that is
-    a live state of layer ``m`` (inside the strategy's domain). A motion followed by its
-    inverse is skipped (it returns to the same configuration). Returns
-    ``(value, length, count)``: the best sequence is ``seq[:length]`` (move indices, -2
-    for FMP, which ends it; length 0 when no sequence qualifies) and ``count`` the
-    configurations after the root whose cell allows FMP.
-
-    The exact region test is not available in compiled code, so FMP away from the root
-    takes two calls: with ``collect`` the count configurations are written to ``nodes``
-    (and FMP is not offered there); without it ``fmp_ok[i]`` says whether FMP is possible
-    at the i-th of them, in the same order.
-    """
-    d = shape.shape[0]
-    k = vcls[m]
-    na = nact[k]
-    nxt = fmp_next[m]
-    step = cost[m] - offset
-    qd = np.empty((depth + 1, d))
-    dq = np.empty(d)
-    acc = np.zeros(depth + 1)
-    choice = np.full(depth + 1, -1, np.int64)
-    idx = np.empty(1 << d, np.int64)
-    w = np.empty(1 << d)
-    ibuf = np.empty(2 * stencils.MAX_DIM, np.int64)
-    frac = np.empty(stencils.MAX_DIM)
-    mbuf = np.empty(3 * stencils.MAX_DIM, np.int64)
-    best = np.inf
-    count = 0
-    length = 0
-    for j in range(d):
-        qd[0, j] = q[j]
-    if nxt >= 0 and fmp_root:
-        c = stencils.cell_containing(q, shape, lower, spacing, periodic)
-        if tf[m, c] < np.inf:
-            n = stencils.stencil(q, shape, lower, spacing, periodic, idx, w, ibuf, frac)
-            v = kernels.interp(h[nxt], live[nxt], idx, w, n)
-            if not np.isnan(v):
-                best = tf[m, c] - offset + v
-                seq[0] = -2
-                length = 1
-    level = 0
-    while level >= 0:
-        choice[level] += 1
-        a = choice[level]
-        if a >= na:
-            choice[level] = -1
-            level -= 1
-            continue
-        if level > 0:
-            inverse = True
-            prev = choice[level - 1]
-            for j in range(d):
-                if abs(disp[k, a, j] + disp[k, prev, j]) > 1e-12:
-                    inverse = False
-                    break
-            if inverse:
-                continue
-        stencils.displacement(qd[level], disp[k, a], heading_axis, dq)
-        if not kernels.motion_ok(
-            qd[level], dq, free[k], shape, lower, upper, spacing, periodic, mbuf
-        ):
-            continue
-        for j in range(d):
-            qd[level + 1, j] = qd[level, j] + dq[j]
-        stencils.wrap(qd[level + 1], lower, upper, periodic)
-        c = stencils.cell_containing(qd[level + 1], shape, lower, spacing, periodic)
-        if not live[m, c]:
-            continue
-        acc[level + 1] = acc[level] + step
-        fmp_here = False
-        if nxt >= 0 and tf[m, c] < np.inf:
-            if collect:
-                if count < nodes.shape[0]:
-                    for j in range(d):
-                        nodes[count, j] = qd[level + 1, j]
-            else:
-                fmp_here = count < fmp_ok.shape[0] and fmp_ok[count]
-            count += 1
-        if fmp_here:
-            n = stencils.stencil(qd[level + 1], shape, lower, spacing, periodic, idx, w, ibuf, frac)
-            v = kernels.interp(h[nxt], live[nxt], idx, w, n)
-            if not np.isnan(v) and acc[level + 1] + tf[m, c] - offset + v < best:
-                best = acc[level + 1] + tf[m, c] - offset + v
-                for i in range(level + 1):
-                    seq[i] = choice[i]
-                seq[level + 1] = -2
-                length = level + 2
-        if level + 1 == depth:
-            v = _leaf(
-                qd[level + 1],
-                m,
-                h,
-                live,
-                branch_ptr,
-                branch_layer,
-                branch_prob,
-                shape,
-                lower,
-                spacing,
-                periodic,
-                idx,
-                w,
-                ibuf,
-                frac,
-            )
-            if not np.isnan(v) and acc[level + 1] + v < best:
-                best = acc[level + 1] + v
-                for i in range(level + 1):
-                    seq[i] = choice[i]
-                length = level + 1
-        else:
-            level += 1
-    return best, length, count
 
 
 def default_depth(mdp: LayeredMDP, budget: int = LEAF_BUDGET) -> int:
@@ -309,6 +131,7 @@ class Executor:
         self._w = np.empty(1 << d)
         self._ibuf = np.empty(2 * stencils.MAX_DIM, np.int64)
         self._frac = np.empty(stencils.MAX_DIM)
+        self._model = mdp.kernel_args()
 
     def action_values(
         self, q: np.ndarray, mode: int, fmp_allowed: bool | None = None
@@ -323,10 +146,16 @@ class Executor:
         tf_here = float(mdp.tf[mode, self.strategy.cell_of(q)])
         if fmp_allowed is None:
             fmp_allowed = bool(np.isfinite(tf_here))
-        actions, grid = mdp.point_args()
-        kernels.action_values_at(q, mode, self.h, self.live, *actions,
-                                 tf_here if np.isfinite(tf_here) else 0.0, fmp_allowed, *grid,
-                                 self._out)
+        action_values_at(
+            q,
+            mode,
+            self.h,
+            self.live,
+            tf_here if np.isfinite(tf_here) else 0.0,
+            fmp_allowed,
+            self._model,
+            self._out,
+        )
         return self._out
 
     def value(self, q: np.ndarray, mode: int) -> float:
@@ -343,7 +172,7 @@ class Executor:
             self._ibuf,
             self._frac,
         )
-        return float(kernels.interp(self.h[mode], self.live[mode], self._idx, self._w, n))
+        return float(interp(self.h[mode], self.live[mode], self._idx, self._w, n))
 
     def correct(self, q: np.ndarray, mode: int, target: float) -> float:
         """The LRTA* step: raise ``H(q)`` to ``target`` if it is lower by more than half a
@@ -401,7 +230,7 @@ class Executor:
         return u
 
     def _lookahead(self, q: np.ndarray, mode: int, fmp_root: bool) -> tuple[float, list[int]]:
-        """:func:`lookahead` with FMP confirmed by ``fmp_test`` where one is given."""
+        """The lookahead (:func:`.points.lookahead`), FMP confirmed by ``fmp_test`` if given."""
         flags = self._all
         if self.fmp_test is not None:
             _, _, count = self._call(q, mode, fmp_root, True, flags)
@@ -414,31 +243,15 @@ class Executor:
     def _call(
         self, q: np.ndarray, mode: int, fmp_root: bool, collect: bool, flags: np.ndarray
     ) -> tuple[float, int, int]:
-        mdp = self.strategy.mdp
         return lookahead(
             q,
             mode,
             self.depth,
             self.h,
             self.live,
-            mdp.free,
-            mdp.disp,
-            mdp.nact,
-            mdp.heading_axis,
-            mdp.vcls,
-            mdp.cost,
-            mdp.fmp_next,
-            mdp.tf,
+            self._model,
             fmp_root,
             self.offset,
-            mdp.branch_ptr,
-            mdp.branch_layer,
-            mdp.branch_prob,
-            mdp.shape,
-            mdp.lower,
-            mdp.upper,
-            mdp.spacing,
-            mdp.periodic,
             collect,
             self._nodes,
             flags,

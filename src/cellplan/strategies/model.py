@@ -17,7 +17,7 @@ changes to another of the same part and destination (type 3). FMP moves
 ``d`` with probability one. The loss is equation (7).
 
 A layer's *live* states are the free cells from which its request can be finished
-(computed by :func:`cellplan.strategies.kernels.live_pass`); the MDP is defined on live
+(computed by :func:`cellplan.strategies.domain.live_pass`); the MDP is defined on live
 states only, which keeps it unichain-friendly and lets the input checks name a request
 that can never be served.
 """
@@ -32,8 +32,10 @@ from typing import Any
 import numpy as np
 
 from cellplan.errors import Problem, ScenarioError
-from cellplan.strategies import kernels
 from cellplan.strategies.actions import ActionSet, action_set
+from cellplan.strategies.bundles import Grid, Layers, Model, Moves
+from cellplan.strategies.domain import live_pass
+from cellplan.strategies.motion import valid_moves
 
 NR = "NR"
 
@@ -56,7 +58,7 @@ class Mode:
 
 @dataclass
 class LayeredMDP:
-    """Arrays of the discretised MDP, in the layout the kernels take (see kernels.py)."""
+    """Arrays of the discretised MDP; :meth:`kernel_args` bundles them for the kernels."""
 
     shape: np.ndarray
     lower: np.ndarray
@@ -105,44 +107,35 @@ class LayeredMDP:
     def c_layer(self, r: int) -> int:
         return 1 + self.n_requests + r
 
-    def kernel_args(self) -> tuple:
-        """Model arrays in the order the kernels take them (after the layer-specific ones)."""
-        return (
-            self.live,
-            self.valid,
-            self.offs,
-            self.fr,
-            self.coff,
-            self.cw,
-            self.interior,
-            self.nact,
-            self.heading_axis,
-            self.vcls,
-            self.cost,
-            self.fmp_next,
-            self.tf,
-            self.branch_ptr,
-            self.branch_layer,
-            self.branch_prob,
-            self.shape,
-            self.periodic,
+    def grid(self) -> Grid:
+        """The grid bundle of the kernels."""
+        return Grid(self.shape, self.lower, self.upper, self.spacing, self.periodic)
+
+    def kernel_args(self) -> Model:
+        """The model arrays as the kernels take them: one named bundle (:mod:`.bundles`)."""
+        moves = Moves(
+            free=self.free,
+            disp=self.disp,
+            nact=self.nact,
+            heading_axis=int(self.heading_axis),
+            valid=self.valid,
+            offs=self.offs,
+            fr=self.fr,
+            coff=self.coff,
+            cw=self.cw,
+            interior=self.interior,
         )
-
-    def point_args(self) -> tuple[
-        tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray],
-        tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-              np.ndarray, np.ndarray],
-    ]:
-        """Model arrays of the point kernels (``action_values_at``, ``query``).
-
-        Those kernels take ``q, m, h, live, *actions, tf, fmp_flag, *grid, out``; the two
-        tuples are ``actions`` and ``grid``, so that every caller passes them in one order.
-        """
-        actions = (self.free, self.disp, self.nact, self.heading_axis, self.vcls, self.cost,
-                   self.fmp_next)
-        grid = (self.branch_ptr, self.branch_layer, self.branch_prob, self.shape, self.lower,
-                self.upper, self.spacing, self.periodic)
-        return actions, grid
+        layers = Layers(
+            live=self.live,
+            vcls=self.vcls,
+            cost=self.cost,
+            fmp_next=self.fmp_next,
+            tf=self.tf,
+            branch_ptr=self.branch_ptr,
+            branch_layer=self.branch_layer,
+            branch_prob=self.branch_prob,
+        )
+        return Model(self.grid(), moves, layers)
 
     def has_changes(self) -> bool:
         """Whether destination or source changes couple the W/C layers (Section III-B)."""
@@ -282,17 +275,9 @@ def assemble(
     heading_axis = actions_empty.heading_axis
     free = np.stack(cls_free).astype(np.bool_)
     valid = np.zeros((K, ncell), np.int64)
+    grid = Grid(shape_a, lower_a, upper_a, spacing, periodic_a)
     for k in range(K):
-        valid[k] = kernels.valid_moves(
-            free[k],
-            disp[k, : nact[k]],
-            heading_axis,
-            shape_a,
-            lower_a,
-            upper_a,
-            spacing,
-            periodic_a,
-        )
+        valid[k] = valid_moves(free[k], disp[k, : nact[k]], heading_axis, grid)
     offs, fr = stencil_tables(disp, heading_axis, shape_a, lower_a, spacing)
     coff, cw, interior = corner_tables(offs, fr, nact, shape_a)
     live = np.zeros((M, ncell), np.bool_)
@@ -406,28 +391,8 @@ def compute_live(mdp: LayeredMDP) -> None:
 
 
 def _live_pass(mdp: LayeredMDP, live: np.ndarray) -> bool:
-    """One shrinking pass of ``live`` (:func:`kernels.live_pass`); True if anything changed."""
-    return bool(
-        kernels.live_pass(
-            live,
-            mdp.tf < np.inf,
-            mdp.valid,
-            mdp.offs,
-            mdp.fr,
-            mdp.coff,
-            mdp.cw,
-            mdp.interior,
-            mdp.nact,
-            mdp.heading_axis,
-            mdp.vcls,
-            mdp.fmp_next,
-            mdp.branch_ptr,
-            mdp.branch_layer,
-            mdp.branch_prob,
-            mdp.shape,
-            mdp.periodic,
-        )
-    )
+    """One shrinking pass of ``live`` (:func:`.domain.live_pass`); True if anything changed."""
+    return bool(live_pass(live, mdp.tf < np.inf, mdp.kernel_args()))
 
 
 def live_problems(mdp: LayeredMDP) -> list[Problem]:

@@ -47,8 +47,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from cellplan.core import Status
-from cellplan.strategies import kernels
+from cellplan.strategies import bellman as bellman_kernels
+from cellplan.strategies import sweeps
+from cellplan.strategies.bundles import Model
 from cellplan.strategies.model import LayeredMDP
+from cellplan.strategies.threads import Workers, workers_for
 
 log = logging.getLogger(__name__)
 # Inner solves need only be accurate relative to the outer progress (drift, NR shape change).
@@ -136,31 +139,42 @@ class SolveResult:
 
 
 def bellman(
-    mdp: LayeredMDP, h: np.ndarray, subset: np.ndarray | None = None
+    mdp: LayeredMDP,
+    h: np.ndarray,
+    subset: np.ndarray | None = None,
+    workers: Workers | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(T h, policy, gap)``: one Jacobi sweep of equation (9) over every state (no ``g``).
 
     ``gap`` is the second-best action value minus the best, per state. With ``subset``
     (boolean, like ``h``) only those states are swept; the outputs elsewhere are NaN / -3.
+    ``workers`` runs ranges of states in parallel threads.
     """
     out = np.full_like(h, np.nan)
     policy = np.full(h.shape, -3, np.int64)
     gap = np.full_like(h, np.nan)
     mask = np.zeros((0, 0), np.bool_) if subset is None else subset
-    kernels.bellman_all(h, out, policy, gap, mask, mdp.kernel_args())
+    model = mdp.kernel_args()
+    pool = Workers(1) if workers is None else workers
+
+    def rows(r: tuple[int, int]) -> None:
+        bellman_kernels.bellman_rows(h, out, policy, gap, mask, r[0], r[1], model)
+
+    pool.map(rows, pool.ranges(h.size))
     return out, policy, gap
 
 
 Certificate = tuple[float, float, np.ndarray, np.ndarray, np.ndarray]
 
 
-def _certify(mdp: LayeredMDP, h: np.ndarray) -> Certificate:
-    th, policy, gap = bellman(mdp, h)
+def _certify(mdp: LayeredMDP, h: np.ndarray, workers: Workers | None = None) -> Certificate:
+    """The span test: ``min (T h - h) <= g <= max (T h - h)`` over the live states."""
+    th, policy, gap = bellman(mdp, h, workers=workers)
     r = (th - h)[mdp.live]
     return float(r.min()), float(r.max()), th, policy, gap
 
 
-def _stability(mdp: LayeredMDP, cert: Certificate, g: float) -> int:
+def _stability(mdp: LayeredMDP, cert: Certificate, g: float, workers: Workers | None = None) -> int:
     """States whose action changes in one more Bellman sweep, ``T (T h - g)`` against ``T h``.
 
     ``T h - g = h + r`` with ``span(r)`` the certificate's span, so an action can change only
@@ -174,7 +188,7 @@ def _stability(mdp: LayeredMDP, cert: Certificate, g: float) -> int:
     near = live & (gap <= slack)
     if not np.any(near):
         return 0
-    _, policy2, _ = bellman(mdp, th - g, near)
+    _, policy2, _ = bellman(mdp, th - g, near, workers)
     return int(np.count_nonzero((policy2 != policy) & near))
 
 
@@ -190,14 +204,15 @@ def _finish(
     t0: float,
     ref: int,
     cert: Certificate | None = None,
+    workers: Workers | None = None,
 ) -> SolveResult:
     # ``cert``: the certificate of this very ``h``, when the caller already computed it.
-    cert = _certify(mdp, h) if cert is None else cert
+    cert = _certify(mdp, h, workers) if cert is None else cert
     lo, hi, _, policy, _ = cert
     full += 1
     span = hi - lo
     g = 0.5 * (lo + hi) if span < tol else g_hint
-    changes = _stability(mdp, cert, g)
+    changes = _stability(mdp, cert, g, workers)
     full += 1
     values = np.where(mdp.live, h - h[0, ref], np.nan)
     return SolveResult(
@@ -224,6 +239,7 @@ def solve_general(
     max_sweeps: int = 20000,
     damping: float = 1.0,
     progress: Progress | None = None,
+    threads: int | None = None,
 ) -> SolveResult:
     """Relative value iteration over all states (works for every transition model).
 
@@ -236,19 +252,20 @@ def solve_general(
     ref = int(np.flatnonzero(live[0])[0])
     g = 0.0
     k = 0
-    for k in range(1, max_sweeps + 1):
-        th, _, _ = bellman(mdp, h)
-        diff = np.where(live, th - h, 0.0)
-        r = diff[live]
-        lo, hi = float(r.min()), float(r.max())
-        g = 0.5 * (lo + hi)
-        if progress is not None and (k % 25 == 0 or hi - lo < tol):
-            progress(k, hi - lo, g)
-        if hi - lo < tol:
-            break
-        h = h + damping * diff
-        h -= h[0, ref]
-    return _finish(mdp, h, g, tol, k, k, k, "general", t0, ref)
+    with workers_for(int(live.sum()), threads) as workers:
+        for k in range(1, max_sweeps + 1):
+            th, _, _ = bellman(mdp, h, workers=workers)
+            diff = np.where(live, th - h, 0.0)
+            r = diff[live]
+            lo, hi = float(r.min()), float(r.max())
+            g = 0.5 * (lo + hi)
+            if progress is not None and (k % 25 == 0 or hi - lo < tol):
+                progress(k, hi - lo, g)
+            if hi - lo < tol:
+                break
+            h = h + damping * diff
+            h -= h[0, ref]
+        return _finish(mdp, h, g, tol, k, k, k, "general", t0, ref, workers=workers)
 
 
 def _layer_key(mdp: LayeredMDP, m: int, groups: dict[int, int]) -> bytes:
@@ -260,6 +277,210 @@ def _layer_key(mdp: LayeredMDP, m: int, groups: dict[int, int]) -> bytes:
     return dig.digest()
 
 
+class _Layers:
+    """The state of a structured solve and its two inner steps (C/W layers, then NR).
+
+    ``h`` and ``D = dh/dg`` are ``(M, N)``; ``pol`` the last recorded policy per state.
+    """
+
+    def __init__(self, mdp: LayeredMDP, max_sweeps: int, workers: Workers) -> None:
+        self.mdp = mdp
+        self.model = mdp.kernel_args()
+        self.max_sweeps = max_sweeps
+        self.workers = workers
+        live = mdp.live
+        self.live = live
+        self.h = np.zeros(live.shape)
+        self.D = np.zeros(live.shape)
+        self.pol = np.full(live.shape, -3, np.int16)
+        self.sweeps = 0  # full layer sweeps (every action)
+        self.evaluations = 0  # exact policy evaluations
+        self.coupled = mdp.has_changes()
+        R = mdp.n_requests
+        self.c_layers = [mdp.c_layer(r) for r in range(R)]
+        self.w_layers = [mdp.w_layer(r) for r in range(R)]
+        self.order = self.c_layers + self.w_layers
+        # Layers with identical data (move class, successor, fine-motion field, live set)
+        # are solved once and share values.
+        self.groups: dict[int, int] = {}
+        reps: dict[bytes, int] = {}
+        for m in self.order:
+            key = _layer_key(mdp, m, self.groups)
+            self.groups[m] = m if self.coupled else reps.setdefault(key, m)
+        self.c_reps = [m for m in self.c_layers if self.groups[m] == m]
+        self.w_reps = [m for m in self.w_layers if self.groups[m] == m]
+        # The uncoupled model (every move keeps the request) starts coupled groups.
+        ptr, lay, prob = mdp.branch_ptr, mdp.branch_layer, mdp.branch_prob
+        solo_prob = prob.copy()
+        for m in range(1, mdp.n_modes):
+            for b in range(ptr[m], ptr[m + 1]):
+                solo_prob[b] = 1.0 if lay[b] == m else 0.0
+        self.solo_model = self.model._replace(
+            layers=self.model.layers._replace(branch_prob=solo_prob)
+        )
+        # A Dijkstra first policy pays off where Gauss-Seidel from +inf is slow to cross
+        # the layer: 3-D joint spaces (8 sweep orders). In the plane 4 orders suffice, and
+        # for a robot-frame heading axis its predecessor search costs more than it saves.
+        self.cold_dijkstra = len(mdp.shape) >= 3 and mdp.heading_axis < 0
+        # NR: its request branches (into the W layers, fixed while NR is solved) are
+        # summed once per pass into E (ED for D), per cell and action.
+        n_act = int(mdp.nact[mdp.vcls[0]])
+        self.E = np.empty((live.shape[1], n_act + 1))
+        self.ED = np.empty_like(self.E)
+        self.p_self = float(sum(prob[b] for b in range(ptr[0], ptr[1]) if lay[b] == 0))
+
+    # --- step 1: the C and W layers ---------------------------------------------------------
+
+    def start(self, m: int, warm: float | None, dg: float) -> None:
+        """Starting values of a C or W layer (see :meth:`request_layers`)."""
+        lm = self.live[m]
+        if warm is None:
+            self.h[m][lm] = np.inf
+        else:
+            self.h[m][lm] += dg * self.D[m][lm] + warm
+
+    def request_layers(
+        self, g: float, accuracy: float, warm: float | None, dg: float, cap: int
+    ) -> None:
+        """Solve every C layer, then every W layer, for the gain ``g`` and the current NR.
+
+        A C or W layer is a deterministic shortest path with terminal cost (eq. (9) with
+        the loss (7) of a stage, ``dt``, and of FMP, ``t_f``):
+
+            h(m, x) = min( t_f(m, x) - g + h(next(m), x),  min_a  dt - g + H_m(x + dx_a) ).
+
+        Gauss-Seidel on a shortest path converges fast from above and creeps up from below.
+        The first pass starts from ``+inf`` (``warm`` None); later passes start from the
+        last solution moved by the exact change of its old policy's cost under the new g
+        (``dg * D``) plus ``warm``, the largest change of the terminal NR values beyond
+        that: an upper bound within the spread of those changes. ``cap`` bounds the sweeps
+        and evaluations per layer (an inexact solve on early passes).
+        """
+        if self.coupled:
+            for ms in (self.c_layers, self.w_layers):
+                self._coupled_group(ms, g, accuracy, warm, dg)
+            return
+        # C layers read only NR and W layers only C layers: each set runs in parallel.
+        for reps in (self.c_reps, self.w_reps):
+            for m in reps:
+                self.start(m, warm, dg)
+
+            def solve_one(m: int, warm_start: bool = warm is not None) -> tuple[int, int]:
+                return sweeps.layer_iteration(
+                    m, self.h, self.D, g, accuracy, cap, self.pol,
+                    EVAL_FIRST and warm_start, self.cold_dijkstra, self.model,
+                )  # fmt: skip
+
+            counts = self.workers.map(solve_one, reps)
+            self.sweeps += sum(c[0] for c in counts)
+            self.evaluations += sum(c[1] for c in counts)
+            log.debug("layers %s: (full sweeps, evaluations) %s", reps, counts)
+            # Copies of the layers solved once, before the W layers read their C layers.
+            for m in self.order:
+                if self.groups[m] != m and self.groups[m] in reps:
+                    self.h[m] = self.h[self.groups[m]]
+                    self.D[m] = self.D[self.groups[m]]
+
+    def _gauss_seidel(self, m: int, g: float, accuracy: float, model: Model) -> None:
+        d = len(self.mdp.shape)
+        for s in range(max(1, self.max_sweeps)):
+            change = sweeps.sweep_layer(m, s % (1 << d), self.h, self.D, g, False, True, model)
+            self.sweeps += 1
+            if change < accuracy:
+                return
+
+    def _coupled_group(
+        self, ms: list[int], g: float, accuracy: float, warm: float | None, dg: float
+    ) -> None:
+        """Layers coupled by destination or source changes: Gauss-Seidel rounds over the
+        group, started on the first pass from each layer's solution with the changes off."""
+        d = len(self.mdp.shape)
+        for m in ms:
+            self.start(m, warm, dg)
+            if warm is None:
+                self._gauss_seidel(m, g, accuracy, self.solo_model)
+        for s in range(max(1, self.max_sweeps)):
+            change = 0.0
+            for m in ms:
+                flips = s % (1 << d)
+                change = max(
+                    change,
+                    sweeps.sweep_layer(m, flips, self.h, self.D, g, False, True, self.model),
+                )
+            self.sweeps += len(ms)
+            if change < accuracy:
+                return
+
+    # --- step 2: NR ---------------------------------------------------------------------------
+
+    def nr_layer(self, g: float, accuracy: float, cold: bool) -> None:
+        """Solve NR for the gain ``g`` with the W layers fixed.
+
+        NR has no loss and a self-loop of probability ``1 - P`` (no request arrives); a
+        request ``r`` arrives with probability ``P pi_r`` and leads to ``W_r``. Its stay
+        self-loop is eliminated exactly,
+
+            h(NR, x) = min( (-g + E_stay(x)) / P,  min_a  -g + E_a(x) + (1 - P) H_NR(x + dx_a) ),
+
+        with ``E`` the request branches summed once per pass (:func:`sweeps.other_branches`).
+        The first pass starts from ``+inf``; later ones evaluate last pass's NR policy first.
+        """
+        n = self.live.shape[1]
+
+        def branches(r: tuple[int, int]) -> None:
+            sweeps.other_branches(0, self.h, self.D, self.E, self.ED, r[0], r[1], self.model)
+
+        self.workers.map(branches, self.workers.ranges(n))
+        if cold:
+            self.h[0][self.live[0]] = np.inf
+        counts = np.zeros(2, np.int64)
+        sweeps.solve_self(
+            0, self.h, self.D, g, self.E, self.ED, self.p_self, accuracy, self.max_sweeps,
+            self.pol, not cold, counts, self.model,
+        )  # fmt: skip
+        self.sweeps += int(counts[0])
+        self.evaluations += int(counts[1])
+        log.debug("NR: full sweeps %d, evaluations %d", counts[0], counts[1])
+
+
+class _ShapeMixer:
+    """Anderson acceleration of the NR shape over the last :data:`ANDERSON_DEPTH` passes.
+
+    One pass maps the NR values the C layers see (``x``) to the NR values that come out
+    (``f``); near the answer the map is affine, and the request cycle can have slow modes
+    (the arms of problems 5 and 6 remember their joint configuration from one delivery to
+    the next, so the shape error shrinks by only a factor 2-3 per pass). With residuals
+    ``r_i = f_i - x_i`` the next input is ``f_k - dF gamma`` where ``gamma`` minimises
+    ``|r_k - dR gamma|`` (``dR``, ``dF``: differences of successive residuals and
+    outputs). Outputs are moved to the current ``g`` through ``D`` first.
+    """
+
+    def __init__(self, depth: int = ANDERSON_DEPTH) -> None:
+        self.depth = depth
+        self.x: list[np.ndarray] = []
+        self.f: list[np.ndarray] = []
+        self.d: list[np.ndarray] = []
+        self.g: list[float] = []
+
+    def push(self, x: np.ndarray, f: np.ndarray, d: np.ndarray, g: float) -> None:
+        self.x.append(x)
+        self.f.append(f)
+        self.d.append(d)
+        self.g.append(g)
+        if len(self.g) > self.depth + 1:
+            del self.x[0], self.f[0], self.d[0], self.g[0]
+
+    def mix(self, g: float) -> np.ndarray:
+        f_now = [f + (g - gi) * di for f, di, gi in zip(self.f, self.d, self.g, strict=True)]
+        res = [f - x for f, x in zip(f_now, self.x, strict=True)]
+        if len(res) == 1:
+            return f_now[-1]
+        dr = np.stack([res[i + 1] - res[i] for i in range(len(res) - 1)], 1)
+        df = np.stack([f_now[i + 1] - f_now[i] for i in range(len(f_now) - 1)], 1)
+        gamma = np.linalg.lstsq(dr, res[-1], rcond=None)[0]
+        return np.asarray(f_now[-1] - df @ gamma)
+
+
 def solve_structured(
     mdp: LayeredMDP,
     tol: float = 1e-6,
@@ -268,284 +489,123 @@ def solve_structured(
     max_outer: int = 200,
     predictor: bool = True,
     extrapolate: bool = True,
+    threads: int | None = None,
 ) -> SolveResult:
-    """The decomposed solver (see the module docstring).
+    """The decomposed solver (see the module docstring and docs/strategies.md).
 
-    With destination or source changes the C (or W) layers are coupled; they are then
-    solved together by Gauss-Seidel rounds over the group, started from the uncoupled
-    solution (each layer as if its request never changed).
+    Each outer pass, for the current gain ``g``:
 
-    ``extrapolate`` turns on the Anderson acceleration of the NR shape; without it,
-    ``predictor`` moves the NR shape with ``g`` to first order through ``D``.
+    1. solve the C layers, then the W layers (:meth:`_Layers.request_layers`);
+    2. solve NR (:meth:`_Layers.nr_layer`); its value at a reference state moved by the
+       *drift* ``delta``, which is zero exactly at the optimal gain (NR is normalised
+       there, the Bellman equation ``h + g = T h`` then holds round the request cycle);
+    3. a Newton step ``g <- g - delta / (d delta / dg)``, the derivative (minus the
+       expected cycle length) carried along the minimising actions as ``D``;
+    4. the next NR shape: Anderson-mixed over the last passes (:class:`_ShapeMixer`), or
+       with ``extrapolate`` off and ``predictor`` on moved to first order with ``g``
+       through ``D``;
+    5. once the drift and the NR shape change are within the tolerance, the certificate:
+       one Jacobi Bellman sweep, whose span must be below ``tol``.
+
+    ``threads`` overrides the thread count (:mod:`cellplan.strategies.threads`).
     """
     t0 = time.perf_counter()
-    coupled = mdp.has_changes()
     live = mdp.live
-    R = mdp.n_requests
-    d = len(mdp.shape)
-    h = np.zeros(live.shape)
-    D = np.zeros(live.shape)
-    args = mdp.kernel_args()
+    lnr = live[0]
     inner_tol = tol * INNER_FACTOR
-    # Layers with identical data (move class, successor, fine-motion field, live set) share values.
-    groups: dict[int, int] = {}
-    reps: dict[bytes, int] = {}
-    order = [mdp.c_layer(r) for r in range(R)] + [mdp.w_layer(r) for r in range(R)]
-    for m in order:
-        key = _layer_key(mdp, m, groups)
-        groups[m] = m if coupled else reps.setdefault(key, m)
-    sweeps = 0
-    eval_sweeps = 0
-    pol = np.full(live.shape, -3, np.int16)
-    layer_args = args
-    c_reps = np.array([m for m in order[:R] if groups[m] == m], np.int64)
-    w_reps = np.array([m for m in order[R:] if groups[m] == m], np.int64)
-    # The uncoupled model: every move keeps the request (used to start coupled groups).
-    ptr, lay, prob = mdp.branch_ptr, mdp.branch_layer, mdp.branch_prob
-    solo_prob = prob.copy()
-    for m in range(1, mdp.n_modes):
-        for b in range(ptr[m], ptr[m + 1]):
-            solo_prob[b] = 1.0 if lay[b] == m else 0.0
-    solo_args = (*args[:-5], ptr, lay, solo_prob, *args[-2:])
-
-    # A Dijkstra first policy pays off where Gauss-Seidel from +inf is slow to cross the
-    # layer: 3-D joint spaces (8 sweep orders). In the plane 4 orders suffice, and for a
-    # robot-frame heading axis its predecessor search costs more than it saves.
-    cold_dijkstra = d >= 3 and mdp.heading_axis < 0
-
-    def solve_layer(
-        m: int, g: float, exact_stay: bool, accuracy: float, warm: float | None
-    ) -> None:
-        # Gauss-Seidel on a shortest path converges fast from above and creeps up from below.
-        # The first pass starts from +inf; later passes start from the last solution moved by
-        # the exact change of its old policy's cost under the new g (D is d h / d g along
-        # it) plus the largest change of the terminal NR values beyond that - an upper bound
-        # within the spread of those changes, which is tiny once the NR shape has settled.
-        nonlocal sweeps
-        lm = live[m]
-        if warm is None:
-            h[m][lm] = np.inf
-        else:
-            h[m][lm] += dg * D[m][lm] + warm
-        for s in range(max(1, max_sweeps)):
-            change = kernels.sweep_layer(m, s % (1 << d), h, D, g, exact_stay, True, layer_args)
-            sweeps += 1
-            if change < accuracy:
-                return
-
-    def start_layer(m: int, warm: float | None) -> None:
-        lm = live[m]
-        if warm is None:
-            h[m][lm] = np.inf
-        else:
-            h[m][lm] += dg * D[m][lm] + warm
-
-    # NR: its request branches lead to the W layers, fixed while NR is solved; their
-    # expected values per (cell, action) are computed once per pass (kernels.other_branches)
-    # so that each Gauss-Seidel sweep of NR interpolates only NR itself.
-    n_act = int(mdp.nact[mdp.vcls[0]])
-    E = np.empty((live.shape[1], n_act + 1))
-    ED = np.empty_like(E)
-    p_self = float(
-        sum(
-            mdp.branch_prob[b]
-            for b in range(mdp.branch_ptr[0], mdp.branch_ptr[1])
-            if mdp.branch_layer[b] == 0
-        )
-    )
-
-    def solve_nr(g: float, accuracy: float, cold: bool) -> None:
-        # The first pass starts from +inf (Gauss-Seidel then decreases monotonically);
-        # later passes evaluate last pass's NR policy exactly first, then sweep.
-        nonlocal sweeps, eval_sweeps
-        kernels.other_branches(0, h, D, E, ED, args)
-        if cold:
-            h[0][live[0]] = np.inf
-        counts = np.zeros(2, np.int64)
-        kernels.solve_self(
-            0, h, D, g, E, ED, p_self, accuracy, max_sweeps, pol, not cold, counts, args
-        )
-        sweeps += int(counts[0])
-        eval_sweeps += int(counts[1])
-        log.debug("NR: full sweeps %d, evaluations %d", counts[0], counts[1])
-
-    def solve_group(ms: list[int], g: float, accuracy: float, warm: float | None) -> None:
-        # Gauss-Seidel rounds over layers coupled by request changes.
-        nonlocal sweeps, layer_args
-        if warm is None:
-            layer_args = solo_args
-            for m in ms:
-                solve_layer(m, g, False, accuracy, None)
-            layer_args = args
-        else:
-            for m in ms:
-                h[m][live[m]] += dg * D[m][live[m]] + warm
-        for s in range(max(1, max_sweeps)):
-            change = 0.0
-            for m in ms:
-                change = max(
-                    change, kernels.sweep_layer(m, s % (1 << d), h, D, g, False, True, args)
-                )
-            sweeps += len(ms)
-            if change < accuracy:
-                return
-
-    g = 0.5 * mdp.stage_time
-    g_prev = g
-    ref = -1
-    outer = 0
-    accuracy = FIRST_ACCURACY
-    prev_term = np.zeros(live.shape[1])  # the NR values the C layers were last solved against
-    prev_d0 = np.zeros(live.shape[1])
-    g_solved = g  # the g the C and W layers were last solved with
-    dg = 0.0
-    hist_x: list[np.ndarray] = []
-    hist_f: list[np.ndarray] = []
-    hist_d: list[np.ndarray] = []
-    hist_g: list[float] = []
-    shift = 0.0
-    cert: Certificate | None = None
-    last_shape = np.inf
-    for outer in range(1, max_outer + 1):
-        warm: float | None = None
-        if outer > 1:
-            lnr = live[0]
+    with workers_for(int(live.sum()), threads) as workers:
+        run = _Layers(mdp, max_sweeps, workers)
+        h, D = run.h, run.D
+        g = 0.5 * mdp.stage_time
+        ref = -1
+        outer = 0
+        accuracy = FIRST_ACCURACY
+        prev_term = np.zeros(live.shape[1])  # the NR values the C layers were solved against
+        prev_d0 = np.zeros(live.shape[1])
+        g_solved = g  # the g the C and W layers were last solved with
+        mixer = _ShapeMixer()
+        shift = 0.0
+        cert: Certificate | None = None
+        last_shape = np.inf
+        for outer in range(1, max_outer + 1):
+            warm: float | None = None
             dg = g - g_solved
-            rest = h[0][lnr] - prev_term[lnr] - dg * prev_d0[lnr]
-            warm = float(np.max(rest)) + 1e-12
-        prev_term = h[0].copy()
-        prev_d0 = D[0].copy()
-        g_solved = g
-        # An early pass (see EARLY_SWEEPS) may end with the layers short of the accuracy, so
-        # it can neither stop the loop nor try the certificate.
-        capped = last_shape > EARLY_SHAPE * tol
-        layer_cap = EARLY_SWEEPS if capped else max_sweeps
-        if coupled:
-            solve_group([mdp.c_layer(r) for r in range(R)], g, accuracy, warm)
-            solve_group([mdp.w_layer(r) for r in range(R)], g, accuracy, warm)
-        else:
-            # C layers read only NR and W layers only C layers: each set is solved in parallel.
-            for kind in (c_reps, w_reps):
-                for m in kind:
-                    start_layer(m, warm)
-                counts = np.zeros((len(kind), 2), np.int64)
-                kernels.solve_layers(
-                    kind,
-                    h,
-                    D,
-                    g,
-                    accuracy,
-                    layer_cap,
-                    pol,
-                    EVAL_FIRST and warm is not None,
-                    cold_dijkstra,
-                    counts,
-                    args,
-                )
-                sweeps += int(counts[:, 0].sum())
-                eval_sweeps += int(counts[:, 1].sum())
-                log.debug(
-                    "layers %s: full sweeps %s, evaluations %s",
-                    kind.tolist(),
-                    counts[:, 0].tolist(),
-                    counts[:, 1].tolist(),
-                )
-            for m in order:
-                if groups[m] != m:
-                    h[m] = h[groups[m]]
-                    D[m] = D[groups[m]]
-        old = h[0].copy()
-        old_d = D[0].copy()
-        solve_nr(g, accuracy, outer == 1)
-        if ref < 0:
-            ref = int(np.flatnonzero(live[0])[np.argmin(h[0][live[0]])])
-        delta = (h[0] - old)[live[0]]
-        # On the first pass the old NR values are the initial zeros: a rough but useful drift.
-        drift = float(h[0, ref] - old[ref])
-        # d(drift)/dg with the NR layer's own dependence on g carried through D.
-        deriv = float(D[0, ref] - old_d[ref])
-        shape_span = float(delta.max() - delta.min()) if outer > 1 else np.inf
-        last_shape = shape_span
-        # Normalise NR at the reference state; C and W keep their raw values (they were
-        # solved against prev_term) and are shifted only at the end.
-        shift = float(h[0, ref])
-        h[0][live[0]] -= shift
-        D[0][live[0]] -= D[0, ref]
-        if progress is not None:
-            progress(sweeps, shape_span, g)
-        log.debug(
-            "pass %d: g %.10f drift %.3e d(drift)/dg %.3f NR shape change %.3e inner accuracy %.1e",
-            outer,
-            g,
-            drift,
-            deriv,
-            shape_span,
-            accuracy,
-        )
-        if (
-            not capped
-            and abs(drift) < tol * 0.1
-            and shape_span < tol * 0.1
-            and accuracy <= inner_tol
-        ):
-            break
-        # The certificate's span is about the larger of the drift and the NR shape change
-        # (the drift shows up as the inconsistency at the FMP into NR): try it once both are
-        # within the tolerance; a failed attempt costs one Jacobi sweep.
-        if not capped and outer > 1 and abs(drift) < tol and shape_span < tol * 0.5:
-            # Close enough to try the certificate now rather than after another pass.
-            trial = h.copy()
-            for m in order:
-                trial[m][live[m]] -= shift
-            cert = _certify(mdp, trial)
-            log.debug("certificate at pass %d: span %.3e", outer, cert[1] - cert[0])
-            if cert[1] - cert[0] < tol:
-                h[:] = trial
-                shift = 0.0
+            if outer > 1:
+                rest = h[0][lnr] - prev_term[lnr] - dg * prev_d0[lnr]
+                warm = float(np.max(rest)) + 1e-12
+            prev_term = h[0].copy()
+            prev_d0 = D[0].copy()
+            g_solved = g
+            # Early passes (g at its first guess, or the NR shape still moving a lot) get an
+            # inexact inner solve: it can neither stop the loop nor try the certificate.
+            capped = last_shape > EARLY_SHAPE * tol
+            run.request_layers(g, accuracy, warm, dg, EARLY_SWEEPS if capped else max_sweeps)
+            old = h[0].copy()
+            old_d = D[0].copy()
+            run.nr_layer(g, accuracy, outer == 1)
+            if ref < 0:
+                ref = int(np.flatnonzero(lnr)[np.argmin(h[0][lnr])])
+            # On the first pass the old NR values are the initial zeros: a rough drift.
+            drift = float(h[0, ref] - old[ref])
+            deriv = float(D[0, ref] - old_d[ref])
+            delta = (h[0] - old)[lnr]
+            shape_span = float(delta.max() - delta.min()) if outer > 1 else np.inf
+            last_shape = shape_span
+            # Normalise NR at the reference state; C and W keep their raw values (they were
+            # solved against prev_term) and are shifted only at the end.
+            shift = float(h[0, ref])
+            h[0][lnr] -= shift
+            D[0][lnr] -= D[0, ref]
+            if progress is not None:
+                progress(run.sweeps, shape_span, g)
+            log.debug(
+                "pass %d: g %.10f drift %.3e d(drift)/dg %.3f NR shape change %.3e accuracy %.1e",
+                outer, g, drift, deriv, shape_span, accuracy,
+            )  # fmt: skip
+            if (
+                not capped
+                and abs(drift) < tol * 0.1
+                and shape_span < tol * 0.1
+                and accuracy <= inner_tol
+            ):
                 break
-            cert = None
-        # Inner accuracy follows the outer progress: early passes need not be exact.
-        accuracy = (
-            min(FIRST_ACCURACY, max(inner_tol, ACCURACY_FACTOR * min(abs(drift), shape_span)))
-            if outer > 1
-            else FIRST_ACCURACY
+            # The certificate's span is about the larger of the drift and the NR shape change
+            # (the drift shows up as the inconsistency at the FMP into NR): try it once both
+            # are within the tolerance; a failed attempt costs one Jacobi sweep.
+            if not capped and outer > 1 and abs(drift) < tol and shape_span < tol * 0.5:
+                trial = h.copy()
+                for m in run.order:
+                    trial[m][live[m]] -= shift
+                cert = _certify(mdp, trial, workers)
+                log.debug("certificate at pass %d: span %.3e", outer, cert[1] - cert[0])
+                if cert[1] - cert[0] < tol:
+                    h[:] = trial
+                    shift = 0.0
+                    break
+                cert = None
+            # Inner accuracy follows the outer progress: early passes need not be exact.
+            accuracy = (
+                min(FIRST_ACCURACY, max(inner_tol, ACCURACY_FACTOR * min(abs(drift), shape_span)))
+                if outer > 1
+                else FIRST_ACCURACY
+            )
+            g_prev = g
+            step = -drift / deriv if deriv < 0 else 0.0
+            g = min(max(g + step, 0.0), mdp.stage_time)
+            if extrapolate and outer > 1:
+                mixer.push(old[lnr] - old[ref], h[0][lnr].copy(), D[0][lnr].copy(), g_prev)
+                new_x = mixer.mix(g)
+                h[0][lnr] = new_x - new_x[np.searchsorted(np.flatnonzero(lnr), ref)]
+            elif predictor:
+                h[0][lnr] += (g - g_prev) * D[0][lnr]
+            if run.sweeps > max_sweeps:
+                break
+        for m in run.order:
+            h[m][live[m]] -= shift
+        result = _finish(
+            mdp, h, g, tol, run.sweeps, 0, outer, "structured", t0, max(ref, 0), cert, workers
         )
-        # Newton step on the drift; the NR shape follows g to first order through D (the
-        # predictor below), so g can move every pass instead of waiting for the shape.
-        step = -drift / deriv if deriv < 0 else 0.0
-        g_prev = g
-        g = min(max(g + step, 0.0), mdp.stage_time)
-        if extrapolate and outer > 1:
-            # Anderson acceleration of the NR shape: one pass maps the NR values the C layers
-            # see (x) to the NR values that come out (f); near the answer the map is affine,
-            # and the request cycle can have slow modes (the arms of problems 5 and 6
-            # remember their joint configuration from one delivery to the next, so the shape
-            # error shrinks by only a factor 2-3 per pass). Mixing the last few passes
-            # removes those modes. Outputs are moved to the new g through D.
-            lnr = live[0]
-            hist_x.append(old[lnr] - old[ref])
-            hist_f.append(h[0][lnr].copy())
-            hist_d.append(D[0][lnr].copy())
-            hist_g.append(g_prev)
-            if len(hist_x) > ANDERSON_DEPTH + 1:
-                del hist_x[0], hist_f[0], hist_d[0], hist_g[0]
-            f_now = [f + (g - gi) * di for f, di, gi in zip(hist_f, hist_d, hist_g, strict=True)]
-            res_now = [f - x for f, x in zip(f_now, hist_x, strict=True)]
-            new_x = f_now[-1]
-            if len(res_now) > 1:
-                dr = np.stack([res_now[i + 1] - res_now[i] for i in range(len(res_now) - 1)], 1)
-                df = np.stack([f_now[i + 1] - f_now[i] for i in range(len(f_now) - 1)], 1)
-                gamma = np.linalg.lstsq(dr, res_now[-1], rcond=None)[0]
-                new_x = f_now[-1] - df @ gamma
-            h[0][lnr] = new_x - new_x[np.searchsorted(np.flatnonzero(lnr), ref)]
-        elif predictor:
-            h[0][live[0]] += (g - g_prev) * D[0][live[0]]
-        if sweeps > max_sweeps:
-            break
-    for m in order:
-        h[m][live[m]] -= shift
-    result = _finish(mdp, h, g, tol, sweeps, 0, outer, "structured", t0, max(ref, 0), cert)
-    result.eval_sweeps = eval_sweeps
+    result.eval_sweeps = run.evaluations
     return result
 
 
@@ -556,10 +616,15 @@ def solve(
     max_sweeps: int = 20000,
     damping: float = 1.0,
     progress: Progress | None = None,
+    threads: int | None = None,
 ) -> SolveResult:
-    """Solve with the structured method when the model allows it, else the general one."""
+    """Solve with the structured method when the model allows it, else the general one.
+
+    ``threads``: worker threads (default :func:`cellplan.strategies.threads.default_threads`;
+    problems below :data:`~cellplan.strategies.threads.SERIAL_BELOW` states run serially).
+    """
     if method == "auto":
         method = "structured"
     if method == "structured":
-        return solve_structured(mdp, tol, max_sweeps, progress)
-    return solve_general(mdp, tol, max_sweeps, damping, progress)
+        return solve_structured(mdp, tol, max_sweeps, progress, threads=threads)
+    return solve_general(mdp, tol, max_sweeps, damping, progress, threads)

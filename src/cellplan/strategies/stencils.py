@@ -1,7 +1,7 @@
 """Numba helpers for a uniform grid of cell centres: indices, stencils, sweep orders.
 
-Shared by the solver kernels (:mod:`cellplan.strategies.kernels`) and the exact policy
-evaluation (:mod:`cellplan.strategies.evaluation`). Cells are flat C-order indices;
+Shared by every kernel module of the strategies solver (sweeps, Bellman, evaluation,
+point queries). Cells are flat C-order indices;
 the multilinear stencil of a point is the ``2^d`` surrounding cell centres with their
 weights (Section IV-B of the strategies paper).
 """

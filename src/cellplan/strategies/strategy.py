@@ -5,7 +5,7 @@ real-valued location x though the use of (9), linear interpolation, and the
 approximate representation of L*". :meth:`Strategy.action` does exactly that: one
 evaluation of the right-hand side of equation (9) at ``(q, m)``, each successor's
 cost-to-go interpolated multilinearly between grid cells, colliding motions excluded by
-the swept check of :func:`cellplan.strategies.kernels.motion_ok`.
+the swept check of :func:`cellplan.strategies.motion.motion_ok`.
 
 A strategy file is a NumPy ``.npz`` archive (no pickle): the MDP arrays, the cost-to-go,
 and a JSON metadata string (scenario digest, grid, gain, convergence). Loading it against a
@@ -24,9 +24,11 @@ import numpy as np
 
 from cellplan.errors import PersistenceError, Problem
 from cellplan.fileio import atomic_path
-from cellplan.strategies import kernels
+from cellplan.strategies.bundles import Model
 from cellplan.strategies.model import LayeredMDP, Mode
+from cellplan.strategies.points import action_values_at, query
 from cellplan.strategies.solver import SolveResult
+from cellplan.strategies.stencils import displacement, wrap
 
 FORMAT = "cellplan-strategy"
 VERSION = 1
@@ -160,11 +162,26 @@ class Strategy:
             if key not in cache or cache[key][0] is not values:
                 cache[key] = (values, np.nan_to_num(values, nan=0.0), np.isfinite(values))
             _, h_clean, live = cache[key]
-        actions, grid = mdp.point_args()
-        kernels.action_values_at(q, mode, h_clean, live, *actions,
-                                 tf_here if np.isfinite(tf_here) else 0.0, fmp_allowed, *grid,
-                                 out)
+        action_values_at(
+            q,
+            mode,
+            h_clean,
+            live,
+            tf_here if np.isfinite(tf_here) else 0.0,
+            fmp_allowed,
+            self._model,
+            out,
+        )
         return out
+
+    @property
+    def _model(self) -> Model:
+        """The model bundle of the point kernels (built once; queries run every stage)."""
+        cached = self.__dict__.get("_model_cache")
+        if cached is None or cached[0] is not self.mdp:
+            cached = (self.mdp, self.mdp.kernel_args())
+            self.__dict__["_model_cache"] = cached
+        return cached[1]
 
     @property
     def _h0(self) -> np.ndarray:
@@ -185,9 +202,15 @@ class Strategy:
         if out is None:
             out = np.empty(2 + mdp.disp.shape[1])
             self.__dict__["_out"] = out
-        actions, grid = mdp.point_args()
-        u = kernels.query(np.ascontiguousarray(q, dtype=float), mode, self._h0, mdp.live,
-                          *actions, mdp.tf, forbid_fmp, *grid, out)
+        u = query(
+            np.ascontiguousarray(q, dtype=float),
+            mode,
+            self._h0,
+            mdp.live,
+            forbid_fmp,
+            self._model,
+            out,
+        )
         if u == -9:
             raise ValueError(
                 "no action is available here (the state is outside the strategy's domain)"
@@ -207,9 +230,9 @@ class Strategy:
             return q
         mdp = self.mdp
         dq = np.empty(len(q))
-        kernels.displacement(q, mdp.disp[mdp.vcls[mode], action], mdp.heading_axis, dq)
+        displacement(q, mdp.disp[mdp.vcls[mode], action], mdp.heading_axis, dq)
         q = q + dq
-        kernels.wrap(q, mdp.lower, mdp.upper, mdp.periodic)
+        wrap(q, mdp.lower, mdp.upper, mdp.periodic)
         return q
 
     def move_vector(self, q: np.ndarray, mode: int, action: int) -> np.ndarray:

@@ -1,0 +1,153 @@
+"""The Jacobi Bellman operator over every state (numba, parallel): certificate and policy.
+
+For relative values ``h`` the operator of the average-cost problem is (the right-hand
+side of equation (9), Section III-C of the strategies paper, without ``g``)
+
+    (T h)(m, x) = min( t_f(m, x) + h(next(m), x),                          FMP
+                       l(m) + sum_b P_b h(L_b, x),                          stay
+                       min_a  l(m) + sum_b P_b H_{L_b}(x + dx_a) )          moves a
+
+with ``H`` the interpolation of :mod:`cellplan.strategies.interpolation` and the branches
+``(L_b, P_b)`` of Section III-B. ``min (T h - h) <= g <= max (T h - h)`` over the live
+states brackets the optimal gain (the span test of relative value iteration), which is
+how every reported gain is certified (:func:`cellplan.strategies.solver.certify`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from cellplan.strategies.stencils import EPS_W, decode, table_stencil
+
+
+@njit(cache=True, nogil=True)
+def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no cover - numba
+    """One Jacobi sweep over the states ``start <= m * N + c < stop``: ``out = T h`` there.
+
+    No ``g`` is subtracted. ``policy[m, c]`` receives the minimising action: ``-1`` stay,
+    ``-2`` FMP, ``a >= 0`` move ``a``; ``-3`` for states outside the MDP. Ties (within
+    1e-12 relative) go to the first action in the order FMP, stay, moves. ``gap[m, c]``
+    receives the second-best action value minus the best (``inf`` with a single action):
+    adding to ``h`` anything whose span (max - min) is below it cannot change the action
+    there. A non-empty ``subset`` (boolean, like ``h``) limits the sweep to the live
+    states it marks (the outputs elsewhere are left as they were). Every state is
+    independent, so disjoint ranges may run in parallel threads (the GIL is released).
+    """
+    moves = model.moves
+    grid = model.grid
+    lay = model.layers
+    live = lay.live
+    tf = lay.tf
+    valid = moves.valid
+    interior = moves.interior
+    coff = moves.coff
+    cw = moves.cw
+    heading_axis = moves.heading_axis
+    branch_layer = lay.branch_layer
+    branch_prob = lay.branch_prob
+    shape = grid.shape
+    ncell = h.shape[1]
+    some = subset.shape[0] > 0
+    d = shape.shape[0]
+    ncorner = 1 << d
+    mi = np.empty(d, np.int64)
+    idx = np.empty(ncorner, np.int64)
+    w = np.empty(ncorner)
+    for m in range(start // ncell, (stop + ncell - 1) // ncell):
+        nxt = lay.fmp_next[m]
+        kcls = lay.vcls[m]
+        na = moves.nact[kcls]
+        b0 = lay.branch_ptr[m]
+        b1 = lay.branch_ptr[m + 1]
+        cost = lay.cost[m]
+        for c in range(max(start - m * ncell, 0), min(stop - m * ncell, ncell)):
+            if not live[m, c]:
+                out[m, c] = np.nan
+                policy[m, c] = -3
+                gap[m, c] = np.nan
+                continue
+            if some and not subset[m, c]:
+                continue
+            decode(c, shape, mi)
+            best = np.inf
+            second = np.inf
+            arg = -3
+            if nxt >= 0 and tf[m, c] < np.inf and live[nxt, c]:
+                best = tf[m, c] + h[nxt, c]
+                arg = -2
+            sval = cost
+            sok = True
+            for b in range(b0, b1):
+                L = branch_layer[b]
+                if not live[L, c]:
+                    sok = False
+                    break
+                sval += branch_prob[b] * h[L, c]
+            if sok and sval < best and (best == np.inf or sval < best - 1e-12 * abs(best)):
+                second = best
+                best = sval
+                arg = -1
+            elif sok and sval < second:
+                second = sval
+            vb = valid[kcls, c]
+            inner = interior[kcls, c]
+            t = mi[heading_axis] if heading_axis >= 0 else 0
+            for a in range(na):
+                if ((vb >> a) & 1) == 0:
+                    continue
+                # Written out as in sweeps.sweep_policy (an inlined helper is slower here).
+                if inner:
+                    nc = 0
+                    for jj in range(ncorner):
+                        wj = cw[kcls, a, t, jj]
+                        if wj <= EPS_W:
+                            break
+                        idx[jj] = c + coff[kcls, a, t, jj]
+                        w[jj] = wj
+                        nc += 1
+                else:
+                    nc = table_stencil(
+                        kcls,
+                        a,
+                        mi,
+                        moves.offs,
+                        moves.fr,
+                        heading_axis,
+                        shape,
+                        grid.periodic,
+                        idx,
+                        w,
+                    )
+                val = cost
+                ok = True
+                for b in range(b0, b1):
+                    L = branch_layer[b]
+                    ssum = 0.0
+                    vsum = 0.0
+                    for j in range(nc):
+                        wj = w[j]
+                        if wj > EPS_W:
+                            i = idx[j]
+                            if live[L, i]:
+                                ssum += wj
+                                vsum += wj * h[L, i]
+                    if ssum <= EPS_W:
+                        ok = False
+                        break
+                    val += branch_prob[b] * vsum / ssum
+                if ok and val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
+                    second = best
+                    best = val
+                    arg = a
+                elif ok and val < second:
+                    second = val
+            out[m, c] = best
+            policy[m, c] = arg
+            gap[m, c] = second - best
+
+
+@njit(cache=True, nogil=True)
+def bellman_all(h, out, policy, gap, subset, model):  # pragma: no cover - numba
+    """:func:`bellman_rows` over every state, in the calling thread."""
+    bellman_rows(h, out, policy, gap, subset, 0, h.shape[0] * h.shape[1], model)

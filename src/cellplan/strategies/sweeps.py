@@ -1,0 +1,542 @@
+"""Gauss-Seidel sweeps and policy iteration on one layer of the layered MDP (numba).
+
+For a fixed gain ``g`` every C and W layer is a deterministic shortest path with terminal
+costs, and NR (its request branches into the fixed W layers summed in advance) a single
+stochastic layer. The structured solver (:mod:`cellplan.strategies.solver`) solves each
+by policy iteration built from the kernels here:
+
+* :func:`sweep_policy` - one Gauss-Seidel sweep of the average-cost form of equation (9),
+
+      h(m, x) = min_u [ l(m, u) - g + sum_b P_b H_{L_b}(x'_u) ],
+
+  recording the minimiser and, alongside, ``D = dh/dg`` along it (the derivative the
+  Newton step on ``g`` needs);
+* :func:`layer_iteration` - policy iteration on one layer: full sweeps choose the
+  actions, :mod:`cellplan.strategies.evaluation` evaluates the chosen policy exactly once
+  it has nearly settled (the solver runs independent layers in parallel threads; the
+  kernels release the GIL);
+* :func:`other_branches`, :func:`sweep_self`, :func:`solve_self` - the same for NR with
+  its stay self-loop solved exactly, ``h = (l - g + E_stay) / (1 - P_self)``.
+
+Cells are visited in alternating axis orders (``flips``) so that values propagate in
+every direction. The model arrives as one :class:`~cellplan.strategies.bundles.Model`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from cellplan.strategies.coldstart import dijkstra_layer
+from cellplan.strategies.evaluation import evaluate, layer_system, live_cells, self_system
+from cellplan.strategies.stencils import (
+    EPS_W,
+    decode,
+    first_of_order,
+    move_corners,
+    next_of_order,
+    table_stencil,
+)
+
+# A recorded policy is evaluated exactly once a full sweep changes the minimiser (by more
+# than the inner accuracy) in at most this fraction of the live cells.
+SETTLED_FRACTION = 0.01
+
+
+@njit(cache=True)
+def sweep_policy(
+    m, flips, h, D, g, exact_stay, track, pol, mode, nchg, tie, model
+):  # pragma: no cover - numba
+    """One Gauss-Seidel sweep of layer ``m`` in place (axis order reversed where ``flips``).
+
+    ``mode`` 0: ``pol`` is not touched; 1: the minimiser is recorded in ``pol[m]``,
+    ``nchg[0]`` counting the cells whose minimiser changed by more than ``tie`` in value
+    (ties between equally good actions are not counted).
+
+    ``h[m, c] = min_u [ l(u) - g + sum_b P_b h[L_b](x'_u) ]`` (the average-cost form of
+    equation (9)); corners still at ``+inf`` (not yet reached by a solve started from
+    ``+inf``) are left out and the weights renormalised. With ``exact_stay`` the stay
+    action's self-loop is solved exactly, ``h = (l - g + sum_{b != m} P_b h[L_b](x)) /
+    (1 - P_mm)``. With ``track`` the derivative ``D = dh/dg`` along the minimising action
+    is updated as well. Returns the largest change of ``h[m]``.
+
+    The move loop is written out here rather than calling a helper: numba compiles the
+    inlined :func:`~cellplan.strategies.stencils.move_corners` into a loop about twice as
+    slow in this, the hottest loop of the solver.
+    """
+    moves = model.moves
+    grid = model.grid
+    lay = model.layers
+    live = lay.live
+    cw = moves.cw
+    coff = moves.coff
+    heading_axis = moves.heading_axis
+    branch_layer = lay.branch_layer
+    branch_prob = lay.branch_prob
+    valid = moves.valid
+    interior = moves.interior
+    shape = grid.shape
+    d = shape.shape[0]
+    ncell = h.shape[1]
+    mi = np.empty(d, np.int64)
+    ncorner = 1 << d
+    idx = np.empty(ncorner, np.int64)
+    w = np.empty(ncorner)
+    hm = h[m]
+    livem = live[m]
+    nxt = lay.fmp_next[m]
+    tfm = lay.tf[m]
+    kcls = lay.vcls[m]
+    na = moves.nact[kcls]
+    b0 = lay.branch_ptr[m]
+    b1 = lay.branch_ptr[m + 1]
+    step_cost = lay.cost[m] - g
+    pself = 0.0
+    for b in range(b0, b1):
+        if branch_layer[b] == m:
+            pself += branch_prob[b]
+    maxchange = 0.0
+    c = -1
+    for kk in range(ncell):
+        # Walk the cells in sweep order by odometer steps (no division per cell).
+        c = first_of_order(shape, flips, mi) if kk == 0 else next_of_order(shape, flips, mi)
+        if not livem[c]:
+            continue
+        best = np.inf
+        bestd = 0.0
+        barg = -3
+        pold = pol[m, c] if mode == 1 else -9
+        oldv = np.inf
+        # FMP: switch to the next mode at the same configuration, loss t_f (equation (7)).
+        if nxt >= 0 and tfm[c] < np.inf and live[nxt, c] and h[nxt, c] < np.inf:
+            best = tfm[c] - g + h[nxt, c]
+            barg = -2
+            if pold == -2:
+                oldv = best
+            if track:
+                bestd = -1.0 + D[nxt, c]
+        # Stay: the configuration is unchanged; solved exactly for the self-loop if asked.
+        sval = step_cost
+        sder = -1.0
+        sok = True
+        for b in range(b0, b1):
+            L = branch_layer[b]
+            if (exact_stay and L == m) or branch_prob[b] == 0.0:
+                continue
+            if not live[L, c] or h[L, c] == np.inf:
+                sok = False
+                break
+            sval += branch_prob[b] * h[L, c]
+            if track:
+                sder += branch_prob[b] * D[L, c]
+        if sok:
+            if exact_stay:
+                if pself < 1.0 - 1e-12:
+                    sval /= 1.0 - pself
+                    sder /= 1.0 - pself
+                else:
+                    sok = False
+            if sok and pold == -1:
+                oldv = sval
+            if sok and sval < best:
+                best = sval
+                barg = -1
+                bestd = sder
+        # Moves.
+        vb = valid[kcls, c]
+        inner = interior[kcls, c]
+        t = mi[heading_axis] if heading_axis >= 0 else 0
+        for a in range(na):
+            if ((vb >> a) & 1) == 0:
+                continue
+            if inner:
+                nc = 0
+                for jj in range(ncorner):
+                    wj = cw[kcls, a, t, jj]
+                    if wj <= EPS_W:
+                        break
+                    idx[jj] = c + coff[kcls, a, t, jj]
+                    w[jj] = wj
+                    nc += 1
+            else:
+                nc = table_stencil(
+                    kcls, a, mi, moves.offs, moves.fr, heading_axis, shape, grid.periodic, idx, w
+                )
+            val = step_cost
+            ok = True
+            for b in range(b0, b1):
+                L = branch_layer[b]
+                if branch_prob[b] == 0.0:
+                    continue
+                ssum = 0.0
+                vsum = 0.0
+                for j in range(nc):
+                    wj = w[j]
+                    if wj > EPS_W:
+                        i = idx[j]
+                        if live[L, i]:
+                            hv = h[L, i]
+                            if hv < np.inf:
+                                ssum += wj
+                                vsum += wj * hv
+                if ssum <= EPS_W:
+                    ok = False
+                    break
+                val += branch_prob[b] * vsum / ssum
+            if ok and a == pold:
+                oldv = val
+            if ok and val < best:
+                best = val
+                barg = a
+        if track and barg >= 0:
+            # The derivative of the winning move only (cheaper than one per action).
+            nc = move_corners(
+                kcls,
+                barg,
+                c,
+                mi,
+                inner,
+                moves.offs,
+                moves.fr,
+                moves.coff,
+                moves.cw,
+                moves.heading_axis,
+                grid.shape,
+                grid.periodic,
+                idx,
+                w,
+            )
+            bestd = -1.0
+            for b in range(b0, b1):
+                L = branch_layer[b]
+                if branch_prob[b] == 0.0:
+                    continue
+                ssum = 0.0
+                dsum = 0.0
+                for j in range(nc):
+                    wj = w[j]
+                    if wj > EPS_W:
+                        i = idx[j]
+                        if live[L, i] and h[L, i] < np.inf:
+                            ssum += wj
+                            dsum += wj * D[L, i]
+                bestd += branch_prob[b] * dsum / ssum
+        if mode == 1 and pol[m, c] != barg:
+            pol[m, c] = barg
+            if not oldv - best <= tie:
+                nchg[0] += 1
+        old = hm[c]
+        if best < np.inf:
+            ch = abs(best - old) if old < np.inf else np.inf
+            if ch > maxchange:
+                maxchange = ch
+            hm[c] = best
+            if track:
+                D[m, c] = bestd
+    return maxchange
+
+
+@njit(cache=True)
+def sweep_layer(m, flips, h, D, g, exact_stay, track, model):  # pragma: no cover - numba
+    """One Gauss-Seidel sweep of layer ``m`` over every action (:func:`sweep_policy`, mode 0).
+
+    Returns the largest change of ``h[m]``.
+    """
+    pol = np.empty((1, 1), np.int16)
+    nchg = np.zeros(1, np.int64)
+    return sweep_policy(m, flips, h, D, g, exact_stay, track, pol, 0, nchg, 0.0, model)
+
+
+@njit(cache=True, nogil=True)
+def layer_iteration(
+    m, h, D, g, accuracy, max_sweeps, pol, warm, dijkstra, model
+):  # pragma: no cover - numba
+    """Policy iteration on one C or W layer; returns (full sweeps, exact evaluations).
+
+    Alternates full Gauss-Seidel sweeps (every action, minimiser recorded in ``pol``) with
+    an exact evaluation of the recorded policy once a full sweep changes the minimiser in
+    at most :data:`SETTLED_FRACTION` of the cells; stops when a *full* sweep changes the
+    values by less than ``accuracy`` or after ``max_sweeps`` sweeps and evaluations.
+    With ``warm`` (later passes) it starts by evaluating the policy recorded in the last
+    pass; otherwise (values at ``+inf``), with ``dijkstra``, from the policy of
+    :func:`cellplan.strategies.coldstart.dijkstra_layer`.
+    """
+    d = model.grid.shape.shape[0]
+    cells, local = live_cells(model.layers.live[m])
+    nlive = cells.shape[0]
+    nchg = np.zeros(1, np.int64)
+    full = 0
+    ev = 0
+    flip = 0
+    # Warm start: the recorded policy is last pass's and nearly right, so evaluate it first
+    # and let one full sweep confirm (saves a full sweep per layer and pass).
+    evaluate_first = warm
+    if not warm and dijkstra:
+        evaluate_first = dijkstra_layer(m, h, g, pol, model) > 0
+    while full + ev < max(1, max_sweeps):
+        if evaluate_first:
+            evaluate_first = False
+        else:
+            nchg[0] = 0
+            change = sweep_policy(
+                m, flip % (1 << d), h, D, g, False, True, pol, 1, nchg, accuracy, model
+            )
+            full += 1
+            flip += 1
+            if change < accuracy:
+                break
+        if nchg[0] <= SETTLED_FRACTION * nlive:
+            ptr, succ, wt, const, dconst, fixed = layer_system(m, h, D, g, pol, cells, local, model)
+            evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
+            ev += 1
+    return full, ev
+
+
+@njit(cache=True, nogil=True)
+def other_branches(m, h, D, E, ED, start, stop, model):  # pragma: no cover - numba
+    """Expected next value over the branches that leave layer ``m``, per cell and action.
+
+    ``E[c, 0] = sum_{b: L_b != m} P_b h[L_b](c)`` for stay and ``E[c, 1 + a]`` the same at
+    the landing point of move ``a`` (interpolated as in :func:`sweep_policy`); ``ED`` is
+    the same for ``D``. ``inf`` marks an action that is not available (move not
+    collision-free, or some branch without a live corner). In NR these branches lead to
+    the W layers, which are fixed while NR is solved, so a Gauss-Seidel sweep of NR then
+    touches only its own values (the request branches cost 16 interpolations per move in
+    problem 1; done once here instead of once per sweep). Only cells ``start <= c < stop``
+    are written, so that disjoint ranges can run in parallel threads.
+    """
+    moves = model.moves
+    grid = model.grid
+    lay = model.layers
+    live = lay.live
+    cw = moves.cw
+    coff = moves.coff
+    heading_axis = moves.heading_axis
+    shape = grid.shape
+    d = shape.shape[0]
+    ncorner = 1 << d
+    kcls = lay.vcls[m]
+    na = moves.nact[kcls]
+    b0 = lay.branch_ptr[m]
+    b1 = lay.branch_ptr[m + 1]
+    mi = np.empty(d, np.int64)
+    idx = np.empty(ncorner, np.int64)
+    w = np.empty(ncorner)
+    for c in range(start, stop):
+        for a in range(E.shape[1]):
+            E[c, a] = np.inf
+            ED[c, a] = 0.0
+        if not live[m, c]:
+            continue
+        decode(c, grid.shape, mi)
+        sval = 0.0
+        sder = 0.0
+        sok = True
+        for b in range(b0, b1):
+            L = lay.branch_layer[b]
+            if L == m or lay.branch_prob[b] == 0.0:
+                continue
+            if not live[L, c] or h[L, c] == np.inf:
+                sok = False
+                break
+            sval += lay.branch_prob[b] * h[L, c]
+            sder += lay.branch_prob[b] * D[L, c]
+        if sok:
+            E[c, 0] = sval
+            ED[c, 0] = sder
+        vb = moves.valid[kcls, c]
+        inner = moves.interior[kcls, c]
+        t = mi[heading_axis] if heading_axis >= 0 else 0
+        for a in range(na):
+            if ((vb >> a) & 1) == 0:
+                continue
+            # Written out, as in sweep_policy (an inlined helper is slower here).
+            if inner:
+                nc = 0
+                for jj in range(ncorner):
+                    wj = cw[kcls, a, t, jj]
+                    if wj <= EPS_W:
+                        break
+                    idx[jj] = c + coff[kcls, a, t, jj]
+                    w[jj] = wj
+                    nc += 1
+            else:
+                nc = table_stencil(
+                    kcls, a, mi, moves.offs, moves.fr, heading_axis, shape, grid.periodic, idx, w
+                )
+            val = 0.0
+            der = 0.0
+            ok = True
+            for b in range(b0, b1):
+                L = lay.branch_layer[b]
+                if L == m or lay.branch_prob[b] == 0.0:
+                    continue
+                ssum = 0.0
+                vsum = 0.0
+                dsum = 0.0
+                for j in range(nc):
+                    wj = w[j]
+                    if wj > EPS_W:
+                        i = idx[j]
+                        if live[L, i]:
+                            hv = h[L, i]
+                            if hv < np.inf:
+                                ssum += wj
+                                vsum += wj * hv
+                                dsum += wj * D[L, i]
+                if ssum <= EPS_W:
+                    ok = False
+                    break
+                val += lay.branch_prob[b] * vsum / ssum
+                der += lay.branch_prob[b] * dsum / ssum
+            if ok:
+                E[c, 1 + a] = val
+                ED[c, 1 + a] = der
+
+
+@njit(cache=True)
+def sweep_self(
+    m, flips, h, D, g, E, ED, pself, pol, mode, nchg, tie, model
+):  # pragma: no cover - numba
+    """One Gauss-Seidel sweep of a layer without FMP whose other branches are in ``E``.
+
+    The update of :func:`sweep_policy` with ``exact_stay`` for NR (``pself`` is the
+    probability of staying in the layer): stay is solved exactly,
+    ``h = (l - g + E[c, 0]) / (1 - pself)``, and a move costs
+    ``l - g + E[c, 1 + a] + pself * H_m(x')``. ``pol``, ``mode`` and ``nchg`` as in
+    :func:`sweep_policy`. Returns the largest change.
+    """
+    moves = model.moves
+    grid = model.grid
+    lay = model.layers
+    cw = moves.cw
+    coff = moves.coff
+    heading_axis = moves.heading_axis
+    shape = grid.shape
+    d = shape.shape[0]
+    ncell = h.shape[1]
+    mi = np.empty(d, np.int64)
+    ncorner = 1 << d
+    idx = np.empty(ncorner, np.int64)
+    w = np.empty(ncorner)
+    hm = h[m]
+    Dm = D[m]
+    livem = lay.live[m]
+    kcls = lay.vcls[m]
+    na = moves.nact[kcls]
+    step_cost = lay.cost[m] - g
+    maxchange = 0.0
+    c = -1
+    for kk in range(ncell):
+        c = first_of_order(shape, flips, mi) if kk == 0 else next_of_order(shape, flips, mi)
+        if not livem[c]:
+            continue
+        best = np.inf
+        bestd = 0.0
+        barg = -3
+        pold = pol[m, c] if mode == 1 else -9
+        oldv = np.inf
+        if E[c, 0] < np.inf and pself < 1.0 - 1e-12:
+            best = (step_cost + E[c, 0]) / (1.0 - pself)
+            bestd = (-1.0 + ED[c, 0]) / (1.0 - pself)
+            barg = -1
+            if pold == -1:
+                oldv = best
+        vb = moves.valid[kcls, c]
+        inner = moves.interior[kcls, c]
+        t = mi[heading_axis] if heading_axis >= 0 else 0
+        for a in range(na):
+            if ((vb >> a) & 1) == 0 or E[c, 1 + a] == np.inf:
+                continue
+            # Written out, as in sweep_policy (move_corners here is twice as slow).
+            if inner:
+                nc = 0
+                for jj in range(ncorner):
+                    wj = cw[kcls, a, t, jj]
+                    if wj <= EPS_W:
+                        break
+                    idx[jj] = c + coff[kcls, a, t, jj]
+                    w[jj] = wj
+                    nc += 1
+            else:
+                nc = table_stencil(
+                    kcls, a, mi, moves.offs, moves.fr, heading_axis, shape, grid.periodic, idx, w
+                )
+            val = step_cost + E[c, 1 + a]
+            der = -1.0 + ED[c, 1 + a]
+            if pself > 0.0:
+                ssum = 0.0
+                vsum = 0.0
+                dsum = 0.0
+                for j in range(nc):
+                    wj = w[j]
+                    if wj > EPS_W:
+                        i = idx[j]
+                        if livem[i]:
+                            hv = hm[i]
+                            if hv < np.inf:
+                                ssum += wj
+                                vsum += wj * hv
+                                dsum += wj * Dm[i]
+                if ssum <= EPS_W:
+                    continue
+                val += pself * vsum / ssum
+                der += pself * dsum / ssum
+            if a == pold:
+                oldv = val
+            if val < best:
+                best = val
+                bestd = der
+                barg = a
+        if mode == 1 and pol[m, c] != barg:
+            pol[m, c] = barg
+            if not oldv - best <= tie:
+                nchg[0] += 1
+        old = hm[c]
+        if best < np.inf:
+            ch = abs(best - old) if old < np.inf else np.inf
+            if ch > maxchange:
+                maxchange = ch
+            hm[c] = best
+            Dm[c] = bestd
+    return maxchange
+
+
+@njit(cache=True)
+def solve_self(
+    m, h, D, g, E, ED, pself, accuracy, max_sweeps, pol, warm, counts, model
+):  # pragma: no cover - numba
+    """Policy iteration with :func:`sweep_self` (as :func:`layer_iteration`) for NR.
+
+    Stops when a full sweep changes less than ``accuracy``; ``counts`` receives
+    (full sweeps, exact evaluations).
+    """
+    d = model.grid.shape.shape[0]
+    cells, local = live_cells(model.layers.live[m])
+    nlive = cells.shape[0]
+    nchg = np.zeros(1, np.int64)
+    full = 0
+    ev = 0
+    flip = 0
+    evaluate_first = warm
+    while full + ev < max(1, max_sweeps):
+        if evaluate_first:
+            # Last pass's policy, evaluated exactly, then confirmed by a full sweep.
+            evaluate_first = False
+        else:
+            nchg[0] = 0
+            change = sweep_self(
+                m, flip % (1 << d), h, D, g, E, ED, pself, pol, 1, nchg, accuracy, model
+            )
+            full += 1
+            flip += 1
+            if change < accuracy:
+                break
+        if nchg[0] <= SETTLED_FRACTION * nlive:
+            ptr, succ, wt, const, dconst, fixed = self_system(
+                m, h, D, g, E, ED, pself, pol, cells, local, model
+            )
+            evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
+            ev += 1
+    counts[0] = full
+    counts[1] = ev

@@ -1,0 +1,292 @@
+"""The numba kernels, imported directly, against plain numpy references on small random grids.
+
+Each reference is written from the equations (multilinear interpolation of Section IV-B,
+the right-hand side of equation (9), the linear system of a fixed policy), not from the
+kernels: loops over states in Python, weights as products over axes, dense linear solves.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from cellplan.strategies.actions import ActionSet
+from cellplan.strategies.bellman import bellman_all
+from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
+from cellplan.strategies.interpolation import interp
+from cellplan.strategies.model import Geometry, LayeredMDP, assemble
+from cellplan.strategies.stencils import MAX_DIM, stencil
+from cellplan.strategies.sweeps import sweep_layer
+
+# --- references ---------------------------------------------------------------------------
+
+
+def ref_stencil(q, shape, lower, spacing, periodic):
+    """``{flat cell: weight}`` of the multilinear stencil of ``q`` over cell centres."""
+    axes = []
+    for j in range(len(shape)):
+        f = (q[j] - lower[j]) / spacing[j] - 0.5
+        i0 = int(np.floor(f + 1e-9))
+        t = f - i0
+        t = 0.0 if t < 1e-9 else t
+        n = int(shape[j])
+        if periodic[j]:
+            axes.append([(i0 % n, 1.0 - t), ((i0 + 1) % n, t)])
+        elif i0 < 0:
+            axes.append([(0, 1.0)])
+        elif i0 >= n - 1:
+            axes.append([(n - 1, 1.0)])
+        else:
+            axes.append([(i0, 1.0 - t), (i0 + 1, t)])
+    out: dict[int, float] = {}
+    for combo in itertools.product(*axes):
+        idx = tuple(i for i, _ in combo)
+        w = float(np.prod([wt for _, wt in combo]))
+        flat = int(np.ravel_multi_index(idx, tuple(int(n) for n in shape)))
+        out[flat] = out.get(flat, 0.0) + w
+    return out
+
+
+def ref_interp(values, live, weights):
+    """Weighted mean of ``values`` over the live corners with weight (NaN if none)."""
+    ws = {i: w for i, w in weights.items() if w > 1e-12 and live[i]}
+    total = sum(ws.values())
+    if total <= 1e-12:
+        return np.nan
+    return sum(w * values[i] for i, w in ws.items()) / total
+
+
+def centre(mdp, c):
+    idx = np.array(np.unravel_index(c, tuple(int(n) for n in mdp.shape)))
+    return mdp.lower + (idx + 0.5) * mdp.spacing
+
+
+def landing(mdp, m, c, a):
+    """Stencil of action ``a`` (-1 stay) from the centre of cell ``c`` in layer ``m``."""
+    q = centre(mdp, c)
+    if a >= 0:
+        q = q + mdp.disp[mdp.vcls[m], a]
+        span = mdp.upper - mdp.lower
+        q = np.where(mdp.periodic, mdp.lower + (q - mdp.lower) % span, q)
+        return ref_stencil(q, mdp.shape, mdp.lower, mdp.spacing, mdp.periodic)
+    return {c: 1.0}
+
+
+def ref_transition(mdp, h, m, c, a):
+    """``(cost, [(layer, cell, probability)])`` of an action, or None where unavailable."""
+    if a == -2:
+        nxt = int(mdp.fmp_next[m])
+        if nxt < 0 or not np.isfinite(mdp.tf[m, c]) or not mdp.live[nxt, c]:
+            return None
+        return float(mdp.tf[m, c]), [(nxt, c, 1.0)]
+    if a >= 0 and not (int(mdp.valid[mdp.vcls[m], c]) >> a) & 1:
+        return None
+    st_ = landing(mdp, m, c, a)
+    out = []
+    for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
+        L, p = int(mdp.branch_layer[b]), float(mdp.branch_prob[b])
+        ws = {i: w for i, w in st_.items() if w > 1e-12 and mdp.live[L, i]}
+        total = sum(ws.values())
+        if total <= 1e-12:
+            return None
+        out += [(L, i, p * w / total) for i, w in ws.items()]
+    return float(mdp.cost[m]), out
+
+
+def ref_bellman(mdp, h):
+    """``T h`` of equation (9) (no g) at every live state, by plain loops."""
+    out = np.full(h.shape, np.nan)
+    for m, c in zip(*np.nonzero(mdp.live), strict=True):
+        best = np.inf
+        for a in range(-2, int(mdp.nact[mdp.vcls[m]])):
+            tr = ref_transition(mdp, h, m, c, a)
+            if tr is None:
+                continue
+            cost, succ = tr
+            best = min(best, cost + sum(p * h[L, i] for L, i, p in succ))
+        out[m, c] = best
+    return out
+
+
+# --- random models ------------------------------------------------------------------------
+
+
+@st.composite
+def models(draw) -> LayeredMDP:
+    """A one-request layered MDP on a random 2-D grid with random bitmaps and actions."""
+    nx, ny = draw(st.integers(3, 7)), draw(st.integers(3, 7))
+    periodic = (False, draw(st.booleans()))
+    seed = draw(st.integers(0, 2**31 - 1))
+    rng = np.random.default_rng(seed)
+    n = nx * ny
+    free = rng.random(n) < 0.85
+    carry = free & (rng.random(n) < 0.9)
+    pick = rng.random(n) < 0.3
+    drop = rng.random(n) < 0.3
+    geometry = Geometry(
+        free_nr=free,
+        free_w={"S": free},
+        free_c={("P", "S"): carry},
+        pick={("P", "S"): pick},
+        drop={("P", "D"): drop},
+        tf_pick={("P", "S"): 1.0 + rng.random(n)},
+        tf_drop={("P", "D"): 1.0 + rng.random(n)},
+    )
+    # Displacements of up to 1.5 cells (spacing 1): landing points between centres.
+    nact = draw(st.integers(2, 5))
+    disp = rng.uniform(-1.5, 1.5, size=(nact, 2))
+    acts = ActionSet(np.ascontiguousarray(disp), -1, tuple(f"a{i}" for i in range(nact)))
+    return assemble(
+        shape=(nx, ny),
+        lower=(0.0, 0.0),
+        upper=(float(nx), float(ny)),
+        periodic=periodic,
+        requests=[("P", "S", "D", 1.0)],
+        geometry=geometry,
+        actions_empty=acts,
+        actions_carrying={"P": acts},
+        stage_time=1.0,
+        arrival=float(rng.uniform(0.05, 0.5)),
+    )
+
+
+# --- interpolation ------------------------------------------------------------------------
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.integers(2, 6), min_size=1, max_size=3),
+    st.lists(st.booleans(), min_size=3, max_size=3),
+    st.integers(0, 2**31 - 1),
+)
+def test_interpolation_is_the_renormalised_multilinear_mean(shape, periodic, seed):
+    d = len(shape)
+    rng = np.random.default_rng(seed)
+    shape_a = np.array(shape, np.int64)
+    lower = rng.uniform(-2.0, 2.0, d)
+    spacing = rng.uniform(0.5, 2.0, d)
+    per = np.array(periodic[:d])
+    n = int(np.prod(shape_a))
+    values = rng.normal(size=n)
+    live = rng.random(n) < 0.7
+    # Points inside the box and up to a cell beyond it (clamped or wrapped).
+    q = lower + rng.uniform(-1.0, shape_a + 1.0) * spacing
+    idx = np.empty(1 << d, np.int64)
+    w = np.empty(1 << d)
+    k = stencil(
+        q, shape_a, lower, spacing, per, idx, w, np.empty(2 * MAX_DIM, np.int64), np.empty(MAX_DIM)
+    )
+    ref = ref_stencil(q, shape_a, lower, spacing, per)
+    got: dict[int, float] = {}
+    for i, wt in zip(idx[:k], w[:k], strict=True):
+        got[int(i)] = got.get(int(i), 0.0) + float(wt)
+    assert set(got) >= {i for i, wt in ref.items() if wt > 1e-12}
+    for i in set(got) | set(ref):
+        assert abs(got.get(i, 0.0) - ref.get(i, 0.0)) < 1e-9
+    np.testing.assert_allclose(
+        interp(values, live, idx, w, k), ref_interp(values, live, ref), rtol=1e-9, atol=1e-12
+    )
+
+
+# --- one Bellman backup -------------------------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(models(), st.integers(0, 2**31 - 1))
+def test_one_jacobi_bellman_backup_matches_the_reference(mdp, seed):
+    h = np.where(mdp.live, np.random.default_rng(seed).normal(size=mdp.live.shape), 0.0)
+    out = np.full_like(h, np.nan)
+    policy = np.full(h.shape, -3, np.int64)
+    gap = np.full_like(h, np.nan)
+    bellman_all(h, out, policy, gap, np.zeros((0, 0), np.bool_), mdp.kernel_args())
+    ref = ref_bellman(mdp, h)
+    live = mdp.live
+    np.testing.assert_allclose(out[live], ref[live], rtol=1e-10, atol=1e-10)
+    # The recorded action attains the minimum.
+    for m, c in zip(*np.nonzero(live & np.isfinite(ref)), strict=True):
+        cost, succ = ref_transition(mdp, h, m, c, int(policy[m, c]))
+        assert abs(cost + sum(p * h[L, i] for L, i, p in succ) - ref[m, c]) < 1e-10
+
+
+@settings(max_examples=40, deadline=None)
+@given(models(), st.integers(0, 2**31 - 1), st.floats(0.0, 0.9))
+def test_gauss_seidel_sweeps_converge_to_the_layers_bellman_fixed_point(mdp, seed, g):
+    # A C layer with the other layers fixed: sweeps from +inf (as the solver starts) reach
+    # h_m = (T h)_m - g at every live cell of the layer, T by the reference.
+    rng = np.random.default_rng(seed)
+    h = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
+    m = mdp.c_layer(0)
+    h[m][mdp.live[m]] = np.inf
+    D = np.zeros_like(h)
+    model = mdp.kernel_args()
+    converged = False
+    for s in range(100_000):
+        if sweep_layer(m, s % 4, h, D, g, False, True, model) < 1e-12:
+            converged = True
+            break
+    # Policies that leave a near-closed cycle only rarely converge too slowly to check.
+    assume(converged)
+    live = mdp.live[m]
+    assert np.all(np.isfinite(h[m][live]))
+    ref = ref_bellman(mdp, h)
+    np.testing.assert_allclose(h[m][live], ref[m][live] - g, rtol=1e-9, atol=1e-9)
+
+
+# --- one exact policy evaluation ----------------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(models(), st.integers(0, 2**31 - 1), st.floats(0.0, 0.9))
+def test_exact_evaluation_solves_the_policys_linear_system(mdp, seed, g):
+    rng = np.random.default_rng(seed)
+    m = mdp.c_layer(0)
+    h = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
+    D = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
+    cells = np.flatnonzero(mdp.live[m])
+    assume(len(cells) > 0)
+    # A random policy among the available actions of each live cell.
+    pol = np.full(mdp.live.shape, -3, np.int16)
+    trans = {}
+    for c in cells:
+        options = []
+        for a in range(-2, int(mdp.nact[mdp.vcls[m]])):
+            tr = ref_transition(mdp, h, m, c, a)
+            if tr is not None and (a != -1 or mdp.fmp_next[m] < 0):
+                options.append((a, tr))
+        assume(options)
+        a, tr = options[rng.integers(len(options))]
+        pol[m, c] = a
+        trans[c] = tr
+    # Reference: h_m = c + W h_m, D_m = dc + W D_m over the live cells, dense.
+    pos = {int(c): v for v, c in enumerate(cells)}
+    n = len(cells)
+    W = np.zeros((n, n))
+    const = np.zeros(n)
+    dconst = np.zeros(n)
+    for c in cells:
+        cost, succ = trans[c]
+        v = pos[int(c)]
+        const[v] = cost - g
+        dconst[v] = -1.0
+        for L, i, p in succ:
+            if L == m:
+                W[v, pos[int(i)]] += p
+            else:
+                const[v] += p * h[L, i]
+                dconst[v] += p * D[L, i]
+    A = np.eye(n) - W
+    # The policy reaches FMP from every cell, not only after thousands of stages (a
+    # component is solved by Gauss-Seidel, which needs a leak to converge).
+    assume(np.linalg.cond(A) < 1e3)
+    h_ref = np.linalg.solve(A, const)
+    d_ref = np.linalg.solve(A, dconst)
+    model = mdp.kernel_args()
+    live_c, local = live_cells(mdp.live[m])
+    ptr, succ_, wt, cst, dcst, fixed = layer_system(m, h, D, g, pol, live_c, local, model)
+    assert not fixed.any()
+    evaluate(h[m], D[m], live_c, ptr, succ_, wt, cst, dcst, fixed)
+    np.testing.assert_allclose(h[m][cells], h_ref, rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(D[m][cells], d_ref, rtol=1e-8, atol=1e-8)
