@@ -191,3 +191,18 @@ def test_showcase_makes_its_pictures_through_the_api_silently(tmp_path, monkeypa
     assert Trajectory.load(tmp_path / "p1_simulation" / "trajectory.csv").events
     out = capsys.readouterr()
     assert out.out == "" and out.err == ""
+
+
+def test_mode_numbers_follow_the_file_order():
+    """``1,1,1,W`` counts parts, sources and destinations in the order the file lists them."""
+    import yaml
+
+    from cellplan.registry import scenario_path
+
+    data = yaml.safe_load(scenario_path("strategies_tiny").read_text())
+    data["sources"] = dict(reversed(list(data["sources"].items())))  # S2 first
+    setup = cellplan.loads(yaml.safe_dump(data, sort_keys=False))
+    strategy = cellplan.plan(setup, "strategies", sample_stages=1).solution
+    mode = strategy.modes[strategy.mode_index("1,1,1,W")]
+    assert (mode.part, mode.source, mode.destination, mode.kind) == ("P1", "S2", "D1", "W")
+    assert strategy.mode_index("<P1,S1,D1,W>") == strategy.mode_index("1,2,1,W")

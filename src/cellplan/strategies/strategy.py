@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from cellplan import units
 from cellplan.errors import PersistenceError, Problem
 from cellplan.fileio import atomic_path
 from cellplan.strategies.bundles import Model
@@ -99,17 +100,18 @@ class Strategy:
         return self.mdp.live
 
     def mode_index(self, text: str) -> int:
-        """A mode from ``NR``, ``"1,1,1,W"`` (1-based indices, the paper's notation) or
-        ``"P1,S1,D1,W"`` (names)."""
+        """A mode from ``NR``, ``"1,1,1,W"`` (1-based indices in the scenario file's order,
+        the paper's notation) or ``"<P1,S1,D1,W>"`` (names, as mode labels print)."""
         text = text.strip()
         if text.upper() == "NR":
             return 0
         items = [t.strip() for t in text.strip("<>").split(",")]
         if len(items) != 4 or items[3].upper() not in ("W", "C"):
             raise PersistenceError([Problem("--mode", f"expected NR or 'p,s,d,W|C', got {text!r}")])
-        parts = sorted({m.part for m in self.modes[1:]})
-        sources = sorted({m.source for m in self.modes[1:]})
-        dests = sorted({m.destination for m in self.modes[1:]})
+        # The modes follow the scenario's request list, so first appearance is file order.
+        parts = list(dict.fromkeys(m.part for m in self.modes[1:]))
+        sources = list(dict.fromkeys(m.source for m in self.modes[1:]))
+        dests = list(dict.fromkeys(m.destination for m in self.modes[1:]))
         names = []
         for item, pool in zip(items[:3], (parts, sources, dests), strict=True):
             if item.isdigit() and 1 <= int(item) <= len(pool):
@@ -366,14 +368,10 @@ def solve_scenario(
     strategy = Strategy.from_solution(mdp, result, scenario)
     strategy.meta["regions"] = sec.regions
     strategy.meta["transitions"] = "snap" if snap else "no-snap"
-    home = sec.home if sec.home is not None else None
-    if home is None:
+    if sec.home is None:
         home = cell.robot.start.tolist()
-    elif scenario.robot.type in ("rotating", "arm"):
-        home = [
-            v if i < (2 if scenario.robot.type == "rotating" else 0) else float(np.radians(v))
-            for i, v in enumerate(home)
-        ]
+    else:
+        home = units.config_from_file(cell.robot.axis_names, sec.home).tolist()
     strategy.meta["home"] = [float(v) for v in home]
     strategy.meta["start"] = [float(v) for v in cell.robot.start]
     return strategy, result
