@@ -42,8 +42,9 @@ from cellplan.assembly.section import GeneratorSpec
 from cellplan.assembly.sequential import sequential_assembly
 
 
-def segments_clearance_v0(problem: DiscProblem, x: np.ndarray, i: int, P: np.ndarray,
-                          Q: np.ndarray) -> np.ndarray:
+def segments_clearance_v0(
+    problem: DiscProblem, x: np.ndarray, i: int, P: np.ndarray, Q: np.ndarray
+) -> np.ndarray:
     """The previous :func:`routes.segments_clearance` (same formula, (S, n, 2) arrays)."""
     seg = Q - P
     length2 = np.einsum("sk,sk->s", seg, seg)
@@ -58,12 +59,13 @@ def segments_clearance_v0(problem: DiscProblem, x: np.ndarray, i: int, P: np.nda
     ws = problem.workspace
     assert isinstance(ws, CircleWorkspace)
     bgap = ws.radius - problem.radii[i] - np.linalg.norm(ends - ws.center, axis=1)
-    bgap = np.minimum(bgap[: len(P)], bgap[len(P):])
+    bgap = np.minimum(bgap[: len(P)], bgap[len(P) :])
     return np.minimum(np.min(gap, axis=1), bgap)
 
 
-def full_graph_v0(problem: DiscProblem, x: np.ndarray, i: int, nodes: np.ndarray
-                  ) -> tuple[list[np.ndarray], float] | None:
+def full_graph_v0(
+    problem: DiscProblem, x: np.ndarray, i: int, nodes: np.ndarray
+) -> tuple[list[np.ndarray], float] | None:
     """The previous search: :func:`routes.shortest_route_full` with the previous test."""
     with mock.patch.object(routes, "segments_clearance", segments_clearance_v0):
         return routes.shortest_route_full(problem, x, i, nodes)
@@ -85,8 +87,11 @@ def queries(n: int, seed: int = 0) -> tuple[list[tuple[np.ndarray, int]], DiscPr
 def compare(n: int, most: int = 120) -> None:
     qs, p = queries(n)
     qs = qs[:: -(-len(qs) // most)]  # evenly spaced, at most ``most`` searches
-    searches = {"v0": full_graph_v0, "full": routes.shortest_route_full,
-                "lazy": routes.shortest_route}
+    searches = {
+        "v0": full_graph_v0,
+        "full": routes.shortest_route_full,
+        "lazy": routes.shortest_route,
+    }
     spent = dict.fromkeys(searches, 0.0)
     found = 0
     for x, i in qs:
@@ -103,10 +108,12 @@ def compare(n: int, most: int = 120) -> None:
             assert max(lengths) - min(lengths) <= 1e-9 * max(1.0, lengths[0]), (n, i)
     m = len(routes.route_nodes(p, qs[0][0], qs[0][1]))
     per = {name: 1e3 * t / len(qs) for name, t in spent.items()}
-    print(f"n={n:3d}  {len(qs):4d} searches ({found} routes, ~{m} nodes), ms/search: "
-          f"v0 {per['v0']:.2f}, full {per['full']:.2f}, lazy {per['lazy']:.2f}; "
-          f"v0/lazy {spent['v0'] / spent['lazy']:.1f}x, full/lazy "
-          f"{spent['full'] / spent['lazy']:.1f}x; equal lengths")
+    print(
+        f"n={n:3d}  {len(qs):4d} searches ({found} routes, ~{m} nodes), ms/search: "
+        f"v0 {per['v0']:.2f}, full {per['full']:.2f}, lazy {per['lazy']:.2f}; "
+        f"v0/lazy {spent['v0'] / spent['lazy']:.1f}x, full/lazy "
+        f"{spent['full'] / spent['lazy']:.1f}x; equal lengths"
+    )
 
 
 def whole_run(n: int, seed: int = 0) -> None:
@@ -115,17 +122,25 @@ def whole_run(n: int, seed: int = 0) -> None:
     times = {}
     v0 = functools.partial(routes.placement_route, full=True)
     for name in ("v0", "lazy"):
-        with mock.patch.object(routes, "segments_clearance",
-                               segments_clearance_v0 if name == "v0"
-                               else routes.segments_clearance), \
-                mock.patch("cellplan.assembly.sequential.placement_route",
-                           v0 if name == "v0" else routes.placement_route):
+        with (
+            mock.patch.object(
+                routes,
+                "segments_clearance",
+                segments_clearance_v0 if name == "v0" else routes.segments_clearance,
+            ),
+            mock.patch(
+                "cellplan.assembly.sequential.placement_route",
+                v0 if name == "v0" else routes.placement_route,
+            ),
+        ):
             t0 = time.perf_counter()
             res = sequential_assembly(p, 2000.0, "place")
             times[name] = time.perf_counter() - t0
         ratio = float(np.sum(res.disc_lengths())) / straight
-        print(f"   whole place run, {name:4s}: {times[name]:7.2f} s, {res.status.value}, "
-              f"{res.switches} grasps, ratio {ratio:.4f}")
+        print(
+            f"   whole place run, {name:4s}: {times[name]:7.2f} s, {res.status.value}, "
+            f"{res.switches} grasps, ratio {ratio:.4f}"
+        )
     print(f"   whole-run v0/lazy {times['v0'] / times['lazy']:.1f}x")
 
 

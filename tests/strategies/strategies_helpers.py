@@ -8,9 +8,7 @@ from cellplan.workcell import Workcell
 
 # The bundled tiny workcell with its grid left open: ``TINY.replace("CELLS", "16")``.
 TINY = (
-    scenario_path("strategies_tiny")
-    .read_text()
-    .replace("cells: [12, 12]", "cells: [CELLS, CELLS]")
+    scenario_path("strategies_tiny").read_text().replace("cells: [12, 12]", "cells: [CELLS, CELLS]")
 )
 
 
