@@ -18,8 +18,6 @@ in the hot loops):
 depends on the order of the fields, only on their names.
 """
 
-from __future__ import annotations
-
 from typing import NamedTuple
 
 import numpy as np
