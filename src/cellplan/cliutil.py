@@ -9,17 +9,19 @@ to stderr.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 from rich.console import Console
 
-from cellplan.core import Result
+from cellplan.core import Progress, Result
+from cellplan.errors import ArgumentError, Problem
 
 EXIT_SOLVED = 0
 EXIT_NOT_SOLVED = 1
@@ -36,6 +38,51 @@ JsonOpt = Annotated[
 ScenarioArg = Annotated[
     str, typer.Argument(help="scenario file, or the name of a bundled scenario")
 ]
+
+
+@contextlib.contextmanager
+def as_flags() -> Iterator[None]:
+    """Name the library's option problems as the command-line flags that set them.
+
+    ``plan(..., max_sweeps=-1)`` reports ``max_sweeps: ...``; on the command line the
+    same problem reads ``--max-sweeps: ...``. Duplicate lines are dropped.
+    """
+    try:
+        yield
+    except ArgumentError as exc:
+        flagged = [
+            Problem("--" + p.field.replace("_", "-"), p.message)
+            if p.field and not p.field.startswith("-")
+            else p
+            for p in exc.problems
+        ]
+        raise ArgumentError(list(dict.fromkeys(flagged))) from None
+
+
+@contextlib.contextmanager
+def progress_bar(enabled: bool, title: str, counts: bool = False) -> Iterator[Progress | None]:
+    """A planner's ``progress`` callback drawing a bar on stderr, or None when disabled.
+
+    Pass ``progress_enabled(as_json)`` as ``enabled``: bars are drawn only on a terminal
+    and never with ``--json``. ``counts`` adds "done/total" (tasks, stages).
+    """
+    if not enabled:
+        yield None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
+    from rich.progress import Progress as Bar
+
+    columns = [TextColumn(f"[bold]{title}[/]"), BarColumn()]
+    if counts:
+        columns.append(MofNCompleteColumn())
+    columns += [TextColumn("{task.description}"), TimeElapsedColumn()]
+    with Bar(*columns, console=stderr(), transient=True) as bar:
+        task = bar.add_task("", total=None)
+
+        def update(done: float, total: float | None, text: str) -> None:
+            bar.update(task, completed=done, total=total, description=text)
+
+        yield update
 
 
 def stdout() -> Console:

@@ -21,18 +21,16 @@ input. Options are ``None`` unless given, so the defaults are the scenario secti
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from cellplan.cliutil import JsonOpt, ScenarioArg, finish, progress_enabled, stderr
-from cellplan.errors import ArgumentError, Problem
+from cellplan.cliutil import JsonOpt, ScenarioArg, as_flags, finish, progress_bar, progress_enabled
+from cellplan.errors import ArgumentError
 
 if TYPE_CHECKING:
-    from cellplan.core import Progress, Result
+    from cellplan.core import Result
 
 
 def register(app: typer.Typer) -> None:
@@ -72,46 +70,6 @@ def register(app: typer.Typer) -> None:
         run_adapt_command(scenario, repair, tasks, seed, db, output, baseline, as_json)
 
 
-@contextlib.contextmanager
-def _as_flags() -> Iterator[None]:
-    """Name the library's option problems as the command-line flags that set them."""
-    try:
-        yield
-    except ArgumentError as exc:
-        flagged = [
-            Problem("--" + p.field.replace("_", "-"), p.message)
-            if p.field and not p.field.startswith("-")
-            else p
-            for p in exc.problems
-        ]
-        raise ArgumentError(flagged) from None
-
-
-@contextlib.contextmanager
-def _progress_bar(enabled: bool) -> Iterator[Progress | None]:
-    if not enabled:
-        yield None
-        return
-    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
-    from rich.progress import Progress as Bar
-
-    with Bar(
-        TextColumn("[bold]adapt[/]"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.description}"),
-        TimeElapsedColumn(),
-        console=stderr(),
-        transient=True,
-    ) as bar:
-        task = bar.add_task("", total=None)
-
-        def update(done: float, total: float | None, text: str) -> None:
-            bar.update(task, completed=done, total=total, description=text)
-
-        yield update
-
-
 def run_adapt_command(
     scenario_arg: str,
     repair: str | None,
@@ -137,12 +95,12 @@ def run_adapt_command(
         }.items()
         if v is not None
     }
-    with _as_flags():
+    with as_flags():
         parse_options(planner("adaptive"), given)
     if output.exists() and not output.is_dir():
         raise ArgumentError(f"{output} exists and is not a folder", "--output")
     setup = load(scenario_arg)
-    with _progress_bar(progress_enabled(as_json)) as progress, _as_flags():
+    with progress_bar(progress_enabled(as_json), "adapt", counts=True) as progress, as_flags():
         result = plan(setup, "adaptive", progress=progress, **given)
     outputs = write_outputs(result, output)
     summary = (

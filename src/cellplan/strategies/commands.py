@@ -9,40 +9,31 @@ are ``None`` here and passed on only when given, so the CLI holds no default of 
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from cellplan.cliutil import JsonOpt, ScenarioArg, finish, progress_enabled, stderr, stdout
-from cellplan.errors import ArgumentError, CellplanError, Problem
+from cellplan.cliutil import (
+    JsonOpt,
+    ScenarioArg,
+    as_flags,
+    finish,
+    progress_bar,
+    progress_enabled,
+    stdout,
+)
+from cellplan.errors import ArgumentError, CellplanError
 from cellplan.strategies.planners import SIMULATE_SEED, SIMULATE_STAGES, StrategiesOptions
 
 if TYPE_CHECKING:
-    from cellplan.core import Progress
     from cellplan.setup import Setup
     from cellplan.strategies.strategy import Strategy
 
 StrategyOpt = Annotated[
     Path, typer.Option("--strategy", help="strategy file from 'cellplan solve'")
 ]
-
-
-@contextlib.contextmanager
-def _as_flags() -> Iterator[None]:
-    """Name the library's argument problems as the command-line flags that set them."""
-    try:
-        yield
-    except ArgumentError as exc:
-        flagged = [
-            Problem("--" + p.field.replace("_", "-"), p.message)
-            if p.field and not p.field.startswith("-")
-            else p
-            for p in exc.problems
-        ]
-        raise ArgumentError(list(dict.fromkeys(flagged))) from None
 
 
 def _default(option: str) -> object:
@@ -78,31 +69,6 @@ def _load_strategy(path: Path, setup: Setup) -> Strategy:
     from cellplan.strategies.strategy import Strategy
 
     return Strategy.load(path, setup.scenario)
-
-
-@contextlib.contextmanager
-def _progress_bar(enabled: bool, title: str) -> Iterator[Progress | None]:
-    """A progress callback drawing a bar on stderr, or None (not a terminal, ``--json``)."""
-    if not enabled:
-        yield None
-        return
-    from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
-    from rich.progress import Progress as Bar
-
-    with Bar(
-        TextColumn(f"[bold]{title}[/]"),
-        BarColumn(),
-        TextColumn("{task.fields[info]}"),
-        TimeElapsedColumn(),
-        console=stderr(),
-        transient=True,
-    ) as bar:
-        task = bar.add_task(title, total=None, info="building the model")
-
-        def update(done: float, total: float | None, text: str) -> None:
-            bar.update(task, completed=done, total=total, info=text)
-
-        yield update
 
 
 def solve_command(
@@ -154,7 +120,7 @@ def solve_command(
     }
     options = {k: v for k, v in given.items() if v is not None}
     setup = _load(scenario)
-    with _as_flags(), _progress_bar(progress_enabled(as_json), "solving") as progress:
+    with as_flags(), progress_bar(progress_enabled(as_json), "solving") as progress:
         result = plan(setup, "strategies", progress=progress, **options)
     s = result.stats
     summary = (
@@ -207,7 +173,7 @@ def simulate_command(
     setup = _load(scenario)
     strat = _load_strategy(strategy, setup)
     given: dict[str, Any] = {"policy": policy, "max_wait": max_wait}
-    with _as_flags():
+    with as_flags():
         result = simulate_result(
             strat,
             SIMULATE_STAGES if stages is None else stages,
