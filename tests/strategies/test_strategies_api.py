@@ -206,3 +206,20 @@ def test_mode_numbers_follow_the_file_order():
     mode = strategy.modes[strategy.mode_index("1,1,1,W")]
     assert (mode.part, mode.source, mode.destination, mode.kind) == ("P1", "S2", "D1", "W")
     assert strategy.mode_index("<P1,S1,D1,W>") == strategy.mode_index("1,2,1,W")
+
+
+def test_an_attached_workcell_vetoes_fmp_the_exact_test_refuses():
+    """``Strategy.action`` never returns an FMP that the attached region test refuses."""
+    from cellplan.strategies.strategy import FMP
+
+    setup = cellplan.load("strategies_tiny")
+    strategy = cellplan.plan(setup, "strategies", sample_stages=1).solution
+    mode = strategy.mode_index("1,1,1,W")
+    # A configuration where the grid offers FMP: inside source S1.
+    q = np.array([4.0, 3.5])
+    strategy.__dict__.pop("_fmp_test", None)
+    assert strategy.action(q, mode) == FMP
+    strategy.attach(setup.workcell)
+    assert strategy.action(q, mode) == FMP  # the exact test agrees here
+    strategy.__dict__["_fmp_test"] = lambda points, m: np.zeros(len(points), bool)
+    assert strategy.action(q, mode) != FMP  # refused: the best motion instead

@@ -68,7 +68,7 @@ def _check_suffix(path: Path, allowed: tuple[str, ...], option: str) -> None:
 def _load_strategy(path: Path, setup: Setup) -> Strategy:
     from cellplan.strategies.strategy import Strategy
 
-    return Strategy.load(path, setup.scenario)
+    return Strategy.load(path, setup.scenario).attach(setup.workcell)
 
 
 def solve_command(

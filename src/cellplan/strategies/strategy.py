@@ -193,11 +193,26 @@ class Strategy:
             self.__dict__["_h0_cache"] = cached
         return cached
 
+    def attach(self, cell: Any) -> Strategy:
+        """Confirm every FMP that :meth:`action` returns with the workcell's exact region test.
+
+        The grid offers FMP wherever a cell's centre lies in the region; at a real
+        configuration near the region's edge the exact test
+        (:meth:`~cellplan.workcell.Workcell.in_region`) may refuse it. With a workcell
+        attached, :meth:`action` never returns an FMP the workcell refuses: it returns the
+        best motion instead. Planners attach their workcell; returns ``self``.
+        """
+        from cellplan.strategies.simulate import region_test
+
+        self.__dict__["_fmp_test"] = region_test(self, cell, self.meta.get("regions", "contact"))
+        return self
+
     def action(self, q: np.ndarray, mode: int, forbid_fmp: bool = False) -> int:
         """The optimal action at ``(q, mode)``: ``FMP`` (-2), ``STAY`` (-1) or a move index.
 
-        One compiled evaluation of equation (9) (about ten microseconds). Raises
-        ``ValueError`` when no action is available (``q`` outside the live states).
+        One compiled evaluation of equation (9) (about ten microseconds). With a workcell
+        :meth:`attach` ed, an FMP is returned only where the exact region test allows it.
+        Raises ``ValueError`` when no action is available (``q`` outside the live states).
         """
         mdp = self.mdp
         out = self.__dict__.get("_out")
@@ -217,6 +232,11 @@ class Strategy:
             raise ValueError(
                 "no action is available here (the state is outside the strategy's domain)"
             )
+        test = self.__dict__.get("_fmp_test")
+        if u == FMP and test is not None:
+            point = np.asarray(q, dtype=float)[None, :]
+            if not test(point, mode)[0]:
+                return self.action(q, mode, forbid_fmp=True)
         return int(u)
 
     def cell_centre(self, q: np.ndarray) -> np.ndarray:
