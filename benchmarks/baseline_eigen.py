@@ -23,6 +23,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from cellplan.assembly.eigen import shift_for_length  # the same shift as the library step
+
 Array = NDArray[np.float64]
 
 _EPS = 2.220446049250313e-16  # float64 machine epsilon
@@ -420,57 +422,6 @@ def sym_eigvalsh(h: Array) -> Array:
 def sym_eigh_lapack(h: Array) -> tuple[Array, Array]:
     """numba's LAPACK ``eigh`` (the previous implementation; benchmark and test baseline)."""
     return np.linalg.eigh(h)
-
-
-@numba.njit(cache=True)
-def _step_lengths(gq: Array, lam: Array, mus: Array) -> Array:
-    """``||(mu I + diag(lam))^-1 gq||`` for each ``mu`` in ``mus``."""
-    out = np.empty(mus.shape[0])
-    for j in range(mus.shape[0]):
-        acc = 0.0
-        for i in range(gq.shape[0]):
-            t = gq[i] / (mus[j] + lam[i])
-            acc += t * t
-        out[j] = math.sqrt(acc)
-    return out
-
-
-@numba.njit(cache=True)
-def shift_for_length(gq: Array, lam: Array, length: float) -> float:
-    """The ``mu = 1/h`` of the implicit step: the first ``mu`` of a log grid with
-    ``||(mu I + diag(lam))^-1 gq|| <= length``, refined once on a finer grid.
-
-    ``lam >= 0``, so the length decreases with ``mu``: ``mu`` on the grid
-    ``10^-12 .. 10^12`` (49 points); between the last point that is too long and the
-    first that is not, 17 geometric points; ``10^12`` if none is short enough.
-    """
-    mus = np.empty(49)
-    for i in range(49):
-        mus[i] = 10.0 ** (-12.0 + 0.5 * i)
-    mu = mus[48]
-    for _ in range(2):
-        lens = _step_lengths(gq, lam, mus)
-        first = -1
-        for j in range(mus.shape[0]):
-            if lens[j] <= length:
-                first = j
-                break
-        if first < 0:
-            mu = mus[mus.shape[0] - 1]
-            break
-        mu = mus[first]
-        if first == 0:
-            break
-        a = math.log10(mus[first - 1])
-        b = math.log10(mus[first])
-        step = (b - a) / 16.0
-        fine = np.empty(17)
-        for i in range(17):
-            fine[i] = 10.0 ** (i * step + a)
-        fine[0] = mus[first - 1]
-        fine[16] = mus[first]
-        mus = fine
-    return mu
 
 
 @numba.njit(cache=True)
