@@ -22,6 +22,7 @@ from rich.console import Console
 
 from cellplan.core import Progress, Result
 from cellplan.errors import ArgumentError, Problem
+from cellplan.plots import GIF_SIZE, GIF_SIZE_RANGE
 
 EXIT_SOLVED = 0
 EXIT_NOT_SOLVED = 1
@@ -33,6 +34,15 @@ JsonOpt = Annotated[
     bool,
     typer.Option(
         "--json", help="print one JSON object (status, message, stats, outputs) on stdout"
+    ),
+]
+GifSizeOpt = Annotated[
+    str | None,  # parsed by cellplan.plots.check_gif_size, so a bad value is one line
+    typer.Option(
+        "--gif-size",
+        metavar="PIXELS",
+        help=f"width of the GIF's frames in pixels, {GIF_SIZE_RANGE[0]}-{GIF_SIZE_RANGE[1]} "
+        f"(default {GIF_SIZE})",
     ),
 ]
 ScenarioArg = Annotated[

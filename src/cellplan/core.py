@@ -336,11 +336,16 @@ def decide_interval(
 
 @dataclass
 class ReportPiece:
-    """What an experiment contributes to the report."""
+    """What an experiment contributes to the report.
+
+    ``captions`` maps a figure's file name to what it shows, written from the parameters
+    actually run (the report prints the file name where a figure has none).
+    """
 
     title: str
     text: str = ""
     figures: list[Any] = field(default_factory=list)  # paths of PNG or GIF files
+    captions: dict[str, str] = field(default_factory=dict)
     tables: list[tuple[str, list[dict[str, Scalar]]]] = field(default_factory=list)
     claims: list[Claim] = field(default_factory=list)
     command: str = ""

@@ -72,12 +72,74 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
     return path
 
 
-def figure_to_rgb(fig: Figure, dpi: int = 80) -> np.ndarray:
-    """Render a figure to an ``(H, W, 3)`` uint8 array (for GIF frames)."""
-    fig.set_dpi(dpi)
+GIF_SIZE = 640
+"""Default width of GIF frames in pixels (``--gif-size``); the height follows the picture."""
+GIF_SIZE_RANGE = (240, 2400)
+"""Accepted ``--gif-size`` values, in pixels (inclusive)."""
+
+
+def check_gif_size(size: int | str, field: str = "--gif-size") -> int:
+    """``size`` (an integer, or its text as typed) as an int if it lies in
+    :data:`GIF_SIZE_RANGE`; an :class:`ArgumentError` naming ``field`` otherwise."""
+    lo, hi = GIF_SIZE_RANGE
+    value: int | None = None
+    if isinstance(size, int) and not isinstance(size, bool):
+        value = size
+    elif isinstance(size, str) and size.strip().lstrip("+").isdigit():
+        value = int(size)
+    if value is None or not lo <= value <= hi:
+        raise ArgumentError(
+            f"expected a whole number of pixels from {lo} to {hi}, got {size!r}", field
+        )
+    return value
+
+
+def figure_to_rgb(fig: Figure, width: int = GIF_SIZE) -> np.ndarray:
+    """Render a figure ``width`` pixels wide to an ``(H, W, 3)`` uint8 array (GIF frames).
+
+    The resolution is chosen so the figure's width in inches spans ``width`` pixels, so
+    text and lines keep their proportions at any size.
+    """
+    fig.set_dpi(width / fig.get_figwidth())
     fig.canvas.draw()
     rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
     return np.array(rgba[..., :3])
+
+
+def frame_counter(ax: Axes, text: str) -> None:
+    """The stage or time counter of a GIF frame, boxed in the top-left corner of ``ax``."""
+    ax.text(
+        0.02,
+        0.98,
+        text,
+        transform=ax.transAxes,
+        ha="left",
+        va="top",
+        fontsize=9,
+        family="monospace",
+        bbox={"boxstyle": "round,pad=0.25", "fc": "white", "ec": "#57606a", "alpha": 0.85},
+        gid="frame-counter",
+    )
+
+
+def grid_shape(count: int, aspect: float, target: float = 1.6) -> tuple[int, int]:
+    """``(rows, cols)`` to lay out ``count`` panels of width/height ``aspect``.
+
+    Chooses the columns whose whole grid (``cols * aspect`` wide, ``rows`` high) comes
+    nearest the ``target`` width/height (a report page), preferring fewer empty panels
+    on ties, so wide workcells stack in fewer columns and tall ones in more.
+    """
+    if count < 1:
+        raise ValueError("a grid needs at least one panel")
+    if not (math.isfinite(aspect) and aspect > 0):
+        raise ValueError(f"aspect must be positive, got {aspect}")
+
+    def cost(cols: int) -> tuple[float, int]:
+        rows = math.ceil(count / cols)
+        return abs(math.log(cols * aspect / rows / target)), rows * cols - count
+
+    cols = min(range(1, count + 1), key=cost)
+    return math.ceil(count / cols), cols
 
 
 def save_gif(

@@ -268,7 +268,8 @@ def _experiment_article(item: ExperimentReport, outdir: Path) -> str:
         if piece.claims:
             parts.append(_claims_table(piece.claims))
         for figure in piece.figures:
-            parts.append(_figure(Path(figure), outdir / "figures" / exp.name))
+            caption = piece.captions.get(Path(figure).name, "")
+            parts.append(_figure(Path(figure), outdir / "figures" / exp.name, caption))
         for caption, rows in piece.tables:
             parts.append(_table(caption, rows))
     if run.n_failed:
@@ -361,7 +362,7 @@ def _claims_table(claims: Sequence[Claim]) -> str:
     )
 
 
-def _figure(path: Path, figdir: Path) -> str:
+def _figure(path: Path, figdir: Path, caption: str = "") -> str:
     candidates = [path] if path.is_absolute() else [path, figdir / path]
     found = next((p for p in candidates if p.is_file()), None)
     if found is None:
@@ -374,9 +375,10 @@ def _figure(path: Path, figdir: Path) -> str:
         return f'<p class="error">figure {_e(found.name)} is empty</p>'
     uri = f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
     kind = "animation" if found.suffix.lower() == ".gif" else "figure"
+    text = f"{_inline(caption)} ({_e(found.name)})" if caption else _e(found.name)
     return (
-        f'<figure class="{kind}"><img src="{uri}" alt="{_e(found.stem)}">'
-        f"<figcaption>{_e(found.name)}</figcaption></figure>"
+        f'<figure class="{kind}"><img src="{uri}" alt="{_e(caption or found.stem)}">'
+        f"<figcaption>{text}</figcaption></figure>"
     )
 
 

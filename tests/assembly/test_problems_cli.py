@@ -21,6 +21,7 @@ from cellplan.assembly.problems import (
 from cellplan.assembly.section import GeneratorSpec
 from cellplan.cli import app
 from cellplan.errors import ScenarioError
+from cellplan.plots import GIF_SIZE
 from cellplan.scenario import load_scenario, loads_scenario
 
 runner = CliRunner()
@@ -133,6 +134,8 @@ def test_illegal_goal_pattern_is_reported(tmp_path: Path) -> None:
         (["--random", "5", "--algorithm", "control", "--escapes", "2"], "--escapes"),
         (["discs_swap", "--seed", "3"], "--seed"),
         (["--random", "5", "--frames", "1"], "--frames"),
+        (["--random", "5", "--gif-size", "100"], "--gif-size"),
+        (["--random", "5", "--gif-size", "big"], "--gif-size"),
     ],
 )
 def test_cli_bad_arguments_exit_2_naming_the_parameter(
@@ -183,3 +186,42 @@ def test_cli_writes_frames_gif_trajectory_and_metrics(tmp_path: Path) -> None:
     assert (tmp_path / "trajectory.csv").read_text().startswith("# cellplan-trajectory")
     assert (tmp_path / "sequence.png").stat().st_size > 0
     assert (tmp_path / "assembly.gif").read_bytes()[:3] == b"GIF"
+    from PIL import Image
+
+    with Image.open(tmp_path / "assembly.gif") as gif:
+        assert gif.size[0] == GIF_SIZE >= 480
+    res = runner.invoke(
+        app, ["assemble", "discs_swap", "--frames", "2", "--gif-size", "300", "-o", str(tmp_path)]
+    )
+    assert res.exit_code == 0, res.output
+    with Image.open(tmp_path / "assembly.gif") as gif:
+        assert gif.size[0] == 300
+
+
+def test_every_animation_frame_has_a_time_counter(tmp_path: Path, monkeypatch) -> None:
+    import cellplan.plots
+    from cellplan import api
+    from cellplan.assembly.plots import save_animation
+
+    counters: list[str] = []
+    render = cellplan.plots.figure_to_rgb
+
+    def spy(fig, width):
+        counters.extend(
+            t.get_text() for ax in fig.axes for t in ax.texts if t.get_gid() == "frame-counter"
+        )
+        return render(fig, width)
+
+    monkeypatch.setattr(cellplan.plots, "figure_to_rgb", spy)
+    result = api.plan(api.load("discs_swap"), "assembly.gradient")
+    traj = result.trajectory
+    save_animation(
+        result.solution.problem,
+        result.solution.path,
+        tmp_path / "a.gif",
+        4,
+        times=traj.t,
+        time_unit=traj.time_unit,
+    )
+    assert len(counters) == 4 and all(c.startswith("t = ") and "step" in c for c in counters)
+    assert counters[-1].endswith(f"/ {len(result.solution.path) - 1})")

@@ -7,19 +7,10 @@ import itertools
 import numpy as np
 import pytest
 
+from cellplan.strategies import behaviours
+from cellplan.strategies.behaviours import follow
 from cellplan.strategies.strategy import FMP, STAY, solve_scenario
 from cellplan.workcell import load_workcell
-
-
-def follow(strategy, q, mode, limit=400):
-    """Run the policy without random transitions until it stays or performs FMP."""
-    path = [np.asarray(q, float)]
-    for _ in range(limit):
-        u = strategy.action(path[-1], mode)
-        if u in (FMP, STAY):
-            return np.array(path), u
-        path.append(strategy.next_configuration(path[-1], mode, u))
-    return np.array(path), None
 
 
 def crossing_x(path, y_line):
@@ -64,9 +55,20 @@ def test_p1_passes_the_opening_empty_but_detours_carrying(p1):
     assert x_c is not None and x_c > 80.0  # the wide passage on the right
 
 
+def test_p1_measures_of_the_report(p1):
+    # The experiment's measures (strategies.behaviours) on the same strategy: from random
+    # starts, most idle paths end nearer the sources and most requests pass the opening
+    # empty and the wide passage carrying.
+    cell, strategy = p1
+    rng = np.random.default_rng(0)
+    assert behaviours.idle_near_sources(strategy, cell, rng, count=20) > 0.6
+    assert behaviours.opening_and_detour(strategy, cell, rng, count=20) > 0.6
+
+
 def test_p2_delivers_to_the_nearer_component_of_d1():
     sc, cell = load_workcell("strategies_p2")
     strategy, _ = solve_scenario(sc, cell, cells=[48, 48])
+    assert behaviours.nearer_component(strategy, cell, np.random.default_rng(0), count=20) > 0.6
     c = strategy.mode_index("P6,S3,D1,C")
     path, u = follow(strategy, np.array([63.0, 14.0]), c)
     assert u == FMP
@@ -85,6 +87,8 @@ def test_p4_turns_toward_a_changed_destination_at_once():
     step1 = strategy.move_vector(q, to_d1, strategy.action(q, to_d1))
     step3 = strategy.move_vector(q, to_d3, strategy.action(q, to_d3))
     assert step1[0] < 0 < step3[0]  # D1 is top left, D3 top right
+    rng = np.random.default_rng(0)
+    assert behaviours.turns_to_changed_destination(strategy, cell, rng, count=20) > 0.6
 
 
 def _box_distance(p, lo, hi):
@@ -133,3 +137,5 @@ def test_p6_picks_the_component_of_s1_that_suits_the_destination():
     # nearer the lower one because the destination is nearer the upper one (and vice versa).
     assert any(p == upper and near == lower for p, near in picks["D1"].values())
     assert any(p == lower and near == upper for p, near in picks["D2"].values())
+    rng = np.random.default_rng(0)
+    assert behaviours.component_for_destination(strategy, cell, rng, count=30) > 0.2

@@ -148,3 +148,81 @@ def test_cells_are_checked_against_one_range(cellplan, scenario, tmp_path):
     assert r.returncode == 2 and "--cells" in r.stderr
     r = cellplan("solve", str(scenario), "-o", str(npz), "--method", "fast")
     assert r.returncode == 2 and "--method" in r.stderr and not npz.exists()
+
+
+@pytest.mark.parametrize("value", ["100", "5000", "wide", "-3"])
+def test_bad_gif_size_is_one_line_and_writes_nothing(cellplan, scenario, tmp_path, value):
+    out = tmp_path / "sim"
+    r = cellplan(
+        "simulate",
+        str(scenario),
+        "--strategy",
+        str(tmp_path / "none.npz"),
+        "--gif-size",
+        value,
+        "-o",
+        str(out),
+    )
+    assert r.returncode == 2
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "--gif-size" in lines[0] and "pixels" in lines[0]
+    assert not out.exists()
+
+
+def test_gif_frames_are_wide_and_carry_a_stage_counter(tmp_path, monkeypatch):
+    from PIL import Image
+    from strategies_helpers import tiny
+
+    import cellplan.plots
+    from cellplan.plots import GIF_SIZE
+    from cellplan.strategies.plots import save_animation
+    from cellplan.strategies.simulate import simulate
+    from cellplan.strategies.strategy import solve_scenario
+
+    sc, cell = tiny(12)
+    strategy, _ = solve_scenario(sc, cell)
+    sim = simulate(strategy, 30, seed=1, cell=cell)
+    counters: list[str] = []
+    render = cellplan.plots.figure_to_rgb
+
+    def spy(fig, width):
+        counters.extend(
+            t.get_text() for ax in fig.axes for t in ax.texts if t.get_gid() == "frame-counter"
+        )
+        return render(fig, width)
+
+    monkeypatch.setattr(cellplan.plots, "figure_to_rgb", spy)
+    gif = save_animation(strategy, cell, sim, tmp_path / "a.gif", max_frames=5)
+    with Image.open(gif) as im:
+        assert im.size[0] == GIF_SIZE >= 480
+    assert len(counters) == 5 and counters[0] == "stage  0 / 30" and counters[-1] == "stage 30 / 30"
+    small = save_animation(strategy, cell, sim, tmp_path / "b.gif", max_frames=2, size=320)
+    with Image.open(small) as im:
+        assert im.size[0] == 320
+
+
+def test_frames_png_shows_every_segment_laid_out_for_the_cell(tmp_path, monkeypatch):
+    from strategies_helpers import tiny
+
+    import cellplan.plots
+    from cellplan.strategies import plots
+    from cellplan.strategies.simulate import simulate
+    from cellplan.strategies.strategy import solve_scenario
+
+    sc, cell = tiny(12)
+    strategy, _ = solve_scenario(sc, cell)
+    sim = simulate(strategy, 200, seed=2, cell=cell)
+    segments = len(sim.segments())
+    assert segments > 12  # more than the old grid showed
+    saved = {}
+    save = cellplan.plots.save_figure
+
+    def spy(fig, path, dpi=110):
+        saved[path.name] = [ax for ax in fig.axes if ax.axison]
+        return save(fig, path, dpi)
+
+    monkeypatch.setattr(cellplan.plots, "save_figure", spy)
+    plots.plot_frames(strategy, cell, sim, tmp_path)
+    shown = saved["frames.png"]
+    assert len(shown) == segments
+    assert shown[-1].get_title().startswith(f"({segments}) ")

@@ -22,7 +22,7 @@ from pydantic import BaseModel
 from cellplan.assembly.layout import DEFAULT_FILL
 from cellplan.assembly.options import GradientOptions, SequentialOptions
 from cellplan.assembly.section import GeneratorSpec
-from cellplan.cliutil import JsonOpt
+from cellplan.cliutil import GifSizeOpt, JsonOpt
 from cellplan.errors import ArgumentError, Problem
 
 ALGORITHMS = ("gradient", "sequential", "control")
@@ -98,6 +98,7 @@ def register(app: typer.Typer) -> None:
         radius: Annotated[float | None, typer.Option(help=_RADIUS_HELP)] = None,
         fill: Annotated[float | None, typer.Option(help=_FILL_HELP)] = None,
         frames: Annotated[int, typer.Option(help="GIF frames")] = 40,
+        gif_size: GifSizeOpt = None,
         output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
             "assembly-out"
         ),
@@ -108,6 +109,7 @@ def register(app: typer.Typer) -> None:
         from cellplan.assembly.problems import random_setup
         from cellplan.assembly.run import write_outputs
         from cellplan.cliutil import finish, progress_enabled, stderr
+        from cellplan.plots import GIF_SIZE, check_gif_size
         from cellplan.registry import parse_options, planner
 
         problems: list[Problem] = []
@@ -132,6 +134,11 @@ def register(app: typer.Typer) -> None:
             )
         if frames < 2:
             problems.append(Problem("--frames", f"must be at least 2, got {frames}"))
+        width = GIF_SIZE
+        try:
+            width = check_gif_size(GIF_SIZE if gif_size is None else gif_size)
+        except ArgumentError as exc:
+            problems.extend(exc.problems)
         options: dict[str, Any] = {
             key: value
             for key, value in (
@@ -172,6 +179,6 @@ def register(app: typer.Typer) -> None:
                 console.print(f"{name}: {text}", markup=False)
 
         result = api.plan(setup, name, progress=progress, **options)
-        files = write_outputs(result, output, frames)
+        files = write_outputs(result, output, frames, width)
         summary = f"{result.message}; wrote {output}" if result.success else f"wrote {output}"
         finish(result, as_json, summary, outputs=files, extra={"scenario": setup.name})

@@ -81,18 +81,45 @@ def save_sequence(problem: DiscProblem, path: Array, out: str | Path, title: str
 
 
 def save_animation(
-    problem: DiscProblem, path: Array, out: str | Path, frames: int = 40, title: str = ""
+    problem: DiscProblem,
+    path: Array,
+    out: str | Path,
+    frames: int = 40,
+    title: str = "",
+    size: int | None = None,
+    times: Array | None = None,
+    time_unit: str = "",
 ) -> Path:
-    """An animated GIF of the assembly, frames evenly spaced in arc length."""
-    from cellplan.plots import figure_to_rgb, new_figure, save_gif
+    """An animated GIF of the assembly, frames evenly spaced in arc length.
 
+    ``size`` is the frame width in pixels (default :data:`cellplan.plots.GIF_SIZE`). Every
+    frame carries a counter: the time ``times[i]`` of its step (in ``time_unit``) when the
+    times are given, the step number otherwise.
+    """
+    import matplotlib.pyplot as plt
+
+    from cellplan.plots import (
+        GIF_SIZE,
+        check_gif_size,
+        figure_to_rgb,
+        frame_counter,
+        new_figure,
+        save_gif,
+    )
+
+    size = check_gif_size(GIF_SIZE if size is None else size, "size")
+    last = len(path) - 1
     images = []
     for idx in _moments(path, frames):
-        fig, axes = new_figure(size=3.6)
-        draw_configuration(axes[0][0], problem, path, idx, title)
-        images.append(figure_to_rgb(fig, dpi=70))
-        import matplotlib.pyplot as plt
-
+        fig, axes = new_figure(size=4.8)
+        ax = axes[0][0]
+        draw_configuration(ax, problem, path, idx, title)
+        if times is not None:
+            unit = f" {time_unit}" if time_unit else ""
+            frame_counter(ax, f"t = {float(times[idx]):.3g}{unit} (step {idx} / {last})")
+        else:
+            frame_counter(ax, f"step {idx} / {last}")
+        images.append(figure_to_rgb(fig, size))
         plt.close(fig)
     return save_gif(images, out, fps=10.0)
 

@@ -27,11 +27,14 @@ def run_title(result: Result) -> str:
     return f"{algorithm} k={float(meta['k']):g}{rule}"
 
 
-def write_outputs(result: Result, output: Path, frames: int = 40) -> dict[str, Path]:
+def write_outputs(
+    result: Result, output: Path, frames: int = 40, gif_size: int | None = None
+) -> dict[str, Path]:
     """Write the run's files under ``output``; returns them by name.
 
     ``result`` is a result of one of the assembly planners (its ``solution`` carries the
-    problem and the path).
+    problem and the path); ``gif_size`` is the GIF's width in pixels (default
+    :data:`cellplan.plots.GIF_SIZE`).
     """
     from cellplan.assembly import plots
 
@@ -44,7 +47,14 @@ def write_outputs(result: Result, output: Path, frames: int = 40) -> dict[str, P
     files = {
         "sequence": plots.save_sequence(problem, run.path, output / "sequence.png", title),
         "animation": plots.save_animation(
-            problem, run.path, output / "assembly.gif", frames, title
+            problem,
+            run.path,
+            output / "assembly.gif",
+            frames,
+            title,
+            size=gif_size,
+            times=traj.t if len(traj.t) == len(run.path) else None,
+            time_unit=traj.time_unit,
         ),
         "trajectory": traj.save(output / "trajectory.csv"),
     }

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from cellplan.cliutil import (
+    GifSizeOpt,
     JsonOpt,
     ScenarioArg,
     as_flags,
@@ -161,13 +162,18 @@ def simulate_command(
         ),
     ] = None,
     gif: Annotated[bool, typer.Option(help="write an animated GIF")] = True,
+    gif_size: GifSizeOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Simulate the assembly process under a strategy: trajectory.csv, frames, GIF, metrics."""
     from cellplan.fileio import write_json
+    from cellplan.plots import GIF_SIZE, check_gif_size
     from cellplan.strategies import plots
     from cellplan.strategies.simulate import simulate_result
 
+    if gif_size is not None and not gif:
+        raise ArgumentError("only with --gif (the default)", "--gif-size")
+    width = check_gif_size(GIF_SIZE if gif_size is None else gif_size)
     if output.exists() and not output.is_dir():
         raise ArgumentError(f"{output} exists and is not a folder", "--output")
     setup = _load(scenario)
@@ -188,7 +194,9 @@ def simulate_command(
     frames = plots.plot_frames(strat, setup.workcell, sim, output)
     outputs["frames"] = frames[-1]
     if gif:
-        outputs["gif"] = plots.save_animation(strat, setup.workcell, sim, output / "simulation.gif")
+        outputs["gif"] = plots.save_animation(
+            strat, setup.workcell, sim, output / "simulation.gif", size=width
+        )
     metrics: dict[str, Any] = dict(sim.metrics())
     metrics.update(policy=result.options["policy"], seed=result.options["seed"], gain=strat.gain)
     outputs["metrics"] = write_json(

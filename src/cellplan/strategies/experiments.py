@@ -7,11 +7,18 @@ optimal, reactive (stay still when idle) and return-home (go to the start config
 when idle) policies run in the same simulator over the same random stream; the report
 gives the mean waiting time per request of each with 95% confidence intervals and the
 paired reduction. The quick version uses a small two-source cell and short runs.
+
+``strategies.behaviours`` checks the other behaviours Section V reports (the list in
+:data:`BEHAVIOURS`), each measured by a function of :mod:`cellplan.strategies.behaviours`
+from random starts per seed on the bundled problem it is reported for, and decided from
+the 95% interval over seeds. The quick version measures those whose problems solve in a
+few seconds and says the others were not run.
 """
 
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -151,6 +158,18 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     ax.legend(fontsize=8)
     ax.set_title("anticipation vs reactive vs return-home", fontsize=9)
     figure = base.save_figure(fig, outdir / "strategies_anticipation.png")
+    seeds = len({int(r["seed"]) for r in rows})
+    stages = sorted({int(r["stages"]) for r in rows if "stages" in r})
+    grids = ", ".join(
+        f"{str(p).removeprefix('strategies_')} {_grid(str(c))}"
+        for p, c in sorted({(r["problem"], r["cells"]) for r in rows if "cells" in r})
+    )
+    caption = (
+        "Mean waiting time per request (stages; open requests at their age) of the optimal, "
+        f"reactive and return-home policies, with 95% intervals over {seeds} "
+        f"seed{'s' if seeds != 1 else ''} of {', '.join(map(str, stages))} stages each "
+        f"(grids: {grids})."
+    )
     return ReportPiece(
         title="Strategies: what anticipation buys (Section V-C)",
         text=(
@@ -159,9 +178,251 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             "the strategy minimises (its gain)."
         ),
         figures=[figure],
+        captions={figure.name: caption},
         tables=[("waiting time per policy", table)],
         claims=claims,
         command="cellplan simulate FILE --strategy S --policy optimal|reactive|home",
+    )
+
+
+# --- the behaviours of Section V ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Behaviour:
+    """One behaviour of Section V as a checked claim.
+
+    ``measure`` names a function of :mod:`cellplan.strategies.behaviours` returning one
+    number per seed; the claim holds when the 95% interval of its mean over seeds lies
+    above ``above``.
+    """
+
+    key: str
+    problem: str
+    measure: str
+    claim: str
+    paper: str
+    quantity: str
+    above: float
+    null: str
+
+
+BEHAVIOURS = (
+    Behaviour(
+        "p1_idle",
+        "strategies_p1",
+        "idle_near_sources",
+        "P1: with no request pending, the robot moves to wait near the sources",
+        "Sec. V-B, Fig. 9: the idle robot waits near the sources",
+        "fraction of random starts from which the no-request policy stops nearer the sources",
+        0.5,
+        "a policy that ignores where requests come from ends nearer as often as farther",
+    ),
+    Behaviour(
+        "p3_idle",
+        "strategies_p3",
+        "idle_near_sources",
+        "P3: with no request pending, the robot moves to wait near the sources",
+        "Sec. V-B, Fig. 12: the idle robot waits near the sources",
+        "fraction of random starts from which the no-request policy stops nearer the sources",
+        0.5,
+        "a policy that ignores where requests come from ends nearer as often as farther",
+    ),
+    Behaviour(
+        "p1_opening",
+        "strategies_p1",
+        "opening_and_detour",
+        "P1: empty, the robot passes the narrow opening; carrying, it detours",
+        "Sec. V-B, Fig. 10: through the opening when empty, the wide passage when carrying",
+        "fraction of random starts above the wall going down through the opening and back up "
+        "through the wide passage",
+        0.5,
+        "the behaviour holds from at most half the starts",
+    ),
+    Behaviour(
+        "p2_nearer",
+        "strategies_p2",
+        "nearer_component",
+        "P2: the robot delivers to the nearer component of the split destination D1",
+        "Sec. V-B, Fig. 11: D1 has two components; the robot uses the nearer",
+        "fraction of random carrying starts delivered to the component of D1 nearer the start",
+        0.5,
+        "choosing a component regardless of distance is right half the time",
+    ),
+    Behaviour(
+        "p4_turn",
+        "strategies_p4",
+        "turns_to_changed_destination",
+        "P4: when the destination changes, the robot turns toward the new one at once",
+        "Sec. V-B, Fig. 13: the carrying robot changes course as soon as D1 becomes D3",
+        "fraction of (random start, change D1<->D3) pairs whose first move heads toward the "
+        "new destination and differs from the move toward the old one",
+        0.5,
+        "a first move in a random direction heads toward the new destination half the time",
+    ),
+    Behaviour(
+        "p6_component",
+        "strategies_p6",
+        "component_for_destination",
+        "P6: the destination decides which component of S1 the arm picks from",
+        "Sec. V-B, Fig. 15: the upper component of S1 for the upper destination, and the "
+        "lower one for the lower, even from starts nearer the other",
+        "fraction of random starts picking S1's upper component for D1 (above the arm) "
+        "minus that for D2 (below it)",
+        0.0,
+        "a choice independent of the destination gives the same fraction for both",
+    ),
+)
+QUICK_BEHAVIOURS = ("strategies_p1", "strategies_p2", "strategies_p4")
+"""Problems measured in the quick version: they solve in seconds; P3 and P6 take longer."""
+BEHAVIOUR_STARTS = 40
+"""Random starts per behaviour and seed."""
+EXPLANATION = "docs/strategies.md#behaviours-of-section-v-as-checked-claims"
+
+
+def make_behaviour_runs(runs: int, quick: bool) -> list[RunSpec]:
+    """One run per (problem, seed), measuring every behaviour of that problem."""
+    problems = dict.fromkeys(b.problem for b in BEHAVIOURS)
+    if quick:
+        problems = {p: None for p in problems if p in QUICK_BEHAVIOURS}
+    return [
+        RunSpec(
+            "strategies.behaviours",
+            {"problem": p, "cells": PROBLEMS[p], "starts": BEHAVIOUR_STARTS},
+            seed,
+        )
+        for p in problems
+        for seed in range(runs)
+    ]
+
+
+def run_behaviours(spec: RunSpec) -> dict[str, Scalar]:
+    """Each behaviour of the run's problem, measured from the seed's random starts."""
+    from cellplan.api import load
+    from cellplan.strategies import behaviours
+
+    problem = str(spec.params["problem"])
+    strategy = _solved(problem, str(spec.params["cells"]))
+    cell = load(problem).workcell
+    row: dict[str, Scalar] = {"problem": problem, "seed": spec.seed}
+    for i, b in enumerate(x for x in BEHAVIOURS if x.problem == problem):
+        rng = np.random.default_rng([spec.seed, i])
+        measure = getattr(behaviours, b.measure)
+        row[b.key] = float(measure(strategy, cell, rng, count=int(spec.params["starts"])))
+    return row
+
+
+def _grid(cells: str) -> str:
+    return " x ".join(cells.split(","))
+
+
+def behaviour_claims(rows: list[dict[str, Scalar]]) -> list[Claim]:
+    """One claim per behaviour of :data:`BEHAVIOURS`, decided by its 95% interval."""
+    claims = []
+    for b in BEHAVIOURS:
+        values = np.array([float(r[b.key]) for r in rows if b.key in r], dtype=float)
+        values = values[np.isfinite(values)]
+        rule = f"95% interval of the mean over seeds above {b.above:g} ({b.null}); at least 5 seeds"
+        if not len(values):
+            claims.append(
+                Claim(
+                    b.claim,
+                    b.paper,
+                    f"not measured in this run ({b.problem} is measured by the full "
+                    "cellplan reproduce strategies)",
+                    None,
+                    "not run",
+                    n=0,
+                    rule=rule,
+                    explanation=EXPLANATION,
+                )
+            )
+            continue
+        m, h = _ci(values)
+        low, high = (m - h, m + h) if np.isfinite(h) else (m, m)
+        claims.append(
+            Claim(
+                b.claim,
+                b.paper,
+                f"{m:.2f} ± {h:.2f}: {b.quantity}",
+                decide_interval(m - h, m + h, len(values), above=b.above),
+                f"interval [{low:.2f}, {high:.2f}] against {b.above:g}",
+                n=len(values),
+                rule=rule,
+                explanation=EXPLANATION,
+            )
+        )
+    return claims
+
+
+def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
+    """One claim per behaviour, a table per problem and seed, and a chart of the intervals."""
+    from cellplan import plots as base
+
+    outdir = Path(outdir)
+    claims = behaviour_claims(rows)
+    measured = [(b, c) for b, c in zip(BEHAVIOURS, claims, strict=True) if c.n]
+    fig, axes = base.new_figure(size=4.5)
+    fig.set_size_inches(7.5, 0.55 * len(BEHAVIOURS) + 1.5)
+    ax = axes[0, 0]
+    for y, b in enumerate(BEHAVIOURS):
+        values = np.array([float(r[b.key]) for r in rows if b.key in r], dtype=float)
+        values = values[np.isfinite(values)]
+        ax.plot([b.above] * 2, [y - 0.4, y + 0.4], ls="--", color="grey", lw=1)
+        if len(values):
+            m, h = _ci(values)
+            ax.plot(values, np.full(len(values), y + 0.15), ".", color="#8c959f", ms=4)
+            ax.errorbar(
+                [m], [y], xerr=[[0.0 if not np.isfinite(h) else h]], fmt="o", color="#1f77b4"
+            )
+        else:
+            ax.text(b.above, y, "  not measured in this run", va="center", fontsize=8)
+    ax.set_yticks(range(len(BEHAVIOURS)), [b.key for b in BEHAVIOURS])
+    ax.invert_yaxis()
+    ax.set_xlabel("measured fraction (P6: difference of fractions)")
+    from matplotlib.lines import Line2D
+
+    ax.legend(
+        handles=[
+            Line2D([], [], marker="o", color="#1f77b4", label="mean, 95% interval over seeds"),
+            Line2D([], [], marker=".", ls="", color="#8c959f", label="one seed"),
+            Line2D([], [], ls="--", color="grey", label="threshold of the claim"),
+        ],
+        fontsize=8,
+        loc="upper left",
+        bbox_to_anchor=(1.01, 1.0),
+    )
+    figure = base.save_figure(fig, outdir / "strategies_behaviours.png")
+    seeds = len({int(r["seed"]) for r in rows})
+    starts = sorted({int(r["starts"]) for r in rows if "starts" in r})
+    grids = ", ".join(
+        f"{str(p).removeprefix('strategies_').upper()} {_grid(str(c))}"
+        for p, c in sorted({(r["problem"], r["cells"]) for r in rows if "cells" in r})
+    )
+    caption = (
+        f"Each behaviour's measure over {seeds} seed{'s' if seeds != 1 else ''} "
+        f"({', '.join(map(str, starts))} random starts each; grids {grids}): grey dots are "
+        "seeds, blue the mean with its 95% interval, dashed the threshold the claim must "
+        "clear."
+    )
+    table = [
+        {"problem": str(r["problem"]), "seed": int(r["seed"])}
+        | {b.key: float(r[b.key]) for b in BEHAVIOURS if b.key in r}
+        for r in sorted(rows, key=lambda r: (str(r["problem"]), int(r["seed"])))
+    ]
+    return ReportPiece(
+        title="Strategies: the behaviours of Section V",
+        text=(
+            "Each behaviour the paper shows in its sample-path figures, measured from random "
+            "starts (drawn per seed among the strategy's live cells) by following the "
+            "optimal actions of the solved strategy, as the figures do between mode changes. "
+            f"{len(measured)} of {len(BEHAVIOURS)} behaviours measured in this run."
+        ),
+        figures=[figure],
+        captions={figure.name: caption},
+        tables=[("measure per problem and seed", table)],
+        claims=claims,
+        command="cellplan solve FILE --cells ...; cellplan plot STRATEGY --mode MODE",
     )
 
 
@@ -173,5 +434,13 @@ EXPERIMENTS: list[Experiment] = [
         make_runs=make_runs,
         run=run,
         report=report,
-    )
+    ),
+    Experiment(
+        name="strategies.behaviours",
+        paper="strategies",
+        title="The behaviours Section V reports, on the bundled problems",
+        make_runs=make_behaviour_runs,
+        run=run_behaviours,
+        report=report_behaviours,
+    ),
 ]

@@ -164,12 +164,21 @@ def _frame(
     ax.set_ylabel("")
 
 
+FRAMES_SHOWN = 60
+"""Most mode segments ``frames.png`` draws; a longer run says how many it leaves out (each
+segment still has its own ``frame_###.png``)."""
+
+
 def plot_frames(
-    strategy: Strategy, cell: Any, sim: Simulation, outdir: str | Path, max_frames: int = 12
+    strategy: Strategy,
+    cell: Any,
+    sim: Simulation,
+    outdir: str | Path,
+    max_frames: int = FRAMES_SHOWN,
 ) -> list[Path]:
     """Figs. 9-15: one frame per mode segment (regions of the request shaded, the carried
-    part drawn), saved one PNG each plus a grid of the first ``max_frames`` (three columns:
-    NR, waiting, carrying, as in the paper)."""
+    part drawn), saved one PNG each plus ``frames.png``, a grid of every segment (up to
+    ``max_frames``) laid out for the workcell's aspect ratio (:func:`cellplan.plots.grid_shape`)."""
     outdir = Path(outdir)
     segs = sim.segments()
     paths = []
@@ -179,28 +188,44 @@ def plot_frames(
         _frame(axes[0, 0], strategy, cell, sim, a, b, f"({i + 1}) stages {a}-{b}: {label}")
         paths.append(base.save_figure(fig, outdir / f"frame_{i + 1:03d}.png", dpi=80))
     shown = segs[:max_frames]
-    rows = max(1, int(np.ceil(len(shown) / 3)))
-    fig, axes = base.new_figure(ncols=3, nrows=rows, size=3.2)
-    for ax in axes.ravel():
+    xmin, ymin, xmax, ymax = cell.bounds
+    aspect = (xmax - xmin) / (ymax - ymin)
+    rows, cols = base.grid_shape(len(shown), aspect)
+    panel = min(3.2, 13.0 / cols)  # panel width in inches; the page is about 13 wide
+    fig, axes = base.new_figure(ncols=cols, nrows=rows, size=panel)
+    fig.set_size_inches(cols * panel, rows * (panel / aspect + 0.35))
+    for ax in axes.ravel()[len(shown) :]:
         ax.set_axis_off()
     for i, (a, b) in enumerate(shown):
-        ax = axes.ravel()[i]
-        ax.set_axis_on()
         label = strategy.mdp.modes[int(sim.modes[a])].label
-        _frame(ax, strategy, cell, sim, a, b, f"({chr(97 + i)}) {label}, stages {a}-{b}")
+        _frame(axes.ravel()[i], strategy, cell, sim, a, b, f"({i + 1}) {label}, stages {a}-{b}")
+    if len(segs) > len(shown):
+        fig.suptitle(
+            f"the first {len(shown)} of {len(segs)} mode segments (every one is in frame_###.png)",
+            fontsize=9,
+        )
     paths.append(base.save_figure(fig, outdir / "frames.png", dpi=90))
     return paths
 
 
 def save_animation(
-    strategy: Strategy, cell: Any, sim: Simulation, path: str | Path, max_frames: int = 40
+    strategy: Strategy,
+    cell: Any,
+    sim: Simulation,
+    path: str | Path,
+    max_frames: int = 40,
+    size: int = base.GIF_SIZE,
 ) -> Path:
-    """An animated GIF of the sample path (stages subsampled to at most ``max_frames``)."""
+    """An animated GIF of the sample path (stages subsampled to at most ``max_frames``),
+    ``size`` pixels wide, each frame with its stage counter and mode."""
+    import matplotlib.pyplot as plt
+
+    size = base.check_gif_size(size, "size")
     n = len(sim.modes)
     ks = np.unique(np.linspace(0, n - 1, min(n, max_frames)).astype(int))
     frames = []
     for k in ks:
-        fig, axes = base.new_figure(size=3.6)
+        fig, axes = base.new_figure(size=4.8)
         ax = axes[0, 0]
         mode = strategy.mdp.modes[int(sim.modes[k])]
         highlight = [] if mode.kind == "NR" else [mode.source, mode.destination]
@@ -208,9 +233,8 @@ def save_animation(
         tool = cell.robot.tool_pose(sim.q[max(0, k - 30) : k + 1])[:, :2]
         ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.0)
         base.draw_robot(ax, cell, sim.q[k], mode.part if mode.kind == "C" else None)
-        ax.set_title(f"stage {k}: {mode.label}", fontsize=8)
-        frames.append(base.figure_to_rgb(fig, dpi=60))
-        import matplotlib.pyplot as plt
-
+        base.frame_counter(ax, f"stage {k:>{len(str(n - 1))}d} / {n - 1}")
+        ax.set_title(f"mode {mode.label}", fontsize=9)
+        frames.append(base.figure_to_rgb(fig, size))
         plt.close(fig)
     return base.save_gif(frames, path, fps=8.0)
