@@ -20,6 +20,8 @@ def test_quick_fig5_runs_and_reports(tmp_path: Path) -> None:
     assert ratio["A0"][-1] >= ratio["A3"][-1]
     piece = exp.report(rows, tmp_path)
     assert piece.claims and Path(piece.figures[0]).stat().st_size > 0
+    caption = piece.captions[Path(piece.figures[0]).name]
+    assert "after each of 16 tasks" in caption and "A0 1, A3 1" in caption
 
 
 def test_runs_are_pure_functions_of_the_spec() -> None:

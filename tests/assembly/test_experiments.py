@@ -36,6 +36,7 @@ def test_sensitivity_spreads_the_starts_and_reports_per_fill(tmp_path: Path) -> 
     assert len(table) == 3 and all("solved at k" in row for row in table)
     assert all(Path(f).is_file() for f in piece.figures)
     assert len(piece.claims) == 1
+    _captions_from_the_runs(piece, rows)
 
 
 def test_ratio_vs_k_reports_the_flow_at_k_beside_the_escape(tmp_path: Path) -> None:
@@ -47,6 +48,7 @@ def test_ratio_vs_k_reports_the_flow_at_k_beside_the_escape(tmp_path: Path) -> N
     assert any("k lowered when stuck" in c for c in labels)
     ((_, table),) = piece.tables
     assert {"solved", "solved at k", "mean (solved at k)"} <= set(table[0])
+    _captions_from_the_runs(piece, rows)
 
 
 def test_sequential_reports_escapes_and_both_switch_claims(tmp_path: Path) -> None:
@@ -61,6 +63,25 @@ def test_sequential_reports_escapes_and_both_switch_claims(tmp_path: Path) -> No
     rising = claims["paper rule: harder goals need more switches"]
     assert "easy -> hard" in rising.ours
     assert all(Path(f).is_file() for f in piece.figures)
+    _captions_from_the_runs(piece, rows)
+
+
+def _captions_from_the_runs(piece, rows) -> None:
+    """Every figure has a caption naming the disc count and the runs behind it, and no text
+    speaks of a disc count that was not run (the quick runs use 3 or 5 discs)."""
+    import re
+
+    ns = {int(r["n"]) for r in rows}
+    assert piece.figures and set(piece.captions) == {Path(f).name for f in piece.figures}
+    for caption in piece.captions.values():
+        assert any(f"{n} discs" in caption for n in ns)
+        assert re.search(r"\d+ runs \(\d+ solved\) over \d+ seeds?", caption)
+    said = {
+        int(m)
+        for text in (piece.text, *piece.captions.values())
+        for m in re.findall(r"(\d+)(?: and \d+)? discs", text)
+    }
+    assert said <= ns
 
 
 def test_claim_intervals_and_their_combination():

@@ -127,12 +127,21 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     from cellplan.adaptive.plots import save_ratio_curves
 
     ratio, tasks = curves(rows)
-    change = tasks // 2
+    changes = sorted({int(r["change_after"]) for r in rows if "change_after" in r})
+    change = changes[0] if changes else tasks // 2
+    seeds = {str(name): len({r["seed"] for r in rows if r["planner"] == name}) for name in ratio}
     fig = save_ratio_curves(
         ratio,
         Path(outdir) / "adaptive_fig5.png",
-        [change],
-        title=f"Adapt / Solve only, mean of {len([r for r in rows if r['planner'] == 'A3'])} runs",
+        changes or [change],
+        title=f"Adapt / Solve only over {tasks} tasks, mean of {seeds.get('A3', 0)} runs",
+    )
+    runs_text = ", ".join(f"{name} {k}" for name, k in seeds.items())
+    caption = (
+        f"Ratio of the run-averaged cumulative planning cost (collision checks) to that of "
+        f"Solve alone after each of {tasks} tasks on adaptive_fig4, log scale; the dotted "
+        f"line is the environment change after task "
+        f"{', '.join(map(str, changes or [change]))}. Runs per planner: {runs_text}."
     )
     a3 = ratio["A3"]
     per_run = seed_ratios(rows, "A3", tasks)
@@ -206,6 +215,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             "PRM keeps its roadmap until the change."
         ),
         figures=[fig],
+        captions={fig.name: caption},
         tables=[("ratio of mean cumulative costs", table)],
         claims=claims,
         command="cellplan adapt adaptive_fig4 --repair A3 --tasks 80 --seed 0 -o out",

@@ -32,6 +32,46 @@ def _tool_trace(cell: Workcell, qa: np.ndarray, qb: np.ndarray, samples: int = 1
     return cell.robot.tool_pose(cell.robot.wrap(qa + t * cell.robot.difference(qa, qb)))[:, :2]
 
 
+GRAPH_COLOR = "#1f4e9c"
+GOAL_COLOR = "#c0392b"
+
+
+def graph_legend(arm: bool = False) -> list[Any]:
+    """Legend handles for :func:`draw_graph`: what each colour, dash and marker means."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [
+        Line2D([], [], color=GRAPH_COLOR, lw=1.0, label="edge of G, known free"),
+        Line2D([], [], color=GRAPH_COLOR, lw=1.0, ls="--", label="edge of G, not yet checked"),
+        Line2D(
+            [],
+            [],
+            marker="o",
+            ls="none",
+            color=GRAPH_COLOR,
+            ms=4,
+            label="subgoal attached to an object",
+        ),
+        Line2D(
+            [],
+            [],
+            marker="s",
+            ls="none",
+            color=GRAPH_COLOR,
+            mfc="white",
+            ms=4,
+            label="subgoal fixed in the world",
+        ),
+        Line2D([], [], marker="*", ls="none", color=GOAL_COLOR, ms=9, label="goal (named)"),
+        Line2D([], [], color=GOAL_COLOR, lw=0.8, alpha=0.6, label="path of the last task"),
+        Patch(color=shared.COLORS["obstacle"], label="obstacle"),
+    ]
+    if arm:
+        handles.append(Patch(color=shared.COLORS["robot"], alpha=0.35, label="arm at its position"))
+    return handles
+
+
 def draw_graph(ax: Any, snap: Snapshot, title: str = "") -> None:
     """G over the workcell: vertices at the tool point, edges as the tool's trace along them."""
     cell = snap.cell
@@ -45,7 +85,7 @@ def draw_graph(ax: Any, snap: Snapshot, title: str = "") -> None:
             xy[:, 0],
             xy[:, 1],
             "-" if e.status == FREE else "--",
-            color="#1f4e9c",
+            color=GRAPH_COLOR,
             lw=1.0,
             alpha=0.8,
         )
@@ -54,27 +94,32 @@ def draw_graph(ax: Any, snap: Snapshot, title: str = "") -> None:
         xy = cell.robot.tool_pose(Q)[:, :2]
         attached = np.array([g.vertices[i].obj is not None for i in ids])
         ax.plot(
-            xy[attached, 0], xy[attached, 1], "o", color="#1f4e9c", ms=4, label="subgoal (attached)"
+            xy[attached, 0],
+            xy[attached, 1],
+            "o",
+            color=GRAPH_COLOR,
+            ms=4,
+            label="subgoal (attached)",
         )
         ax.plot(
             xy[~attached, 0],
             xy[~attached, 1],
             "s",
-            color="#1f4e9c",
+            color=GRAPH_COLOR,
             mfc="white",
             ms=4,
             label="subgoal (world)",
         )
     for name, (x, y) in snap.goals.items():
-        ax.plot(x, y, "*", color="#c0392b", ms=9)
+        ax.plot(x, y, "*", color=GOAL_COLOR, ms=9)
         ax.annotate(
-            name, (x, y), xytext=(3, 3), textcoords="offset points", fontsize=7, color="#c0392b"
+            name, (x, y), xytext=(3, 3), textcoords="offset points", fontsize=7, color=GOAL_COLOR
         )
     if snap.path is not None and len(snap.path) > 1:
         dense = np.concatenate(
             [_tool_trace(cell, a, b, 8) for a, b in zip(snap.path[:-1], snap.path[1:], strict=True)]
         )
-        ax.plot(dense[:, 0], dense[:, 1], color="#c0392b", lw=0.8, alpha=0.6)
+        ax.plot(dense[:, 0], dense[:, 1], color=GOAL_COLOR, lw=0.8, alpha=0.6)
     if cell.robot.kind == "arm":
         shared.draw_robot(ax, cell, snap.u, alpha=0.35)
     ax.set_title(
@@ -83,7 +128,7 @@ def draw_graph(ax: Any, snap: Snapshot, title: str = "") -> None:
 
 
 def save_snapshots(snaps: Sequence[Snapshot], path: str | Path, ncols: int = 4) -> Path:
-    """A grid of G snapshots (Figure 3 style)."""
+    """A grid of G snapshots (Figure 3 style), with one legend for the whole grid below it."""
     n = max(1, len(snaps))
     ncols = min(ncols, n)
     nrows = (n + ncols - 1) // ncols
@@ -93,6 +138,14 @@ def save_snapshots(snaps: Sequence[Snapshot], path: str | Path, ncols: int = 4) 
             draw_graph(ax, snaps[k])
         else:
             ax.axis("off")
+    arm = bool(snaps) and snaps[0].cell.robot.kind == "arm"
+    fig.legend(
+        handles=graph_legend(arm),
+        loc="outside lower center",
+        ncols=min(4, max(2, 2 * ncols)),
+        fontsize=8,
+        frameon=False,
+    )
     return shared.save_figure(fig, path)
 
 
@@ -133,5 +186,6 @@ def save_cost_split(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path
     ax.set_yscale("symlog", linthresh=10)
     ax.set_xlabel("task number")
     ax.set_ylabel("collision checks")
-    ax.legend(fontsize=7, ncols=2)
+    # Outside the axes: inside, it covered the bars of the last tasks.
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return shared.save_figure(fig, path)

@@ -173,6 +173,33 @@ def _runs_permutation(runs: int, quick: bool) -> list[RunSpec]:
 # --- reports ---------------------------------------------------------------------------------
 
 
+def _values(rows: list[dict[str, Scalar]], key: str) -> str:
+    """The distinct values of a parameter in the rows, as ``a, b, c`` (numbers sorted)."""
+    vals = {r[key] for r in rows if key in r and r[key] != ""}
+    nums = sorted(float(v) for v in vals if isinstance(v, int | float))
+    text = [f"{v:g}" for v in nums] + sorted(str(v) for v in vals if isinstance(v, str))
+    return ", ".join(text)
+
+
+def _betas(rows: list[dict[str, Scalar]]) -> str:
+    """``1e-2, 1e-16``: the goal difficulties beta(d) the runs used."""
+    logs = sorted({float(r["log10_beta"]) for r in rows if r.get("log10_beta", "") != ""})
+    return ", ".join(f"1e{v:g}" for v in logs) or "?"
+
+
+def _discs(rows: list[dict[str, Scalar]]) -> str:
+    """``7 discs`` (or ``7 and 10 discs``) from the runs' ``n``."""
+    ns = sorted({int(r["n"]) for r in rows if "n" in r})
+    return (" and ".join(map(str, ns)) or "?") + (" disc" if ns == [1] else " discs")
+
+
+def _runs_line(rows: list[dict[str, Scalar]]) -> str:
+    """``12 runs (11 solved) over 3 seeds``: what a figure rests on."""
+    solved = sum(1 for r in rows if r.get("solved"))
+    seeds = len({r["seed"] for r in rows if "seed" in r})
+    return f"{len(rows)} runs ({solved} solved) over {seeds} seed{'s' if seeds != 1 else ''}"
+
+
 MIN_RUNS = 5
 """Fewest runs behind a verdict; with fewer a claim is "not enough runs to decide"."""
 
@@ -290,8 +317,8 @@ def _report_ratio_vs_k(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
     stats = _group(rows, ("n", "k"), "ratio")
     piece = ReportPiece(
         "Path-length ratio vs k (Figs. 3-4)",
-        "Gradient algorithm, random legal starts, hexagonal goal cluster "
-        "(gap 0.1 radius); mean and standard deviation over solved runs.",
+        f"Gradient algorithm, {_discs(rows)}, random legal starts, hexagonal goal cluster "
+        f"(gap {GAP:g} radius); mean and standard deviation over solved runs.",
         tables=[("ratio vs k", _table(stats, ("n", "k")))],
     )
     for n in sorted({key[0] for key in stats}):
@@ -305,17 +332,23 @@ def _report_ratio_vs_k(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
                 np.array([s["std"] for _, s in pts]),
             )
         ]
-        piece.figures.append(
-            save_errorbars(
-                series,
-                outdir / f"assembly_ratio_vs_k_{n}.png",
-                "k",
-                "path-length ratio",
-                f"Fig. {3 if n == 7 else 4}: {n} discs",
-                logx=True,
-                reference=1.25,
-                plain_ticks=True,
-            )
+        figure = {7: "Fig. 3: ", 10: "Fig. 4: "}.get(int(n), "")
+        mine = [r for r in rows if r.get("n") == n]
+        path = save_errorbars(
+            series,
+            outdir / f"assembly_ratio_vs_k_{n}.png",
+            "k",
+            "path-length ratio",
+            f"{figure}{n} discs",
+            logx=True,
+            reference=1.25,
+            plain_ticks=True,
+        )
+        piece.figures.append(path)
+        piece.captions[path.name] = (
+            f"Path-length ratio (path length over straight-line distance) of the gradient "
+            f"algorithm for {n} discs at k = {_values(mine, 'k')}: mean and one standard "
+            f"deviation over solved runs, {_runs_line(mine)}; dotted line at 1.25."
         )
         target = 1.25 if n <= 7 else 1.3
         for label, mean_key, solved_key in (
@@ -400,19 +433,24 @@ def _report_ratio_vs_beta(rows: list[dict[str, Scalar]], outdir: Any) -> ReportP
     stats = _group(rows, ("k", "log10_beta"), "ratio")
     piece = ReportPiece(
         "Path-length ratio vs goal difficulty beta(d) (Figs. 5-7)",
-        "Gradient algorithm, 7 discs, hexagonal goals whose gaps are set so "
-        "that the pairwise beta(d) of equation (4) is 1e-2 ... 1e-44.",
+        f"Gradient algorithm, {_discs(rows)}, hexagonal goals whose gaps are set so "
+        f"that the pairwise beta(d) of equation (4) is {_betas(rows)}.",
         tables=[("ratio vs beta(d)", _table(stats, ("k", "log10_beta")))],
     )
-    piece.figures.append(
-        save_errorbars(
-            _beta_series(stats, "k={k:g}"),
-            outdir / "assembly_ratio_vs_beta.png",
-            "beta(d)",
-            "path-length ratio",
-            "Figs. 6-7: gradient algorithm",
-            logx=True,
-        )
+    path = save_errorbars(
+        _beta_series(stats, "k={k:g}"),
+        outdir / "assembly_ratio_vs_beta.png",
+        "beta(d)",
+        "path-length ratio",
+        f"Figs. 6-7: gradient algorithm, {_discs(rows)}",
+        logx=True,
+    )
+    piece.figures.append(path)
+    piece.captions[path.name] = (
+        f"Path-length ratio of the gradient algorithm for {_discs(rows)} against the goal "
+        f"difficulty beta(d) = {_betas(rows)}, one series per k = "
+        f"{_values(rows, 'k')}: mean and one standard deviation over solved runs, "
+        f"{_runs_line(rows)}."
     )
     for k in sorted({key[0] for key in stats}):
         means = [s["mean"] for key, s in stats.items() if key[0] == k]
@@ -458,26 +496,31 @@ def _report_sequential(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
                     _table(near, ("k", "log10_beta")),
                 )
             )
-        piece.figures.append(
-            save_errorbars(
-                _beta_series(ratio, "k={k:g}"),
-                outdir / f"assembly_seq_ratio_{rule}.png",
-                "beta(d)",
-                "path-length ratio",
-                f"Fig. 8 ({rule} rule)",
-                logx=True,
-            )
+        where = (
+            f"the sequential algorithm ({rule} rule) for {_discs(rs)} against beta(d) = "
+            f"{_betas(rs)}, one series per k = {_values(rs, 'k')}: mean "
+            f"and one standard deviation over solved runs, {_runs_line(rs)}."
         )
-        piece.figures.append(
-            save_errorbars(
-                _beta_series(sw, "k={k:g}"),
-                outdir / f"assembly_seq_switches_{rule}.png",
-                "beta(d)",
-                "switches per disc",
-                f"Fig. 9 ({rule} rule)",
-                logx=True,
-            )
+        path = save_errorbars(
+            _beta_series(ratio, "k={k:g}"),
+            outdir / f"assembly_seq_ratio_{rule}.png",
+            "beta(d)",
+            "path-length ratio",
+            f"Fig. 8 ({rule} rule), {_discs(rs)}",
+            logx=True,
         )
+        piece.figures.append(path)
+        piece.captions[path.name] = f"Path-length ratio of {where}"
+        path = save_errorbars(
+            _beta_series(sw, "k={k:g}"),
+            outdir / f"assembly_seq_switches_{rule}.png",
+            "beta(d)",
+            "switches per disc",
+            f"Fig. 9 ({rule} rule), {_discs(rs)}",
+            logx=True,
+        )
+        piece.figures.append(path)
+        piece.captions[path.name] = f"Switches (grasps) per disc of {where}"
         per_disc = np.array([s["mean"] for s in sw.values()])
         solved = sum(s["solved"] for s in sw.values())
         total = sum(s["runs"] for s in sw.values())
@@ -547,7 +590,9 @@ def _report_permutation(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPie
     ratio = _group(rows, keys, "ratio")
     piece = ReportPiece(
         "Permutation starts on packed goals (Section 5.2.2)",
-        "Starts are random permutations of the packed goals.",
+        f"{_discs(rows)} at k = {_values(rows, 'k')}, beta(d) = "
+        f"{_betas(rows)}: starts are random permutations of the packed "
+        "goals, beside random legal starts.",
         tables=[("ratio", _table(ratio, keys))],
     )
     for b in sorted({key[0] for key in ratio}):
@@ -604,17 +649,22 @@ def _report_sensitivity(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPie
                 np.array([s["std"] for _, s in pts]),
             )
         )
-    piece.figures.append(
-        save_errorbars(
-            series,
-            outdir / "assembly_ratio_vs_workspace.png",
-            "fill (disc area / workspace area)",
-            "path-length ratio",
-            "ratio vs workspace fill",
-            logx=True,
-            reference=1.25,
-            plain_ticks=True,
-        )
+    path = save_errorbars(
+        series,
+        outdir / "assembly_ratio_vs_workspace.png",
+        "fill (disc area / workspace area)",
+        "path-length ratio",
+        f"ratio vs workspace fill, {_discs(rows)}",
+        logx=True,
+        reference=1.25,
+        plain_ticks=True,
+    )
+    piece.figures.append(path)
+    piece.captions[path.name] = (
+        f"Path-length ratio of the gradient algorithm ({_discs(rows)}, one series per "
+        f"(n, k)) against the fraction of the workspace the discs cover, fill = "
+        f"{_values(rows, 'fill')}, with starts at least {START_GAPS[0]:g} radius apart: mean "
+        f"and one standard deviation over solved runs, {_runs_line(rows)}; dotted line at 1.25."
     )
     for (label, _, mean, _), group in zip(series, groups, strict=True):
         if len(mean) > 1:

@@ -71,13 +71,69 @@ def save_sequence(problem: DiscProblem, path: Array, out: str | Path, title: str
     from cellplan.plots import new_figure, save_figure
 
     fig, axes = new_figure(ncols=4, size=3.2)
+    last = len(path) - 1
     for ax, idx, label in zip(
         axes[0], _moments(path, 4), ("(i)", "(ii)", "(iii)", "(iv)"), strict=True
     ):
-        draw_configuration(ax, problem, path, idx, label)
+        draw_configuration(ax, problem, path, idx, f"{label} step {idx} of {last}")
     if title:
-        fig.suptitle(title)
+        fig.suptitle(f"{title}, {problem.n} discs")
+    handles = sequence_legend(problem.n)
+    fig.legend(
+        handles=handles,
+        loc="outside lower center",
+        ncols=min(len(handles), 7),
+        fontsize=8,
+        frameon=False,
+    )
     return save_figure(fig, out)
+
+
+LEGEND_DISCS = 10
+"""Discs named one by one in a sequence's legend; more share one entry."""
+
+
+def sequence_legend(n: int) -> list[Any]:
+    """Legend handles for :func:`draw_configuration`: each disc's colour (up to
+    :data:`LEGEND_DISCS`), its goal outline, and its path so far."""
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    cmap = plt.get_cmap("tab10" if n <= 10 else "tab20")
+    handles: list[Any] = []
+    if n <= LEGEND_DISCS:
+        handles += [
+            Line2D(
+                [],
+                [],
+                marker="o",
+                ls="none",
+                ms=8,
+                alpha=0.75,
+                color=cmap(i % cmap.N),
+                label=f"disc {i + 1}",
+            )
+            for i in range(n)
+        ]
+    else:
+        handles.append(
+            Line2D(
+                [],
+                [],
+                marker="o",
+                ls="none",
+                ms=8,
+                alpha=0.75,
+                color=cmap(0),
+                label=f"discs 1-{n} (one colour each)",
+            )
+        )
+    handles += [
+        Patch(fill=False, ls="--", edgecolor="grey", label="goal (dashed outline, disc's colour)"),
+        Line2D([], [], color="grey", lw=0.9, label="path so far"),
+    ]
+    return handles
 
 
 def save_animation(

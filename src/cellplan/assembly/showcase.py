@@ -53,10 +53,12 @@ def showcase(folder: str | Path) -> list[ShowcaseItem]:
     ]
     items.append(
         ShowcaseItem(
-            title="Seven discs, gradient algorithm (Sec. 4.1, Fig. 1)",
+            title=f"{run.problem.n} discs ({SCENARIO}), gradient algorithm (Sec. 4.1, Fig. 1)",
             figures=figures,
             caption=f"All discs move together along -grad phi ({flow.status.value}: "
-            f"{flow.message}). Dashed circles are the goals; lines are the paths so far.",
+            f"{flow.message}). Four moments of the run ({len(run.path) - 1} steps) and the "
+            f"animation ({FRAMES} frames, its time in each frame); dashed circles are the "
+            "goals, lines the paths so far.",
             code=GRADIENT_CODE,
         )
     )
@@ -65,7 +67,8 @@ def showcase(folder: str | Path) -> list[ShowcaseItem]:
     run = seq.solution
     items.append(
         ShowcaseItem(
-            title="Seven discs, sequential algorithm (Sec. 4.2, the paper's rule)",
+            title=f"{run.problem.n} discs ({SCENARIO}), sequential algorithm (Sec. 4.2, the "
+            "paper's rule)",
             figures=[
                 save_sequence(
                     run.problem,
