@@ -20,7 +20,7 @@ def summarize(setup: Setup) -> dict[str, str]:
     out = {
         "scenario": sc.name or "(unnamed)",
         "workcell": f"[{b.xmin:g}, {b.xmax:g}] x [{b.ymin:g}, {b.ymax:g}], "
-        f"{len(sc.workcell.obstacles)} obstacles",
+        f"{len(sc.workcell.obstacles)} obstacle{'' if len(sc.workcell.obstacles) == 1 else 's'}",
         "sections": ", ".join(sc.section_names()) or "none",
     }
     if sc.robot is not None:
@@ -32,20 +32,23 @@ def summarize(setup: Setup) -> dict[str, str]:
 
 
 def _workcell_lines(setup: Setup) -> dict[str, str]:
+    """Robot, C-space and free fraction; parts, sources and destinations only where the
+    scenario has them (an adaptive scenario has none, and "none" lines say nothing)."""
     from cellplan.cspace import Grid, free_bitmap
 
     sc, cell = setup.scenario, setup.workcell
     assert sc.robot is not None  # a workcell exists only with a robot
-    regions = lambda rs: ", ".join(f"{n} ({len(r.components)})" for n, r in rs.items()) or "none"  # noqa: E731
-    out = {
-        "robot": sc.robot.type,
-        "C-space dimension": str(robot_dimension(sc.robot)),
-        "parts": ", ".join(sc.parts) or "none",
-        "sources (components)": regions(sc.sources),
-        "destinations (components)": regions(sc.destinations),
-    }
+    regions = lambda rs: ", ".join(f"{n} ({len(r.components)})" for n, r in rs.items())  # noqa: E731
+    out = {"robot": sc.robot.type, "C-space dimension": str(robot_dimension(sc.robot))}
+    if sc.parts:
+        out["parts"] = ", ".join(sc.parts)
+    if sc.sources:
+        out["sources (components)"] = regions(cell.sources)
+    if sc.destinations:
+        out["destinations (components)"] = regions(cell.destinations)
     grid = Grid.for_robot(cell.robot, cell.default_cells)
     free = free_bitmap(cell, grid)
     shape = " x ".join(str(n) for n in grid.shape)
-    out["free fraction"] = f"{free.mean():.3f} (empty robot, NR mode, {shape} cells, conservative)"
+    sources = ", sources as obstacles" if sc.sources else ""
+    out["free fraction"] = f"{free.mean():.3f} (empty robot{sources}, {shape} cells, conservative)"
     return out

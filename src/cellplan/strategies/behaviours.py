@@ -207,12 +207,10 @@ def turns_to_changed_destination(
     targets = [cell.region(d).geometries for d in pair]
     hits = []
     for q in live_starts(strategy, modes, count, rng):
-        steps = []
-        for m in modes:
-            u = strategy.action(q, m)
-            steps.append(None if u in (FMP, STAY) else strategy.move_vector(q, m, u))
-        if steps[0] is None or steps[1] is None:
+        actions = [strategy.action(q, m) for m in modes]
+        if any(u in (FMP, STAY) for u in actions):
             continue
+        steps = [strategy.move_vector(q, m, u) for m, u in zip(modes, actions, strict=True)]
         here = _point(cell, q)
         for new, old in ((1, 0), (0, 1)):
             p = Point(*here)

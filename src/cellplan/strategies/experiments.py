@@ -405,11 +405,11 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
         "seeds, blue the mean with its 95% interval, dashed the threshold the claim must "
         "clear."
     )
-    table = [
-        {"problem": str(r["problem"]), "seed": int(r["seed"])}
-        | {b.key: float(r[b.key]) for b in BEHAVIOURS if b.key in r}
-        for r in sorted(rows, key=lambda r: (str(r["problem"]), int(r["seed"])))
-    ]
+    table: list[dict[str, Scalar]] = []
+    for r in sorted(rows, key=lambda r: (str(r["problem"]), int(r["seed"]))):
+        entry: dict[str, Scalar] = {"problem": str(r["problem"]), "seed": int(r["seed"])}
+        entry.update({b.key: float(r[b.key]) for b in BEHAVIOURS if b.key in r})
+        table.append(entry)
     return ReportPiece(
         title="Strategies: the behaviours of Section V",
         text=(
@@ -422,7 +422,8 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
         captions={figure.name: caption},
         tables=[("measure per problem and seed", table)],
         claims=claims,
-        command="cellplan solve FILE --cells ...; cellplan plot STRATEGY --mode MODE",
+        command="cellplan solve strategies_p1 -o p1.npz && "
+        "cellplan plot strategies_p1 --strategy p1.npz --mode NR",
     )
 
 

@@ -482,14 +482,43 @@ def fine_motion_field(spec: Any, tool_xy: np.ndarray) -> np.ndarray:
     return out
 
 
-def build_model(scenario: Any, cell: Any, cells: Sequence[int] | None = None) -> LayeredMDP:
+def start_problems(mdp: LayeredMDP, start: Sequence[float] | np.ndarray) -> list[Problem]:
+    """A problem when ``start`` (the robot's start) is not a live state of NR, so no
+    run of the strategy could begin there (checked before solving)."""
+    q = np.asarray(start, float)
+    idx = np.floor((q - mdp.lower) / mdp.spacing).astype(np.int64)
+    idx = np.where(mdp.periodic, idx % mdp.shape, np.clip(idx, 0, mdp.shape - 1))
+    if mdp.live[0, int(np.ravel_multi_index(tuple(idx), tuple(mdp.shape)))]:
+        return []
+    shape = " x ".join(str(int(n)) for n in mdp.shape)
+    return [
+        Problem(
+            "robot.start",
+            f"lies outside the strategy's domain on the {shape} grid: from its cell no request "
+            "can be served (blocked at this resolution, or cut off from the sources and "
+            "destinations)",
+        )
+    ]
+
+
+def build_model(
+    scenario: Any,
+    cell: Any,
+    cells: Sequence[int] | None = None,
+    start: Sequence[float] | np.ndarray | None = None,
+) -> LayeredMDP:
     """The layered MDP of a scenario with a ``strategy:`` section.
+
+    With ``start`` (the robot's start, as the planner passes it), also checks that a run
+    can begin there (:func:`start_problems`). ``cellplan validate`` runs this same
+    function, so it refuses exactly what ``cellplan solve`` refuses before solving.
 
     Raises
     ------
     ScenarioError
         When a request can never be served (a region no configuration reaches, a part
-        that cannot be carried anywhere, an unreachable destination), one problem each.
+        that cannot be carried anywhere, an unreachable destination), one problem each,
+        or the start is outside the strategy's domain.
     """
     from cellplan.cspace import Grid, free_bitmap, region_bitmap
 
@@ -561,6 +590,8 @@ def build_model(scenario: Any, cell: Any, cells: Sequence[int] | None = None) ->
         source_change=src,
     )
     problems = live_problems(mdp)
+    if not problems and start is not None:
+        problems = start_problems(mdp, start)
     if problems:
         raise ScenarioError(problems)
     return mdp

@@ -107,6 +107,7 @@ def run_strategies(
         method=options.method,
         progress=report if progress is not None else None,
         snap=options.snap,
+        start=cell.robot.start,  # the sample run starts there
     )
     strategy.attach(cell)  # the public query then refuses FMPs the exact region test refuses
     # The axis names travel with the strategy (and its file), so a run without the

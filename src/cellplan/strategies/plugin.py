@@ -39,9 +39,29 @@ if TYPE_CHECKING:
 
 
 def describe(setup: Setup) -> Mapping[str, str]:
-    """``cellplan validate`` lines: the number of assembly modes (Section III-A)."""
-    sc = setup.scenario
-    return {"assembly modes": str(2 * len(sc.parts) * len(sc.sources) * len(sc.destinations) + 1)}
+    """``cellplan validate`` lines; runs the checks ``cellplan solve`` runs before solving.
+
+    Builds the model on the strategy's grid (:func:`~cellplan.strategies.model.build_model`,
+    the same call the planner makes), which refuses a request that can never be served
+    (a source or destination no configuration reaches, a part that cannot be carried to
+    its destination, a free space split between a destination and a source) and a robot
+    start outside the strategy's domain, naming the region, the request or the field.
+    """
+    import numpy as np
+
+    from cellplan.strategies.model import build_model
+
+    sc, cell = setup.scenario, setup.workcell
+    mdp = build_model(sc, cell, start=cell.robot.start)
+    shape = " x ".join(str(int(n)) for n in mdp.shape)
+    free_nr = float(np.mean(mdp.free[mdp.vcls[0]]))
+    live_nr = float(np.mean(mdp.live[0]))
+    return {
+        "assembly modes": f"{mdp.n_modes} (Section III-A; {mdp.n_requests} requests)",
+        "strategy grid": f"{shape} cells",
+        "free / live (NR)": f"{free_nr:.3f} / {live_nr:.3f} of the grid (live: every request "
+        "can be served from there)",
+    }
 
 
 def showcase(folder: Path) -> list[ShowcaseItem]:

@@ -362,19 +362,22 @@ def solve_scenario(
     method: str | None = None,
     progress: Any = None,
     snap: bool = True,
+    start: Any = None,
 ) -> tuple[Strategy, SolveResult]:
     """Build the model of a scenario's ``strategy:`` section, solve it, wrap the result.
 
     The solver settings come from ``strategy.solver`` (``method`` overrides its method).
     ``snap=False`` removes the moves whose interpolation snaps the robot sideways
-    (:func:`~cellplan.strategies.transitions.forbid_snapping`).
+    (:func:`~cellplan.strategies.transitions.forbid_snapping`). With ``start``, a start
+    outside the strategy's domain is refused before solving
+    (:func:`~cellplan.strategies.model.start_problems`).
     """
     from cellplan.strategies.model import build_model
     from cellplan.strategies.solver import solve
     from cellplan.strategies.transitions import forbid_snapping
 
     sec = scenario.strategy
-    mdp = build_model(scenario, cell, cells)
+    mdp = build_model(scenario, cell, cells, start=start)
     if not snap:
         mdp = forbid_snapping(mdp)
     result = solve(

@@ -1,0 +1,92 @@
+"""``cellplan validate`` refuses what ``cellplan solve`` refuses before solving, with the same
+line, and prints only the lines of the scenario's sections."""
+
+from __future__ import annotations
+
+import pytest
+from strategies_helpers import TINY
+
+BASE = TINY.replace("CELLS", "24")
+
+# Each variant is refused by the strategies model (cellplan.strategies.model.build_model)
+# for one reason; the expected text is part of the line both commands print.
+VARIANTS = {
+    # the destination lies under an obstacle: no configuration delivers there
+    "destination covered": (
+        BASE.replace(
+            "middle: {type: box, min: [12, 12], max: [18, 16]}",
+            "middle: {type: box, min: [12, 12], max: [18, 16]}\n"
+            "    roof: {type: box, min: [11, 23], max: [19, 30]}",
+        ),
+        "strategy.requests <P1,S1,D1>: part 'P1' cannot be delivered anywhere in destination 'D1'",
+    ),
+    # the source lies under an obstacle: no configuration picks there
+    "source covered": (
+        BASE.replace(
+            "middle: {type: box, min: [12, 12], max: [18, 16]}",
+            "middle: {type: box, min: [12, 12], max: [18, 16]}\n"
+            "    lid: {type: box, min: [0, 0], max: [8, 7]}",
+        ),
+        "part 'P1' cannot be picked up anywhere in source 'S1'",
+    ),
+    # a wall from floor to ceiling cuts S2 off from D1
+    "split free space": (
+        BASE.replace(
+            "middle: {type: box, min: [12, 12], max: [18, 16]}",
+            "middle: {type: box, min: [12, 12], max: [18, 16]}\n"
+            "    wall: {type: box, min: [20, 0], max: [22, 30]}",
+        ),
+        "destinations.D1: after a delivery at D1 the robot cannot reach source S2",
+    ),
+    # the start is free but boxed in: no request can be served from it
+    "start boxed in": (
+        BASE.replace(
+            "middle: {type: box, min: [12, 12], max: [18, 16]}",
+            "middle: {type: box, min: [12, 12], max: [18, 16]}\n"
+            "    pen_s: {type: box, min: [10, 3], max: [20, 4]}\n"
+            "    pen_n: {type: box, min: [10, 11], max: [20, 12]}\n"
+            "    pen_w: {type: box, min: [10, 3], max: [11, 12]}\n"
+            "    pen_e: {type: box, min: [19, 3], max: [20, 12]}",
+        ),
+        "robot.start: lies outside the strategy's domain on the 24 x 24 grid",
+    ),
+}
+
+
+def _errors(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if line.strip()]
+
+
+@pytest.mark.parametrize("name", list(VARIANTS))
+def test_validate_refuses_what_solve_refuses_with_the_same_line(cellplan, tmp_path, name):
+    text, expected = VARIANTS[name]
+    path = tmp_path / "s.yaml"
+    path.write_text(text)
+    solve = cellplan("solve", str(path), "-o", str(tmp_path / "s.npz"))
+    validate = cellplan("validate", str(path))
+    assert solve.returncode == validate.returncode == 2, (solve.stderr, validate.stderr)
+    assert not (tmp_path / "s.npz").exists()
+    lines = _errors(validate.stderr)
+    assert lines == _errors(solve.stderr)
+    assert any(expected in line for line in lines), lines
+    assert "Traceback" not in validate.stderr and validate.stdout == ""
+
+
+def test_validate_prints_the_strategy_lines(cellplan, tmp_path):
+    path = tmp_path / "s.yaml"
+    path.write_text(BASE)
+    r = cellplan("validate", str(path))
+    assert r.returncode == 0, r.stderr
+    assert "assembly modes: 5 (Section III-A; 2 requests)" in r.stdout
+    assert "strategy grid: 24 x 24 cells" in r.stdout
+    assert "free / live (NR):" in r.stdout
+
+
+def test_validate_prints_only_the_lines_of_the_scenario_sections(cellplan):
+    adaptive = cellplan("validate", "adaptive_fig3").stdout
+    assert "adaptive goals" in adaptive
+    for other in ("parts", "sources", "destinations", "assembly modes", "NR", "discs"):
+        assert other not in adaptive
+    discs = cellplan("validate", "discs_seven").stdout
+    for other in ("robot", "free fraction", "assembly modes", "adaptive"):
+        assert other not in discs
