@@ -213,7 +213,8 @@ BEHAVIOURS = (
         "strategies_p1",
         "idle_near_sources",
         "P1: with no request pending, the robot moves to wait near the sources",
-        "Sec. V-B, Fig. 9: the idle robot waits near the sources",
+        "Sec. V-A, Problem 1, Fig. 9(a), (d), (g): in NR the robot moves to the lower part of the "
+        "workcell, near the sources",
         "fraction of random starts from which the no-request policy stops nearer the sources",
         0.5,
         "a policy that ignores where requests come from ends nearer as often as farther",
@@ -223,7 +224,8 @@ BEHAVIOURS = (
         "strategies_p3",
         "idle_near_sources",
         "P3: with no request pending, the robot moves to wait near the sources",
-        "Sec. V-B, Fig. 12: the idle robot waits near the sources",
+        "Sec. V-A, Problem 3, Fig. 11(a): where the robot waits in NR matters, the carried part "
+        "being large for the opening",
         "fraction of random starts from which the no-request policy stops nearer the sources",
         0.5,
         "a policy that ignores where requests come from ends nearer as often as farther",
@@ -233,7 +235,8 @@ BEHAVIOURS = (
         "strategies_p1",
         "opening_and_detour",
         "P1: empty, the robot passes the narrow opening; carrying, it detours",
-        "Sec. V-B, Fig. 10: through the opening when empty, the wide passage when carrying",
+        "Sec. V-A, Problem 1, Fig. 9(b)-(d): through the narrow opening empty, the longer route "
+        "carrying",
         "fraction of random starts above the wall going down through the opening and back up "
         "through the wide passage",
         0.5,
@@ -244,7 +247,8 @@ BEHAVIOURS = (
         "strategies_p2",
         "nearer_component",
         "P2: the robot delivers to the nearer component of the split destination D1",
-        "Sec. V-B, Fig. 11: D1 has two components; the robot uses the nearer",
+        "Sec. V-A, Problem 2, Fig. 10(h)-(i): D1 has two components; the robot delivers to the "
+        "one that suits its position",
         "fraction of random carrying starts delivered to the component of D1 nearer the start",
         0.5,
         "choosing a component regardless of distance is right half the time",
@@ -254,7 +258,8 @@ BEHAVIOURS = (
         "strategies_p4",
         "turns_to_changed_destination",
         "P4: when the destination changes, the robot turns toward the new one at once",
-        "Sec. V-B, Fig. 13: the carrying robot changes course as soon as D1 becomes D3",
+        "Sec. V-A, Problem 4, Fig. 12(c), (g): when the destination changes, the robot "
+        "immediately delivers to the new one",
         "fraction of (random start, change D1<->D3) pairs whose first move heads toward the "
         "new destination and differs from the move toward the old one",
         0.5,
@@ -265,7 +270,7 @@ BEHAVIOURS = (
         "strategies_p6",
         "component_for_destination",
         "P6: the destination decides which component of S1 the arm picks from",
-        "Sec. V-B, Fig. 15: the upper component of S1 for the upper destination, and the "
+        "Sec. V-B, Problem 6, Fig. 15: the upper component of S1 for the upper destination, the "
         "lower one for the lower, even from starts nearer the other",
         "fraction of random starts picking S1's upper component for D1 (above the arm) "
         "minus that for D2 (below it)",
