@@ -132,6 +132,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
                 n=len(rs),
                 rule="95% interval of the mean reduction against reactive lies above 0 "
                 "(at least 5 seeds)",
+                explanation="docs/strategies.md#measured-what-anticipation-buys-section-v-c",
             )
         )
     fig, axes = base.new_figure(size=4.5)
