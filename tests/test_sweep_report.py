@@ -263,3 +263,14 @@ def test_verdicts_state_their_basis():
     )
     differs = Claim("c", "p", "o", False, "half", n=25, explanation="docs/assembly.md#ratio")
     assert verdict(differs) == "✘ differs: half (why: docs/assembly.md#ratio) [n = 25]"
+
+
+def test_figures_carry_their_experiment_caption(tmp_path):
+    from cellplan.report import _figure
+
+    png = tmp_path / "f.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + b"0" * 16)
+    html = _figure(png, tmp_path, "Ratio for 5 discs over `3` seeds")
+    assert "<figcaption>Ratio for 5 discs over <code>3</code> seeds (f.png)</figcaption>" in html
+    assert 'alt="Ratio for 5 discs over 3 seeds"' in html
+    assert "<figcaption>f.png</figcaption>" in _figure(png, tmp_path)

@@ -377,7 +377,7 @@ def _figure(path: Path, figdir: Path, caption: str = "") -> str:
     kind = "animation" if found.suffix.lower() == ".gif" else "figure"
     text = f"{_inline(caption)} ({_e(found.name)})" if caption else _e(found.name)
     return (
-        f'<figure class="{kind}"><img src="{uri}" alt="{_e(caption or found.stem)}">'
+        f'<figure class="{kind}"><img src="{uri}" alt="{_e(caption.replace("`", "") or found.stem)}">'
         f"<figcaption>{text}</figcaption></figure>"
     )
 
