@@ -376,8 +376,9 @@ def _figure(path: Path, figdir: Path, caption: str = "") -> str:
     uri = f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
     kind = "animation" if found.suffix.lower() == ".gif" else "figure"
     text = f"{_inline(caption)} ({_e(found.name)})" if caption else _e(found.name)
+    alt = caption.replace("`", "") or found.stem
     return (
-        f'<figure class="{kind}"><img src="{uri}" alt="{_e(caption.replace("`", "") or found.stem)}">'
+        f'<figure class="{kind}"><img src="{uri}" alt="{_e(alt)}">'
         f"<figcaption>{text}</figcaption></figure>"
     )
 
