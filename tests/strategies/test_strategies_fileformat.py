@@ -290,10 +290,9 @@ def test_segfault_cases_exit_2_in_a_subprocess(base, tmp_path, case, command):
     path = _write(tmp_path / "bad.npz", arrays, meta, True)
     extra = ["--stages", "20", "--no-gif"] if command == "simulate" else []
     out = tmp_path / ("run" if command == "simulate" else "x.png")
+    args = [command, SCENARIO, "--strategy", str(path), "-o", str(out), *extra]
     proc = subprocess.run(
-        [sys.executable, "-m", "cellplan.cli", command, SCENARIO, "--strategy", str(path)]
-        + ["-o", str(out)]
-        + extra,
+        [sys.executable, "-m", "cellplan.cli", *args],
         capture_output=True,
         text=True,
         env={**os.environ, "CELLPLAN_DEBUG": ""},
