@@ -24,9 +24,10 @@ import ast
 import operator
 import zipfile
 import zlib
-from collections.abc import Mapping, MutableMapping
+from collections.abc import Callable, Mapping, MutableMapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -64,7 +65,13 @@ class ArraySpec:
     doc: str = ""
 
 
-_OPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Pow: pow}
+_OPS: dict[type, Callable[[int, int], int]] = {
+    ast.Add: operator.add,
+    ast.Sub: operator.sub,
+    ast.Mult: operator.mul,
+    ast.Pow: operator.pow,
+}
+Fail = Callable[[str, str], PersistenceError]
 
 
 def evaluate(expr: str, sizes: Mapping[str, int]) -> int:
@@ -91,7 +98,7 @@ def read_arrays(
     limits: Mapping[str, tuple[int, int]] | None = None,
     *,
     first: tuple[str, ...] = (),
-    after_first: object = None,
+    after_first: Callable[[dict[str, np.ndarray], MutableMapping[str, int]], None] | None = None,
     what: str = "a .npz archive",
 ) -> dict[str, np.ndarray]:
     """Read and check every array of ``path`` against ``specs``.
@@ -150,7 +157,7 @@ def read_arrays(
                 raise
             except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
                 raise fail(name, f"unreadable ({_short(exc)})") from None
-            if name == (first[-1] if first else None) and callable(after_first):
+            if name == (first[-1] if first else None) and after_first is not None:
                 after_first(out, sizes)
     return out
 
@@ -159,7 +166,15 @@ def _short(exc: BaseException) -> str:
     return " ".join(str(exc).split())[:120] or type(exc).__name__
 
 
-def _read_member(fh, name, spec, sizes, limits, fail, stored) -> np.ndarray:  # type: ignore[no-untyped-def]
+def _read_member(
+    fh: IO[bytes],
+    name: str,
+    spec: ArraySpec,
+    sizes: MutableMapping[str, int],
+    limits: Mapping[str, tuple[int, int]],
+    fail: Fail,
+    stored: int,
+) -> np.ndarray:
     fmt = np.lib.format
     version = fmt.read_magic(fh)
     if version == (1, 0):
@@ -194,14 +209,16 @@ def _read_member(fh, name, spec, sizes, limits, fail, stored) -> np.ndarray:  # 
         raise fail(name, "data size does not match its header (truncated or padded)")
     arr = np.empty(shape, dtype)
     view = arr.reshape(-1).view(np.uint8)
-    got = fh.readinto(memoryview(view)) if nbytes else 0
+    got = fh.readinto(view.data) if nbytes else 0  # type: ignore[attr-defined]
     if got != nbytes or fh.read(1):
         raise fail(name, "data size does not match its header (truncated or padded)")
     _check_values(arr, name, spec, sizes, fail)
     return arr
 
 
-def _check_values(arr, name, spec, sizes, fail) -> None:  # type: ignore[no-untyped-def]
+def _check_values(
+    arr: np.ndarray, name: str, spec: ArraySpec, sizes: Mapping[str, int], fail: Fail
+) -> None:
     if spec.dtype == "str" or arr.size == 0:
         return
     if arr.dtype == np.bool_:

@@ -16,7 +16,7 @@ import os
 import re
 from pathlib import Path
 
-from cellplan.errors import ArgumentError, Problem
+from cellplan.errors import ArgumentError, CellplanError, Problem
 
 #: Environment variable that caps the memory cellplan assumes it may use.
 LIMIT_VARIABLE = "CELLPLAN_MEMORY_LIMIT"
@@ -101,16 +101,18 @@ def available_memory() -> int:
     return min(found)
 
 
-def require(need: float, field: str, what: str = "") -> None:
-    """Refuse (``ArgumentError`` naming ``field``) a request that needs more than is available.
+def require(
+    need: float, field: str, what: str = "", error: type[CellplanError] = ArgumentError
+) -> None:
+    """Refuse (``error`` naming ``field``) a request that needs more than is available.
 
     ``what`` completes the message: ``needs about 190 GB <what>; this machine has 24 GB
-    available``.
+    available``. Pass ``error=ScenarioError`` when ``field`` names a scenario field.
     """
     have = available_memory()
     if need > have:
         extra = f" {what}" if what else ""
-        raise ArgumentError(
+        raise error(
             [
                 Problem(
                     field,

@@ -57,6 +57,12 @@ class DiscSpec(StrictModel):
     """goal of the centre (workcell units)"""
 
 
+#: Most discs of a generated problem: the flows' work grows with the pairs of discs (and
+#: the implicit integrator's with the cube of the dimension); 60 discs take about a
+#: minute, 100 several (docs/reliability.md), beyond that the run is hours.
+MAX_GENERATED_DISCS = 100
+
+
 class GeneratorSpec(StrictModel):
     """A seeded random problem.
 
@@ -69,8 +75,8 @@ class GeneratorSpec(StrictModel):
     random permutation of the goals, the paper's hard case of Section 5.2.2).
     """
 
-    n: Annotated[int, Field(ge=1, le=500)]
-    """number of discs"""
+    n: Annotated[int, Field(ge=1, le=MAX_GENERATED_DISCS)]
+    """number of discs (at most MAX_GENERATED_DISCS)"""
     seed: Annotated[int, Field(ge=0)] = 0
     """seed of the generator"""
     radius: PositiveFloat = 1.0

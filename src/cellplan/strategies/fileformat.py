@@ -28,6 +28,7 @@ the array or metadata field (the CLI exits 2).
 from __future__ import annotations
 
 import json
+from collections.abc import MutableMapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -130,7 +131,11 @@ ARRAYS: dict[str, ArraySpec] = {
 }
 
 #: Sizes read from the file, with their limits (M, the mode count, is known by then).
-SIZE_LIMITS = {"K": (1, "M"), "A": (1, str(MAX_ACTIONS)), "B": ("M", "M * M")}
+SIZE_LIMITS: dict[str, tuple[int | str, int | str]] = {
+    "K": (1, "M"),
+    "A": (1, MAX_ACTIONS),
+    "B": ("M", "M * M"),
+}
 
 
 def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any], dict]:
@@ -149,7 +154,7 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
     def fail(message: str) -> PersistenceError:
         return PersistenceError([Problem(where, message)])
 
-    def from_meta(arrays: dict[str, np.ndarray], known: dict[str, int]) -> None:
+    def from_meta(arrays: dict[str, np.ndarray], known: MutableMapping[str, int]) -> None:
         meta = _parse_meta(str(arrays["meta"]), fail)
         grid = meta.grid
         d = len(grid.shape)
@@ -199,7 +204,7 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
     return meta.model_dump(), arrays
 
 
-def _size(value: int | str, sizes: dict[str, int]) -> int:
+def _size(value: int | str, sizes: MutableMapping[str, int]) -> int:
     from cellplan.arrayfile import evaluate
 
     return value if isinstance(value, int) else evaluate(value, sizes)
