@@ -58,8 +58,9 @@ class DiscSpec(StrictModel):
 
 
 #: Most discs of a generated problem: the flows' work grows with the pairs of discs (and
-#: the implicit integrator's with the cube of the dimension); 60 discs take about a
-#: minute, 100 several (docs/reliability.md), beyond that the run is hours.
+#: the implicit integrator's with the cube of the dimension). Measured on a shared 2-core
+#: machine (docs/reliability.md): 10 discs 19 s, 60 discs 58 s, 100 discs 12 minutes;
+#: beyond that a run takes hours.
 MAX_GENERATED_DISCS = 100
 
 
