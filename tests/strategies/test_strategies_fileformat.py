@@ -242,6 +242,19 @@ def test_out_of_range_indices_are_named(base, tmp_path, field, index, value, wor
         Strategy.load(path, setup.scenario)
 
 
+def test_a_cell_count_past_int64_is_refused(base, tmp_path):
+    """4096^6 cells wrap round to 0 in int64: the count is taken in Python integers."""
+    _, _, arrays, meta = base
+    meta = json.loads(json.dumps(meta))
+    meta["grid"] = {"shape": [4096] * 6, "lower": [0.0] * 6, "upper": [1.0] * 6}
+    meta["grid"]["periodic"] = [False] * 6
+    for key in ("home", "start", "axes"):
+        del meta[key]
+    path = _write(tmp_path / "big.npz", arrays, meta, True)
+    with pytest.raises(PersistenceError, match=r"meta.grid.shape: 4.72e\+21 cells"):
+        Strategy.load(path)
+
+
 def test_a_pickle_is_never_loaded(base, tmp_path):
     setup, _, arrays, meta = base
     arrays = dict(arrays, values=np.array([object()], dtype=object))

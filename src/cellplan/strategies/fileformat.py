@@ -28,6 +28,7 @@ the array or metadata field (the CLI exits 2).
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import MutableMapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -44,6 +45,8 @@ FORMAT = "cellplan-strategy"
 VERSION = 1
 #: Actions per move class: the valid-move bitmask is one int64 per cell.
 MAX_ACTIONS = 62
+#: Most grid cells of a strategy (a product of axes: checked before any size is used).
+MAX_CELLS = 2**40
 #: The metadata string's length limit (characters).
 MAX_META_CHARS = 1_000_000
 
@@ -176,9 +179,12 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
             value = getattr(meta, name)
             if value is not None and len(value) != d:
                 raise fail(f"meta.{name}: expected {d} values, got {len(value)}")
+        n_cells = math.prod(grid.shape)  # Python integers: no int64 wrap-around
+        if n_cells > MAX_CELLS:
+            raise fail(f"meta.grid.shape: {n_cells:.3g} cells (at most {MAX_CELLS:.3g})")
         known.update(
             d=d,
-            N=int(np.prod(grid.shape)),
+            N=n_cells,
             M=M,
             R=R,
             T=grid.shape[h] if h >= 0 else 1,
