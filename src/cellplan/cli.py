@@ -148,7 +148,7 @@ def cspace(
     """Draw the free-configuration bitmap (a slice for 3-D spaces)."""
     from cellplan import plots
     from cellplan.api import load
-    from cellplan.cspace import Grid, free_bitmap
+    from cellplan.cspace import Grid, check_memory, free_bitmap
 
     check_image_path(output)
     cell = load(scenario).workcell
@@ -161,6 +161,7 @@ def cspace(
     if slice_index is not None and (grid.ndim != 3 or not 0 <= slice_index < grid.shape[2]):
         limit = f"[0, {grid.shape[2] - 1}]" if grid.ndim == 3 else "a 3-D C-space only"
         raise ArgumentError(f"must be in {limit}, got {slice_index}", "--slice")
+    check_memory(cell, grid, carrying, field="--cells" if cells else "cspace.cells")
     free = free_bitmap(cell, grid, carrying=carrying)
     plots.save_cspace(
         cell,

@@ -178,6 +178,7 @@ def obstacle_bitmap(
     """Conservative C-obstacle bitmap of an arbitrary obstacle set (include ``cell.outside``
     to keep the robot within the bounds)."""
     robot = cell.robot
+    check_memory(cell, grid, carrying, method)
     if method == "auto":
         method = "exact" if isinstance(robot, PlanarArm) else "fft"
     if method == "fft":
@@ -234,6 +235,88 @@ def auto_supersample(grid: Grid) -> int:
     return s if s % 2 == 1 else s + 1
 
 
+@dataclass(frozen=True)
+class _FFTSizes:
+    """The rasters of :func:`_fft_bitmap` (computed once, for the bitmap and its estimate)."""
+
+    supersample: int
+    shape: ShapeSet
+    reach: float
+    gap: float
+    box: tuple[float, float]
+    fine: tuple[float, float]
+    n: tuple[int, int]
+    u: tuple[int, int]
+    kernel: tuple[int, int]
+    fft: tuple[int, int]
+
+
+def _fft_sizes(
+    cell: Workcell, grid: Grid, carrying: str | None, supersample: int | None = None
+) -> _FFTSizes:
+    if supersample is None:
+        supersample = auto_supersample(grid)
+    if supersample < 1 or supersample % 2 == 0:
+        raise ValueError("supersample must be a positive odd integer")
+    hx, hy = float(grid.spacing[0]), float(grid.spacing[1])
+    fx, fy = hx / supersample, hy / supersample
+    nx, ny = grid.shape[0] * supersample, grid.shape[1] * supersample
+    shape = _robot_shape(cell, carrying)
+    reach = shape.reach()
+    gap = _ROTATION_GAP_FRACTION * min(fx, fy) if grid.ndim == 3 else 0.0
+    box = (hx / 2 + fx / 2 + gap, hy / 2 + fy / 2 + gap)
+    ux = math.ceil((reach + box[0]) / fx) + 1
+    uy = math.ceil((reach + box[1]) / fy) + 1
+    kernel = (2 * ux + 1, 2 * uy + 1)
+    full = (nx + 2 * ux + kernel[0] - 1, ny + 2 * uy + kernel[1] - 1)
+    fft = (sp_fft.next_fast_len(full[0], real=True), sp_fft.next_fast_len(full[1], real=True))
+    return _FFTSizes(supersample, shape, reach, gap, box, (fx, fy), (nx, ny), (ux, uy), kernel, fft)
+
+
+def estimate_memory(
+    cell: Workcell, grid: Grid, carrying: str | None = None, method: Method = "auto"
+) -> int:
+    """Bytes :func:`free_bitmap` allocates at its peak on ``grid`` (before allocating).
+
+    FFT method: the obstacle raster (bool and its float32 copy), three complex64 spectra
+    of the padded FFT shape (obstacle, robot, product), the float32 correlation, the
+    blocked slice (bool), the output (bool, the whole grid) and its negation.
+    Exact method: the cell centres (``np.meshgrid`` and the stacked copy, float64
+    ``(N, d)`` twice, and the checked configurations once more), the body poses
+    (float64 ``(N, B, 3)`` and as many temporaries), the gaps (float64 ``(N, B)``) and
+    three bool ``(N,)`` masks. ``B`` counts the robot's bodies and the carried part.
+    """
+    n_total = int(np.prod(grid.shape, dtype=object))
+    if method == "auto":
+        method = "exact" if isinstance(cell.robot, PlanarArm) else "fft"
+    if method == "exact":
+        bodies = len(cell.robot.bodies.bodies) + (carrying is not None)
+        d = grid.ndim
+        return n_total * (24 * d + 48 * bodies + 8 * bodies + 3)
+    sz = _fft_sizes(cell, grid, carrying)
+    raster = (sz.n[0] + 2 * sz.u[0]) * (sz.n[1] + 2 * sz.u[1])
+    half = sz.fft[0] * (sz.fft[1] // 2 + 1)
+    slice_cells = grid.shape[0] * grid.shape[1]
+    return raster * 5 + half * 8 * 3 + sz.fft[0] * sz.fft[1] * 4 + slice_cells + 2 * n_total
+
+
+def check_memory(
+    cell: Workcell,
+    grid: Grid,
+    carrying: str | None = None,
+    method: Method = "auto",
+    field: str = "cells",
+) -> None:
+    """Refuse (``ArgumentError`` naming ``field`` and the cells) a bitmap that cannot fit."""
+    from cellplan import budget
+
+    budget.require(
+        estimate_memory(cell, grid, carrying, method),
+        f"{field} " + ",".join(str(n) for n in grid.shape),
+        "for the C-space bitmap",
+    )
+
+
 def _fft_bitmap(
     cell: Workcell,
     grid: Grid,
@@ -251,31 +334,18 @@ def _fft_bitmap(
     beyond the cell box itself is one fine cell; ``supersample=1`` is Kavraki's
     plain method, ``None`` picks :func:`auto_supersample`.
     """
-    if supersample is None:
-        supersample = auto_supersample(grid)
-    if supersample < 1 or supersample % 2 == 0:
-        raise ValueError("supersample must be a positive odd integer")
-    hx, hy = float(grid.spacing[0]), float(grid.spacing[1])
-    fx, fy = hx / supersample, hy / supersample
-    nx, ny = grid.shape[0] * supersample, grid.shape[1] * supersample
-    shape = _robot_shape(cell, carrying)
-    reach = shape.reach()
+    sz = _fft_sizes(cell, grid, carrying, supersample)
+    supersample, shape, reach, gap, box = sz.supersample, sz.shape, sz.reach, sz.gap, sz.box
+    fx, fy = sz.fine
+    nx, ny = sz.n
+    ux, uy = sz.u
+    kernel_shape, fft_shape = sz.kernel, sz.fft
     rotating = grid.ndim == 3
-    gap = _ROTATION_GAP_FRACTION * min(fx, fy) if rotating else 0.0
-    box = (hx / 2 + fx / 2 + gap, hy / 2 + fy / 2 + gap)
-    ux = math.ceil((reach + box[0]) / fx) + 1
-    uy = math.ceil((reach + box[1]) / fy) + 1
 
     origin = (grid.lower[0] + (0.5 - ux) * fx, grid.lower[1] + (0.5 - uy) * fy)
     obstacle_raster = raster_touching(
         obstacles, origin, (fx, fy), (nx + 2 * ux, ny + 2 * uy), (fx / 2, fy / 2)
     )
-    kernel_shape = (2 * ux + 1, 2 * uy + 1)
-    full = (
-        obstacle_raster.shape[0] + kernel_shape[0] - 1,
-        obstacle_raster.shape[1] + kernel_shape[1] - 1,
-    )
-    fft_shape = (sp_fft.next_fast_len(full[0], real=True), sp_fft.next_fast_len(full[1], real=True))
     # The obstacle spectrum is shared by every robot raster (slices, carried parts).
     obstacle_spectrum = sp_fft.rfft2(obstacle_raster.astype(np.float32), fft_shape, workers=-1)
     centre = (supersample - 1) // 2

@@ -226,3 +226,21 @@ def test_frames_png_shows_every_segment_laid_out_for_the_cell(tmp_path, monkeypa
     shown = saved["frames.png"]
     assert len(shown) == segments
     assert shown[-1].get_title().startswith(f"({segments}) ")
+
+
+def test_a_long_run_draws_at_most_max_frames_pictures(tmp_path):
+    from strategies_helpers import tiny
+
+    from cellplan.strategies import plots
+    from cellplan.strategies.simulate import simulate
+    from cellplan.strategies.strategy import solve_scenario
+
+    sc, cell = tiny(12)
+    strategy, _ = solve_scenario(sc, cell)
+    sim = simulate(strategy, 200, seed=2, cell=cell)
+    assert len(sim.segments()) > 5
+    paths = plots.plot_frames(strategy, cell, sim, tmp_path, max_frames=5)
+    assert sorted(p.name for p in tmp_path.glob("frame_*.png")) == [
+        f"frame_{i:03d}.png" for i in range(1, 6)
+    ]
+    assert paths[-1].name == "frames.png"

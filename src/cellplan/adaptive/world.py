@@ -83,6 +83,52 @@ def certified_margin(robot: Robot, resolution: float) -> float:
     return float(np.max(robot.body_displacement_bounds(delta)))
 
 
+#: The most configurations Reach may check on one straight segment (a work limit: a finer
+#: resolution gives no better plans, only runs that never end).
+MAX_SEGMENT_STEPS = 1_000_000
+
+
+def segment_memory(robot: Robot, steps: int) -> int:
+    """Bytes Reach allocates to check one segment of ``steps`` steps.
+
+    The configurations (float64 ``(n + 1, dim)`` and their wrapped copy), the bisection
+    order (:func:`~cellplan.adaptive.reach.bisection_levels`: an int64 index per step plus
+    a Python set entry, int and interval tuple, 160 bytes), and the collision check of the
+    largest level (half the points: body poses float64 ``(n/2, B, 3)`` twice and gaps
+    float64 ``(n/2, B)``).
+    """
+    bodies = len(robot.bodies.bodies) + 1  # a carried part is one more body
+    return int((steps + 1) * (16 * robot.dim + 8 + 160 + (48 * bodies + 8 * bodies) // 2))
+
+
+def check_resolution(robot: Robot, resolution: float, field: str = "adaptive.resolution") -> None:
+    """Refuse a Reach resolution whose longest segment is pointless or cannot fit in memory.
+
+    The longest segment crosses the configuration space's box (half a turn on a periodic
+    coordinate); it is cut into ``ceil(length / resolution)`` steps.
+    """
+    from cellplan import budget
+
+    span = np.where(
+        np.asarray(robot.periodic, bool), math.pi, np.asarray(robot.upper) - robot.lower
+    )
+    steps = math.ceil(float(np.linalg.norm(span)) / resolution)
+    shown = units.degrees(resolution) if isinstance(robot, PlanarArm) else resolution
+    where = f"{field} {shown:g}"
+    if steps > MAX_SEGMENT_STEPS:
+        raise ScenarioError(
+            [
+                Problem(
+                    where,
+                    f"a segment across the configuration space would take {steps:.3g} "
+                    f"collision checks (the limit is {MAX_SEGMENT_STEPS:,}); use a coarser "
+                    "resolution",
+                )
+            ]
+        )
+    budget.require(segment_memory(robot, steps), where, "per straight segment", ScenarioError)
+
+
 class World:
     """Objects, goals and robot of one adaptive problem, changing over the tasks.
 
@@ -121,6 +167,8 @@ class World:
     def _init(self, cell: Workcell, objects: dict[str, ShapeSet], resolution: float | None) -> None:
         self.base_cell = cell
         self.robot: Robot = cell.robot
+        if resolution is not None:
+            check_resolution(self.robot, resolution)
         self.margin = 0.0 if resolution is None else certified_margin(self.robot, resolution)
         self.objects = {n: ObjectState(s) for n, s in objects.items()}
         self.goals: dict[str, Tag] = {}

@@ -21,6 +21,7 @@ from pydantic import BaseModel
 
 from cellplan.assembly.layout import DEFAULT_FILL
 from cellplan.assembly.options import GradientOptions, SequentialOptions
+from cellplan.assembly.run import MAX_FRAMES
 from cellplan.assembly.section import GeneratorSpec
 from cellplan.cliutil import GifSizeOpt, JsonOpt
 from cellplan.errors import ArgumentError, Problem
@@ -97,7 +98,7 @@ def register(app: typer.Typer) -> None:
         ] = None,
         radius: Annotated[float | None, typer.Option(help=_RADIUS_HELP)] = None,
         fill: Annotated[float | None, typer.Option(help=_FILL_HELP)] = None,
-        frames: Annotated[int, typer.Option(help="GIF frames")] = 40,
+        frames: Annotated[int, typer.Option(help=f"GIF frames, 2 to {MAX_FRAMES}")] = 40,
         gif_size: GifSizeOpt = None,
         output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
             "assembly-out"
@@ -108,7 +109,7 @@ def register(app: typer.Typer) -> None:
         from cellplan import api
         from cellplan.assembly.problems import random_setup
         from cellplan.assembly.run import write_outputs
-        from cellplan.cliutil import finish, progress_enabled, stderr
+        from cellplan.cliutil import finish, progress_bar, progress_enabled
         from cellplan.plots import GIF_SIZE, check_gif_size
         from cellplan.registry import parse_options, planner
 
@@ -132,8 +133,8 @@ def register(app: typer.Typer) -> None:
             problems.append(
                 Problem("--algorithm", f"unknown {algorithm!r}; use {', '.join(ALGORITHMS)}")
             )
-        if frames < 2:
-            problems.append(Problem("--frames", f"must be at least 2, got {frames}"))
+        if not 2 <= frames <= MAX_FRAMES:
+            problems.append(Problem("--frames", f"must be in [2, {MAX_FRAMES}], got {frames}"))
         width = GIF_SIZE
         try:
             width = check_gif_size(GIF_SIZE if gif_size is None else gif_size)
@@ -171,14 +172,10 @@ def register(app: typer.Typer) -> None:
         if setup is None:
             assert scenario is not None
             setup = api.load(scenario)
-        progress = None
-        if progress_enabled(as_json):
-            console = stderr()
-
-            def progress(done: float, total: float | None, text: str) -> None:
-                console.print(f"{name}: {text}", markup=False)
-
-        result = api.plan(setup, name, progress=progress, **options)
-        files = write_outputs(result, output, frames, width)
+        with progress_bar(progress_enabled(as_json), name) as progress:
+            result = api.plan(setup, name, progress=progress, **options)
+            if progress is not None:
+                progress(1.0, 1.0, f"{result.status.value}; drawing {frames} frames")
+            files = write_outputs(result, output, frames, width)
         summary = f"{result.message}; wrote {output}" if result.success else f"wrote {output}"
         finish(result, as_json, summary, outputs=files, extra={"scenario": setup.name})

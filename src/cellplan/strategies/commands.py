@@ -26,7 +26,12 @@ from cellplan.cliutil import (
     stdout,
 )
 from cellplan.errors import ArgumentError, CellplanError
-from cellplan.strategies.planners import SIMULATE_SEED, SIMULATE_STAGES, StrategiesOptions
+from cellplan.strategies.planners import (
+    MAX_STAGES,
+    SIMULATE_SEED,
+    SIMULATE_STAGES,
+    StrategiesOptions,
+)
 
 if TYPE_CHECKING:
     from cellplan.setup import Setup
@@ -145,7 +150,8 @@ def simulate_command(
     scenario: ScenarioArg,
     strategy: StrategyOpt,
     stages: Annotated[
-        int | None, typer.Option(help=f"number of stages (default {SIMULATE_STAGES})")
+        int | None,
+        typer.Option(help=f"number of stages, 1 to {MAX_STAGES:,} (default {SIMULATE_STAGES})"),
     ] = None,
     seed: Annotated[int | None, typer.Option(help=f"random seed (default {SIMULATE_SEED})")] = None,
     output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
@@ -179,24 +185,29 @@ def simulate_command(
     setup = _load(scenario)
     strat = _load_strategy(strategy, setup)
     given: dict[str, Any] = {"policy": policy, "max_wait": max_wait}
-    with as_flags():
+    bar = progress_bar(progress_enabled(as_json), "simulating", counts=True)
+    with as_flags(), bar as progress:
         result = simulate_result(
             strat,
             SIMULATE_STAGES if stages is None else stages,
             SIMULATE_SEED if seed is None else seed,
             cell=setup.workcell,
+            progress=progress,
             **{k: v for k, v in given.items() if v is not None},
         )
-    sim = result.solution
-    assert result.trajectory is not None
-    output.mkdir(parents=True, exist_ok=True)
-    outputs: dict[str, Path] = {"trajectory": result.trajectory.save(output / "trajectory.csv")}
-    frames = plots.plot_frames(strat, setup.workcell, sim, output)
-    outputs["frames"] = frames[-1]
-    if gif:
-        outputs["gif"] = plots.save_animation(
-            strat, setup.workcell, sim, output / "simulation.gif", size=width
-        )
+        sim = result.solution
+        assert result.trajectory is not None
+        n = len(sim.actions)
+        if progress is not None:
+            progress(n, n, f"drawing {len(sim.segments())} frames")
+        output.mkdir(parents=True, exist_ok=True)
+        outputs: dict[str, Path] = {"trajectory": result.trajectory.save(output / "trajectory.csv")}
+        frames = plots.plot_frames(strat, setup.workcell, sim, output)
+        outputs["frames"] = frames[-1]
+        if gif:
+            outputs["gif"] = plots.save_animation(
+                strat, setup.workcell, sim, output / "simulation.gif", size=width
+            )
     metrics: dict[str, Any] = dict(sim.metrics())
     metrics.update(policy=result.options["policy"], seed=result.options["seed"], gain=strat.gain)
     outputs["metrics"] = write_json(

@@ -526,7 +526,7 @@ def build_model(
     if sec is None:
         raise ScenarioError([Problem("strategy", "the scenario has no strategy section")])
     robot = cell.robot
-    shape = tuple(cells or sec.cells or scenario.cspace.cells or cell.default_cells)
+    shape = grid_shape(scenario, cell, cells)
     if len(shape) != robot.dim:
         raise ScenarioError([Problem("strategy.cells", f"needs {robot.dim} entries")])
     grid = Grid.for_robot(robot, shape)
@@ -561,18 +561,7 @@ def build_model(
             drop[(p, d)] = region_bitmap(cell, grid, d, sec.regions, None, p)
             tf_drop[(p, d)] = tf_of(d)
     geometry = Geometry(free_nr, free_w, free_c, pick, drop, tf_pick, tf_drop)
-    kind = robot.kind if robot.kind in ("point", "translating", "rotating") else "arm"
-    common = dict(
-        speed=sec.speed,
-        stage_time=sec.stage_time,
-        headings=sec.actions.headings,
-        turn_speed_deg=sec.turn_speed,
-    )
-    empty = action_set(kind, robot.dim, **common)
-    carrying = {
-        p: action_set(kind, robot.dim, factor=sec.carry_speed_factor.get(p, 1.0), **common)
-        for p in parts
-    }
+    empty, carrying = action_sets(sec, robot, parts)
     dst = sec.destination_change.per_stage(sec.stage_time) if sec.destination_change else 0.0
     src = sec.source_change.per_stage(sec.stage_time) if sec.source_change else 0.0
     mdp = assemble(
@@ -595,3 +584,106 @@ def build_model(
     if problems:
         raise ScenarioError(problems)
     return mdp
+
+
+def grid_shape(scenario: Any, cell: Any, cells: Sequence[int] | None = None) -> tuple[int, ...]:
+    """Cells per axis of the model: ``cells``, else ``strategy.cells``, else
+    ``cspace.cells``, else the robot kind's default."""
+    sec = scenario.strategy
+    return tuple(
+        int(n) for n in (cells or sec.cells or scenario.cspace.cells or cell.default_cells)
+    )
+
+
+def action_sets(
+    sec: Any, robot: Any, parts: Sequence[str]
+) -> tuple[ActionSet, dict[str, ActionSet]]:
+    """The motion actions while empty, and while carrying each part (speed factor)."""
+    kind = robot.kind if robot.kind in ("point", "translating", "rotating") else "arm"
+    common = dict(
+        speed=sec.speed,
+        stage_time=sec.stage_time,
+        headings=sec.actions.headings,
+        turn_speed_deg=sec.turn_speed,
+    )
+    empty = action_set(kind, robot.dim, **common)
+    carrying = {
+        p: action_set(kind, robot.dim, factor=sec.carry_speed_factor.get(p, 1.0), **common)
+        for p in parts
+    }
+    return empty, carrying
+
+
+@dataclass(frozen=True)
+class MemoryEstimate:
+    """Bytes a solve will hold at its peak, from the arrays it allocates (count x dtype).
+
+    ``terms`` names each group of arrays with its bytes; ``total`` is the model's arrays
+    plus the larger of the building step's and the solver's working arrays (they are not
+    alive together).
+    """
+
+    cells: int
+    modes: int
+    classes: int
+    actions: int
+    terms: Mapping[str, int]
+
+    @property
+    def total(self) -> int:
+        t = self.terms
+        return t["model"] + t["tables"] + max(t["building"], t["solver"])
+
+
+def estimate_memory(scenario: Any, cell: Any, cells: Sequence[int] | None = None) -> MemoryEstimate:
+    """The memory of :func:`build_model` and the solver on this grid, before allocating.
+
+    Counts, per grid cell (``N``), with ``M`` modes (NR and two per request), ``K`` move
+    classes (at most NR, one per source and one per carried (part, source)), ``A``
+    actions, ``d`` axes:
+
+    * model (:class:`LayeredMDP`, alive throughout): ``tf`` float64 ``(M, N)``, ``live``
+      bool ``(M, N)``, ``free`` and ``interior`` bool ``(K, N)``, ``valid`` int64 ``(K, N)``;
+    * building (:func:`build_model`): the geometry's bitmaps (bool: NR, one per source,
+      two per (part, source), one per (part, destination)) and fine-motion fields
+      (float64 per (part, source) and (part, destination)), the cell centres and tool
+      poses (float64 ``(N, 2 d + 3)``: the centres are computed twice), the stacked
+      class bitmaps (two bool ``(K, N)``), and :func:`corner_tables`' index grid
+      (int64 ``(d + 1, N)``);
+    * solver (its peak is the final certificate, :func:`~.solver._finish`): ``h`` and
+      ``D`` float64 and the policy int16 ``(M, N)``, the NR action sums ``E`` and ``ED``
+      float64 ``(N, A + 1)``, a trial copy of ``h``, the certificate's Bellman sweep (value,
+      int64 policy, gap: three ``(M, N)`` of 8 bytes), the stability test's slack (two
+      float64 temporaries), its mask (bool) and shifted values (float64), and its second
+      Bellman sweep (three more 8-byte ``(M, N)``);
+    * tables: the stencil tables, float64/int64 ``(K, A, T, d)`` twice and
+      ``(K, A, T, 2^d)`` twice (small).
+
+    The test ``test_memory_estimate_matches_measured_allocations`` compares it with the
+    peak measured by ``tracemalloc``.
+    """
+    sec = scenario.strategy
+    robot = cell.robot
+    shape = grid_shape(scenario, cell, cells)
+    d = len(shape)
+    N = int(np.prod(shape, dtype=object))
+    requests = sec.request_list(scenario)
+    R = len(requests)
+    M = 2 * R + 1
+    parts = sorted({p for p, *_ in requests})
+    S = len({s for _, s, *_ in requests})
+    PS = len({(p, s) for p, s, *_ in requests})
+    PD = len({(p, dd) for p, _, dd, _ in requests})
+    K = min(M, 1 + S + PS)
+    empty, carrying = action_sets(sec, robot, parts)
+    A = max([empty.disp.shape[0], *(a.disp.shape[0] for a in carrying.values())])
+    heading = empty.heading_axis
+    T = shape[heading] if heading >= 0 else 1
+    terms = {
+        "model": N * (8 * M + M + K + K + 8 * K),
+        "building": N
+        * ((1 + S + 2 * PS + PD) + 8 * (PS + PD) + 8 * (2 * d + 3) + 2 * K + 8 * (d + 1)),
+        "solver": N * (18 * M + 16 * (A + 1) + 8 * M + 24 * M + 16 * M + M + 8 * M + 24 * M),
+        "tables": K * A * T * (16 * d + 16 * 2**d),
+    }
+    return MemoryEstimate(N, M, K, A, terms)

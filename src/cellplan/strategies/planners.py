@@ -73,6 +73,26 @@ def check_cells(cells: Sequence[int] | None, dim: int, field: str = "cells") -> 
         )
 
 
+def check_memory(setup: Setup, cells: Sequence[int] | None) -> None:
+    """Refuse a grid whose model and solve cannot fit in memory, before allocating it.
+
+    The estimate is :func:`~cellplan.strategies.model.estimate_memory` (the arrays the
+    model and the solver allocate); the refusal names the cells and where they came from.
+    """
+    from cellplan import budget
+    from cellplan.errors import ScenarioError
+    from cellplan.strategies.model import estimate_memory, grid_shape
+
+    scenario, cell = setup.scenario, setup.workcell
+    shape = grid_shape(scenario, cell, cells)
+    est = estimate_memory(scenario, cell, cells)
+    where = "cells" if cells is not None else "strategy.cells"
+    error = ArgumentError if cells is not None else ScenarioError
+    budget.require(
+        est.total, f"{where} {','.join(map(str, shape))}", f"for {est.modes} modes", error
+    )
+
+
 def run_strategies(
     setup: Setup, options: StrategiesOptions, progress: Progress | None = None
 ) -> Result:
@@ -95,6 +115,7 @@ def run_strategies(
     section = setup.section("strategy")
     cell = setup.workcell
     check_cells(options.cells, cell.robot.dim)
+    check_memory(setup, options.cells)
 
     def report(sweep: int, residual: float, gain: float) -> None:
         assert progress is not None

@@ -165,8 +165,8 @@ def _frame(
 
 
 FRAMES_SHOWN = 60
-"""Most mode segments ``frames.png`` draws; a longer run says how many it leaves out (each
-segment still has its own ``frame_###.png``)."""
+"""Most mode segments drawn, in ``frames.png`` and as ``frame_###.png`` each; a longer run
+says how many it leaves out."""
 
 
 def plot_frames(
@@ -177,17 +177,21 @@ def plot_frames(
     max_frames: int = FRAMES_SHOWN,
 ) -> list[Path]:
     """Figs. 9-15: one frame per mode segment (regions of the request shaded, the carried
-    part drawn), saved one PNG each plus ``frames.png``, a grid of every segment (up to
-    ``max_frames``) laid out for the workcell's aspect ratio (:func:`cellplan.plots.grid_shape`)."""
+    part drawn), saved one PNG each plus ``frames.png``, a grid of the same segments laid out
+    for the workcell's aspect ratio (:func:`cellplan.plots.grid_shape`).
+
+    Only the first ``max_frames`` segments are drawn: a long run has thousands of segments
+    (about one per ten stages) at about 0.3 s a picture, and the trajectory file holds them all.
+    """
     outdir = Path(outdir)
     segs = sim.segments()
+    shown = segs[:max_frames]
     paths = []
-    for i, (a, b) in enumerate(segs):
+    for i, (a, b) in enumerate(shown):
         fig, axes = base.new_figure(size=4.0)
         label = strategy.mdp.modes[int(sim.modes[a])].label
         _frame(axes[0, 0], strategy, cell, sim, a, b, f"({i + 1}) stages {a}-{b}: {label}")
         paths.append(base.save_figure(fig, outdir / f"frame_{i + 1:03d}.png", dpi=80))
-    shown = segs[:max_frames]
     xmin, ymin, xmax, ymax = cell.bounds
     aspect = (xmax - xmin) / (ymax - ymin)
     rows, cols = base.grid_shape(len(shown), aspect)
@@ -201,7 +205,7 @@ def plot_frames(
         _frame(axes.ravel()[i], strategy, cell, sim, a, b, f"({i + 1}) {label}, stages {a}-{b}")
     if len(segs) > len(shown):
         fig.suptitle(
-            f"the first {len(shown)} of {len(segs)} mode segments (every one is in frame_###.png)",
+            f"the first {len(shown)} of {len(segs)} mode segments (every stage is in trajectory.csv)",
             fontsize=9,
         )
     paths.append(base.save_figure(fig, outdir / "frames.png", dpi=90))

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cellplan import units
-from cellplan.core import Result, Status
+from cellplan.core import Progress, Result, Status
 from cellplan.strategies.baselines import home_values, per_request_values
 from cellplan.strategies.execution import Executor
 from cellplan.strategies.planners import MAX_STAGES
@@ -216,6 +216,7 @@ def simulate(
     regions: str = "contact",
     home: np.ndarray | None = None,
     learn: bool = True,
+    progress: Progress | None = None,
 ) -> Simulation:
     """Run the assembly process for ``stages`` stages from ``(start, start_mode)``.
 
@@ -240,6 +241,9 @@ def simulate(
         Correct inconsistent values while executing (the LRTA* step of
         :class:`~cellplan.strategies.execution.Executor`); False keeps its lookahead but
         drops the correction, and with it the guarantee that no request waits for ever.
+    progress
+        Called as ``progress(done, stages, text)`` about 200 times in the run (the CLI
+        draws a bar with it).
     """
     if policy not in POLICIES:
         raise ValueError(f"policy must be one of {POLICIES}, not {policy!r}")
@@ -264,7 +268,12 @@ def simulate(
         current = Request(mode.part, mode.source, mode.destination, 0)
         requests.append(current)
         events.append((0, "request", _request_detail(current)))
+    every = max(1, stages // 200)
     for k in range(stages):
+        if progress is not None and k % every == 0:
+            progress(
+                float(k), float(stages), f"stage {k:,} of {stages:,}, {len(requests)} requests"
+            )
         fmp_allowed = None
         if (
             cell is not None
@@ -474,6 +483,7 @@ def simulate_result(
     home: ArrayLike | None = None,
     learn: bool = True,
     max_wait: float | None = None,
+    progress: Progress | None = None,
 ) -> Result:
     """Run a strategy in the stochastic assembly process and return the run as a Result.
 
@@ -503,6 +513,8 @@ def simulate_result(
         Keep the executor's LRTA* correction (see :func:`simulate`).
     max_wait
         Bound on any request's waiting time (time units); default :func:`wait_bound`.
+    progress
+        ``progress(done, stages, text)`` during the run (see :func:`simulate`).
 
     Returns
     -------
@@ -558,6 +570,7 @@ def simulate_result(
         regions=regions or str(strategy.meta.get("regions", "contact")),
         home=home_q,
         learn=learn,
+        progress=progress,
     )
     bound = float(max_wait) if max_wait is not None else wait_bound(strategy)
     metrics = sim.metrics()

@@ -15,7 +15,6 @@ scenario whose digest differs raises :class:`~cellplan.errors.PersistenceError`.
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -26,13 +25,12 @@ from cellplan import units
 from cellplan.errors import PersistenceError, Problem
 from cellplan.fileio import atomic_path
 from cellplan.strategies.bundles import Model
+from cellplan.strategies.fileformat import FORMAT, VERSION
 from cellplan.strategies.model import LayeredMDP, Mode
 from cellplan.strategies.points import action_values_at, query
 from cellplan.strategies.solver import SolveResult
 from cellplan.strategies.stencils import displacement, wrap
 
-FORMAT = "cellplan-strategy"
-VERSION = 1
 FMP = -2
 STAY = -1
 
@@ -290,46 +288,16 @@ class Strategy:
 
     @staticmethod
     def load(path: str | Path, scenario: Any = None) -> Strategy:
-        """Read a strategy file; with ``scenario``, refuse one made for a different scenario."""
-        path = Path(path)
-        where = str(path)
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-        except FileNotFoundError:
-            raise PersistenceError([Problem(where, "no such strategy file")]) from None
-        except (OSError, ValueError, zipfile.BadZipFile) as exc:
-            raise PersistenceError([Problem(where, f"not a strategy file ({exc})")]) from None
-        if "meta" not in arrays:
-            raise PersistenceError([Problem(where, "not a strategy file (no metadata)")])
-        try:
-            meta = json.loads(str(arrays.pop("meta")))
-        except json.JSONDecodeError:
-            raise PersistenceError([Problem(where, "corrupt strategy metadata")]) from None
-        if meta.get("format") != FORMAT or meta.get("version") != VERSION:
-            raise PersistenceError(
-                [
-                    Problem(
-                        where,
-                        f"not a cellplan strategy file (format {meta.get('format')!r} "
-                        f"version {meta.get('version')!r})",
-                    )
-                ]
-            )
-        missing = [n for n in [*_ARRAY_FIELDS, "values"] if n not in arrays]
-        if missing:
-            raise PersistenceError([Problem(where, f"strategy file lacks arrays {missing}")])
-        if scenario is not None and meta.get("scenario_digest") != scenario.digest():
-            raise PersistenceError(
-                [
-                    Problem(
-                        where,
-                        f"this strategy was computed for a different scenario "
-                        f"({meta.get('scenario_name') or 'unnamed'}, digest "
-                        f"{str(meta.get('scenario_digest'))[:12]}); solve this scenario again",
-                    )
-                ]
-            )
+        """Read a strategy file; with ``scenario``, refuse one made for a different scenario.
+
+        Every array is checked against the declared format before use
+        (:func:`cellplan.strategies.fileformat.read_strategy`: dtypes, shapes, ranges of
+        every index, consistency of the tables, the metadata schema); a file that fails
+        raises :class:`~cellplan.errors.PersistenceError` naming the file and the field.
+        """
+        from cellplan.strategies.fileformat import read_strategy
+
+        meta, arrays = read_strategy(path, scenario)
         modes = [Mode(*m) for m in meta["modes"]]
         kw = {name: arrays[name] for name in _ARRAY_FIELDS}
         mdp = LayeredMDP(
@@ -340,9 +308,8 @@ class Strategy:
             arrival=float(meta["arrival"]),
             **kw,
         )
-        M, N = mdp.n_modes, mdp.n_cells
-        if arrays["values"].shape != (M, N) or mdp.live.shape != (M, N):
-            raise PersistenceError([Problem(where, "strategy arrays have inconsistent shapes")])
+        # Optional fields absent from older files stay absent (the defaults apply).
+        meta = {k: v for k, v in meta.items() if v is not None}
         return Strategy(mdp, arrays["values"], meta)
 
 

@@ -1,0 +1,321 @@
+"""The strategy file format (``cellplan solve -o strategy.npz``), declared once and checked.
+
+A strategy file is a NumPy ``.npz`` archive (never a pickle) holding the arrays of the
+layered MDP (:class:`~cellplan.strategies.model.LayeredMDP`), the cost-to-go ``values``
+and a JSON metadata string ``meta``. :data:`META` is the schema of the metadata and
+:data:`ARRAYS` the format of every array (dtype, shape in the sizes below, range of
+values); :func:`read_strategy` checks a file against both with
+:func:`cellplan.arrayfile.read_arrays`, then checks what ties the arrays together, so
+that no array reaches a compiled kernel unless every index it holds is in range:
+
+* sizes: ``d`` axes, ``N`` cells (product of ``grid.shape``), ``M`` modes (``2R + 1``
+  for ``R`` requests), ``T`` heading slices, ``C = 2 ** d`` stencil corners, from the
+  metadata; ``K`` move classes, ``A`` actions per class and ``B`` branches, from the
+  arrays (``K <= M``, ``A <= 62``, ``M <= B <= M * M``);
+* the grid arrays equal the metadata's grid; the spacing is ``(upper - lower) / shape``;
+* the stencil tables (``offs``, ``fr``, ``coff``, ``cw``, ``interior``) equal the tables
+  recomputed from ``disp`` and the grid, so every flat offset a kernel adds stays inside
+  the grid;
+* each mode's branches are a probability distribution, the FMP successors follow the
+  mode order (NR, then W, then C), the live states are free, the cost-to-go is finite on
+  the live states and NaN elsewhere;
+* with a scenario: its digest, its robot's dimension and its request list (the modes).
+
+Every problem is one :class:`~cellplan.errors.PersistenceError` line naming the file and
+the array or metadata field (the CLI exits 2).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import MutableMapping
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from cellplan.arrayfile import ArraySpec, read_arrays
+from cellplan.errors import PersistenceError, Problem
+from cellplan.schema import CELLS_RANGE
+from cellplan.strategies.stencils import MAX_DIM
+
+FORMAT = "cellplan-strategy"
+VERSION = 1
+#: Actions per move class: the valid-move bitmask is one int64 per cell.
+MAX_ACTIONS = 62
+#: Most grid cells of a strategy (a product of axes: checked before any size is used).
+MAX_CELLS = 2**40
+#: The metadata string's length limit (characters).
+MAX_META_CHARS = 1_000_000
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Name = Annotated[str, Field(max_length=200)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+
+class GridMeta(_Strict):
+    """The grid: cells per axis, the box, the periodic axes."""
+
+    shape: list[Annotated[int, Field(ge=CELLS_RANGE[0], le=CELLS_RANGE[1])]] = Field(
+        min_length=1, max_length=MAX_DIM
+    )
+    lower: list[Finite]
+    upper: list[Finite]
+    periodic: list[bool]
+
+
+class StrategyMeta(_Strict):
+    """The metadata string ``meta`` of a strategy file (JSON)."""
+
+    format: Literal["cellplan-strategy"]
+    version: Literal[1]
+    scenario_digest: Annotated[str, Field(max_length=128)]
+    scenario_name: Name
+    gain: Finite
+    gain_lower: float
+    gain_upper: float
+    span: float
+    sweeps: Annotated[int, Field(ge=0)]
+    full_sweeps: Annotated[int, Field(ge=0)]
+    outer_iterations: Annotated[int, Field(ge=0)]
+    status: Name
+    stable: bool
+    policy_changes: Annotated[int, Field(ge=0)]
+    method: Name
+    seconds: Annotated[float, Field(ge=0)]
+    regions: Literal["contact", "enclosure"] | None = None
+    transitions: Literal["snap", "no-snap"] | None = None
+    home: list[Finite] | None = None
+    start: list[Finite] | None = None
+    axes: list[Name] | None = None
+    heading_axis: Annotated[int, Field(ge=-1, lt=MAX_DIM)]
+    stage_time: Annotated[float, Field(gt=0, allow_inf_nan=False)]
+    arrival: Annotated[float, Field(ge=0, le=1)]
+    modes: list[Annotated[list[Name], Field(min_length=4, max_length=4)]] = Field(
+        min_length=3, max_length=100_001
+    )
+    labels: list[list[Name]]
+    grid: GridMeta
+
+
+#: The arrays of a strategy file, in reading order (an array that first meets a size read
+#: from the file comes before the arrays whose ranges use it).
+ARRAYS: dict[str, ArraySpec] = {
+    "meta": ArraySpec("str", max_chars=MAX_META_CHARS, doc="JSON metadata (StrategyMeta)"),
+    "shape": ArraySpec("int64", ("d",), str(CELLS_RANGE[0]), str(CELLS_RANGE[1])),
+    "lower": ArraySpec("float64", ("d",), doc="grid box, lower corner"),
+    "upper": ArraySpec("float64", ("d",), doc="grid box, upper corner"),
+    "spacing": ArraySpec("float64", ("d",), doc="cell size per axis"),
+    "periodic": ArraySpec("bool", ("d",), doc="axes that wrap round"),
+    "free": ArraySpec("bool", ("K", "N"), doc="free bitmap of each move class"),
+    "disp": ArraySpec("float64", ("K", "A", "d"), doc="displacement of each action"),
+    "branch_layer": ArraySpec("int64", ("B",), "0", "M - 1", doc="next mode of each branch"),
+    "cost": ArraySpec("float64", ("M",), "0", doc="loss per stage, eq. (7)"),
+    "vcls": ArraySpec("int64", ("M",), "0", "K - 1", doc="move class of each mode"),
+    "fmp_next": ArraySpec("int64", ("M",), "-1", "M - 1", doc="mode after FMP (-1: none)"),
+    "tf": ArraySpec("float64", ("M", "N"), "0", inf=True, doc="fine-motion time (inf: no FMP)"),
+    "branch_ptr": ArraySpec("int64", ("M + 1",), "0", "B", doc="branches of each mode"),
+    "branch_prob": ArraySpec("float64", ("B",), "0", "1", doc="probability of each branch"),
+    "nact": ArraySpec("int64", ("K",), "1", "A", doc="actions of each move class"),
+    "valid": ArraySpec("int64", ("K", "N"), "0", doc="bitmask of collision-free actions"),
+    "offs": ArraySpec("int64", ("K", "A", "T", "d"), doc="whole cells of each move"),
+    "fr": ArraySpec("float64", ("K", "A", "T", "d"), "0", "1", doc="fractional cells"),
+    "coff": ArraySpec("int64", ("K", "A", "T", "2 ** d"), doc="flat stencil offsets"),
+    "cw": ArraySpec("float64", ("K", "A", "T", "2 ** d"), "0", "1", doc="stencil weights"),
+    "interior": ArraySpec("bool", ("K", "N"), doc="cells whose stencils stay inside"),
+    "live": ArraySpec("bool", ("M", "N"), doc="states of the MDP"),
+    "request_prob": ArraySpec("float64", ("R",), "0", "1", doc="probability of each request"),
+    "values": ArraySpec("float64", ("M", "N"), nan=True, doc="cost-to-go (NaN off live)"),
+}
+
+#: Sizes read from the file, with their limits (M, the mode count, is known by then).
+SIZE_LIMITS: dict[str, tuple[int | str, int | str]] = {
+    "K": (1, "M"),
+    "A": (1, MAX_ACTIONS),
+    "B": ("M", "M * M"),
+}
+
+
+def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any], dict]:
+    """Read and check a strategy file; returns ``(meta, arrays)``.
+
+    Raises
+    ------
+    PersistenceError
+        One line naming the file and the array or metadata field at fault.
+    """
+    where = str(path)
+    sizes: dict[str, int] = {}
+    limits: dict[str, tuple[int, int]] = {}
+    found: dict[str, Any] = {}
+
+    def fail(message: str) -> PersistenceError:
+        return PersistenceError([Problem(where, message)])
+
+    def from_meta(arrays: dict[str, np.ndarray], known: MutableMapping[str, int]) -> None:
+        meta = _parse_meta(str(arrays["meta"]), fail)
+        grid = meta.grid
+        d = len(grid.shape)
+        if not (len(grid.lower) == len(grid.upper) == len(grid.periodic) == d):
+            raise fail("meta.grid: shape, lower, upper and periodic differ in length")
+        if not all(lo < hi for lo, hi in zip(grid.lower, grid.upper, strict=True)):
+            raise fail("meta.grid: lower must be below upper on every axis")
+        M = len(meta.modes)
+        if M % 2 != 1:
+            raise fail(f"meta.modes: expected NR and two modes per request, got {M} modes")
+        R = (M - 1) // 2
+        kinds = [m[0] for m in meta.modes]
+        if kinds != ["NR"] + ["W"] * R + ["C"] * R:
+            raise fail("meta.modes: expected NR, then the W modes, then the C modes")
+        h = meta.heading_axis
+        if h >= d or (h >= 0 and (d < 3 or h < 2)):
+            raise fail(f"meta.heading_axis: {h} is not an angle axis of a {d}-axis grid")
+        for name in ("home", "start", "axes"):
+            value = getattr(meta, name)
+            if value is not None and len(value) != d:
+                raise fail(f"meta.{name}: expected {d} values, got {len(value)}")
+        n_cells = math.prod(grid.shape)  # Python integers: no int64 wrap-around
+        if n_cells > MAX_CELLS:
+            raise fail(f"meta.grid.shape: {n_cells:.3g} cells (at most {MAX_CELLS:.3g})")
+        known.update(
+            d=d,
+            N=n_cells,
+            M=M,
+            R=R,
+            T=grid.shape[h] if h >= 0 else 1,
+        )
+        for key, (lo, hi) in SIZE_LIMITS.items():
+            limits[key] = (_size(lo, known), _size(hi, known))
+        found["meta"] = meta
+
+    arrays = read_arrays(
+        path,
+        ARRAYS,
+        sizes,
+        limits,
+        first=("meta",),
+        after_first=from_meta,
+        what="a strategy file",
+    )
+    meta: StrategyMeta = found["meta"]
+    _check_consistency(meta, arrays, sizes, fail)
+    if scenario is not None:
+        _check_scenario(meta, sizes, scenario, fail)
+    del arrays["meta"]
+    return meta.model_dump(), arrays
+
+
+def _size(value: int | str, sizes: MutableMapping[str, int]) -> int:
+    from cellplan.arrayfile import evaluate
+
+    return value if isinstance(value, int) else evaluate(value, sizes)
+
+
+def _parse_meta(text: str, fail: Any) -> StrategyMeta:
+    try:
+        raw = json.loads(text)
+    except (json.JSONDecodeError, RecursionError):
+        raise fail("meta: not valid JSON") from None
+    if not isinstance(raw, dict):
+        raise fail("meta: expected a JSON object")
+    if raw.get("format") != FORMAT or raw.get("version") != VERSION:
+        raise fail(
+            f"not a cellplan strategy file (format {str(raw.get('format'))[:40]!r} "
+            f"version {str(raw.get('version'))[:20]!r}; expected {FORMAT!r} version {VERSION})"
+        )
+    try:
+        return StrategyMeta.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"])
+        return_msg = " ".join(str(err["msg"]).split())[:160]
+        raise fail(f"meta.{loc}: {return_msg}") from None
+
+
+def _check_consistency(meta: StrategyMeta, a: dict, sizes: dict[str, int], fail: Any) -> None:
+    from cellplan.strategies.model import corner_tables, stencil_tables
+
+    grid = meta.grid
+    M, K, B, N = sizes["M"], sizes["K"], sizes["B"], sizes["N"]
+    if a["shape"].tolist() != grid.shape:
+        raise fail("shape: differs from meta.grid.shape")
+    for name in ("lower", "upper"):
+        if not np.array_equal(a[name], np.asarray(getattr(grid, name), float)):
+            raise fail(f"{name}: differs from meta.grid.{name}")
+    if a["periodic"].tolist() != grid.periodic:
+        raise fail("periodic: differs from meta.grid.periodic")
+    span = a["upper"] - a["lower"]
+    if not np.allclose(a["spacing"], span / a["shape"], rtol=1e-12, atol=0):
+        raise fail("spacing: is not (upper - lower) / shape")
+    if not (np.abs(a["disp"]) <= span).all():
+        raise fail("disp: a move longer than the grid box")
+    ptr = a["branch_ptr"]
+    if ptr[0] != 0 or ptr[-1] != B or (np.diff(ptr) < 1).any():
+        raise fail("branch_ptr: expected 0, increasing, ending at the number of branches")
+    sums = np.add.reduceat(a["branch_prob"], ptr[:-1])
+    if not np.allclose(sums, 1.0, atol=1e-9):
+        raise fail("branch_prob: the branches of a mode do not sum to 1")
+    R = sizes["R"]
+    nxt = a["fmp_next"]
+    expected_next = np.concatenate([[-1], np.arange(R) + 1 + R, np.zeros(R, np.int64)])
+    if not np.array_equal(nxt, expected_next):
+        raise fail("fmp_next: the FMP successors do not follow the mode order")
+    if len(meta.labels) != K:
+        raise fail(f"meta.labels: expected {K} lists (one per move class), got {len(meta.labels)}")
+    nact = a["nact"]
+    if ((a["valid"] >> nact[:, None]) != 0).any():
+        raise fail("valid: marks an action beyond the class's action count")
+    heading = meta.heading_axis
+    offs, fr = stencil_tables(a["disp"], heading, a["shape"], a["lower"], a["spacing"])
+    coff, cw, interior = corner_tables(offs, fr, nact, a["shape"])
+    for name, mine, exact in (
+        ("offs", offs, True),
+        ("fr", fr, False),
+        ("coff", coff, True),
+        ("cw", cw, False),
+        ("interior", interior, True),
+    ):
+        same = (
+            np.array_equal(a[name], mine)
+            if exact
+            else np.allclose(a[name], mine, rtol=0, atol=1e-9)
+        )
+        if not same:
+            raise fail(f"{name}: differs from the table computed from disp and the grid")
+    live = a["live"]
+    if (live & ~a["free"][a["vcls"]]).any():
+        raise fail("live: a live state in a blocked cell")
+    values = a["values"]
+    if not np.isfinite(values[live]).all():
+        raise fail("values: not finite at a live state")
+    if not np.isnan(values[~live]).all():
+        raise fail("values: expected NaN off the live states")
+    if not live[0].any():
+        raise fail("live: no live state in NR")
+    del M, N
+
+
+def _check_scenario(meta: StrategyMeta, sizes: dict[str, int], scenario: Any, fail: Any) -> None:
+    if meta.scenario_digest != scenario.digest():
+        raise fail(
+            f"this strategy was computed for a different scenario "
+            f"({meta.scenario_name or 'unnamed'}, digest {meta.scenario_digest[:12]}); "
+            "solve this scenario again"
+        )
+    section = getattr(scenario, "strategy", None)
+    if section is None:  # pragma: no cover - the digest already differs
+        return
+    requests = section.request_list(scenario)
+    expected = [("NR", "", "", "")]
+    expected += [("W", p, s, d) for p, s, d, _ in requests]
+    expected += [("C", p, s, d) for p, s, d, _ in requests]
+    if [tuple(m) for m in meta.modes] != expected:
+        raise fail(
+            f"meta.modes: {len(meta.modes)} modes, the scenario's requests give "
+            f"{len(expected)}; solve this scenario again"
+        )
