@@ -172,6 +172,11 @@ class PlannerSpec:
     smoke
         ``(scenario, options)``: a small bundled problem the planner must solve; the
         conformance test runs it and checks the result contract.
+    deterministic
+        Whether the same setup and options give the same trajectory and statistics
+        (timings aside). ``False`` only for planners whose search depends on thread
+        timing (OMPL's PRM grows its roadmap in one thread while another looks for a
+        path); the conformance test then checks the contract but not repeatability.
     """
 
     name: str
@@ -181,6 +186,7 @@ class PlannerSpec:
     run: Callable[[Setup, Any, Progress | None], Result]
     section: str | None = None
     smoke: tuple[str, Mapping[str, Any]] = ("", {})
+    deterministic: bool = True
 
     def option_table(self) -> list[tuple[str, str, str]]:
         """``(name, default, description)`` for each option, in declaration order.
