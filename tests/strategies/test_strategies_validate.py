@@ -90,3 +90,20 @@ def test_validate_prints_only_the_lines_of_the_scenario_sections(cellplan):
     discs = cellplan("validate", "discs_seven").stdout
     for other in ("robot", "free fraction", "assembly modes", "adaptive"):
         assert other not in discs
+
+
+def test_validate_refuses_a_grid_solve_could_not_fit_before_building_it(
+    cellplan, tmp_path, monkeypatch
+):
+    path = tmp_path / "s.yaml"
+    path.write_text(TINY.replace("CELLS", "200"))
+    # room for validate's own free-fraction bitmap, not for the model and its solve
+    monkeypatch.setenv("CELLPLAN_MEMORY_LIMIT", "10MB")
+    solve = cellplan("solve", str(path), "-o", str(tmp_path / "s.npz"))
+    validate = cellplan("validate", str(path))
+    assert solve.returncode == validate.returncode == 2
+    lines = _errors(validate.stderr)
+    assert lines == _errors(solve.stderr)
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("error: strategy.cells 200,200: needs about "), lines
+    assert lines[0].endswith("for 5 modes; this machine has 10 MB available"), lines

@@ -595,6 +595,17 @@ def grid_shape(scenario: Any, cell: Any, cells: Sequence[int] | None = None) -> 
     )
 
 
+def _bitmap_peak(cell: Any, shape: tuple[int, ...], parts: Sequence[str]) -> int:
+    """Working bytes of the largest C-space bitmap :func:`build_model` computes."""
+    from cellplan.cspace import Grid
+    from cellplan.cspace import estimate_memory as bitmap_memory
+
+    if len(shape) != cell.robot.dim:
+        return 0  # build_model refuses this grid before computing any bitmap
+    grid = Grid.for_robot(cell.robot, shape)
+    return max(bitmap_memory(cell, grid, carrying) for carrying in [None, *parts])
+
+
 def action_sets(
     sec: Any, robot: Any, parts: Sequence[str]
 ) -> tuple[ActionSet, dict[str, ActionSet]]:
@@ -656,6 +667,9 @@ def estimate_memory(scenario: Any, cell: Any, cells: Sequence[int] | None = None
       int64 policy, gap: three ``(M, N)`` of 8 bytes), the stability test's slack (two
       float64 temporaries), its mask (bool) and shifted values (float64), and its second
       Bellman sweep (three more 8-byte ``(M, N)``);
+      or, if larger, the bitmaps plus the working arrays of the largest single
+      :func:`~cellplan.cspace.free_bitmap` call (:func:`cellplan.cspace.estimate_memory`;
+      the calls run one after another, and dominate on small grids);
     * tables: the stencil tables, float64/int64 ``(K, A, T, d)`` twice and
       ``(K, A, T, 2^d)`` twice (small).
 
@@ -681,8 +695,10 @@ def estimate_memory(scenario: Any, cell: Any, cells: Sequence[int] | None = None
     T = shape[heading] if heading >= 0 else 1
     terms = {
         "model": N * (8 * M + M + K + K + 8 * K),
-        "building": N
-        * ((1 + S + 2 * PS + PD) + 8 * (PS + PD) + 8 * (2 * d + 3) + 2 * K + 8 * (d + 1)),
+        "building": max(
+            N * ((1 + S + 2 * PS + PD) + 8 * (PS + PD) + 8 * (2 * d + 3) + 2 * K + 8 * (d + 1)),
+            N * (1 + S + 2 * PS + PD) + _bitmap_peak(cell, shape, parts),
+        ),
         "solver": N * (18 * M + 16 * (A + 1) + 8 * M + 24 * M + 16 * M + M + 8 * M + 24 * M),
         "tables": K * A * T * (16 * d + 16 * 2**d),
     }

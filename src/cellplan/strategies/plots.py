@@ -205,7 +205,7 @@ def plot_frames(
         _frame(axes.ravel()[i], strategy, cell, sim, a, b, f"({i + 1}) {label}, stages {a}-{b}")
     if len(segs) > len(shown):
         fig.suptitle(
-            f"the first {len(shown)} of {len(segs)} mode segments (every stage is in trajectory.csv)",
+            f"the first {len(shown)} of {len(segs)} mode segments (all stages: trajectory.csv)",
             fontsize=9,
         )
     paths.append(base.save_figure(fig, outdir / "frames.png", dpi=90))

@@ -50,8 +50,10 @@ def describe(setup: Setup) -> Mapping[str, str]:
     import numpy as np
 
     from cellplan.strategies.model import build_model
+    from cellplan.strategies.planners import check_memory
 
     sc, cell = setup.scenario, setup.workcell
+    check_memory(setup, None)  # before allocating, as the planner does
     mdp = build_model(sc, cell, start=cell.robot.start)
     shape = " x ".join(str(int(n)) for n in mdp.shape)
     free_nr = float(np.mean(mdp.free[mdp.vcls[0]]))
