@@ -724,7 +724,10 @@ class RunCache:
         """Store a finished row atomically."""
         body = {"format": CACHE_FORMAT, "key": key, "spec": _spec_json(spec), "row": dict(row)}
         entry = {**body, "checksum": _checksum(body)}
-        return write_text(self.path(key, spec.experiment), json.dumps(entry, sort_keys=True) + "\n")
+        # Durable: a finished run lost to a power cut would have to be computed again.
+        return write_text(
+            self.path(key, spec.experiment), json.dumps(entry, sort_keys=True) + "\n", durable=True
+        )
 
 
 def _spec_json(spec: RunSpec) -> dict[str, Any]:

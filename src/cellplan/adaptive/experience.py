@@ -528,6 +528,7 @@ class ExperiencePlanner:
             int(saved["generation"]),
         )
         ad.graph = store.load_graph()
+        store.check_state(ad.graph, saved, ad.u.size)
         links, links_gen = store.load_links()
         if links_gen is not None:
             ad.goal_links, ad._links_gen = links, links_gen
