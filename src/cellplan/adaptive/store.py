@@ -290,6 +290,7 @@ def create_database(path: Path, sig: Mapping[str, str]) -> None:
             **sig,
         }
         conn.executemany("INSERT INTO meta VALUES (?, ?)", rows.items())
+        _creation_step("begun")
         conn.execute("COMMIT")
     finally:
         conn.close()  # checkpoints the write-ahead log into the file and removes it
@@ -308,7 +309,8 @@ def _sidecars(path: Path) -> list[Path]:
 
 
 def _creation_step(step: str) -> None:
-    """Between the steps of :func:`create_database` (``written``, ``synced``, ``renamed``):
+    """Between the steps of :func:`create_database` (``begun``, ``written``, ``synced``,
+    ``renamed``):
     a seam for the tests that kill the process there; does nothing."""
 
 
@@ -349,7 +351,8 @@ def check_database(conn: sqlite3.Connection, where: str) -> None:
 
     report = [str(r[0]) for r in conn.execute("PRAGMA integrity_check(5)")]
     if report != ["ok"]:
-        raise fail(f"is damaged (SQLite integrity check: {'; '.join(report)[:200]})")
+        found = " ".join(" ".join(report).replace("*** in database main ***", "").split())
+        raise fail(f"is damaged (SQLite integrity check: {found[:200]})")
     objects = conn.execute("SELECT type, name FROM sqlite_master").fetchall()
     tables = {str(n) for t, n in objects if t == "table"}
     if "meta" not in tables:
@@ -463,6 +466,8 @@ def check_contents(conn: sqlite3.Connection, where: str) -> None:
         if bad:
             problems.append(f"task row {i} has bad values in {', '.join(bad[:4])}")
             break
+    if "state" not in meta and (rows or ("planner" not in meta and ids)):
+        problems.append("it holds tasks or G but no run state")
     if "state" in meta and not problems:
         done = json.loads(meta["state"])["tasks_done"]
         if done != len(rows):
@@ -648,11 +653,18 @@ class ExperienceStore:
     # --- opening ---------------------------------------------------------------------------
 
     def _holds_schema(self) -> bool:
-        """Whether the file exists and has a schema: a missing or empty file, or an SQLite
-        file with no tables at all (what an older cellplan killed during creation left),
-        holds nothing and is created afresh."""
+        """Whether the file exists and has a schema: a missing or empty file, or a whole
+        SQLite page 1 with no tables at all (what an older cellplan killed during creation
+        left), holds nothing and is created afresh. Anything else is checked (and a file
+        cut short, or not SQLite, refused) by :func:`check_database`."""
         if not self.path.exists() or self.path.stat().st_size == 0:
             return False
+        with self.path.open("rb") as fh:
+            header = fh.read(100)
+        page = int.from_bytes(header[16:18], "big") if len(header) == 100 else 0
+        page = 65536 if page == 1 else page
+        if not header.startswith(b"SQLite format 3\0") or self.path.stat().st_size < max(page, 512):
+            return True  # not an SQLite file, or cut short in its first page: refused later
         conn = sqlite3.connect(self.path, isolation_level=None)
         try:
             return conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0] > 0
