@@ -50,9 +50,7 @@ from typing import Any
 from cellplan.core import Experiment, RunSpec, Scalar
 from cellplan.errors import ArgumentError, Problem
 from cellplan.fileio import write_json, write_text
-
-CONNECT_TIMEOUT = "10s"
-"""How long to try reaching an existing Dask scheduler before giving up."""
+from cellplan.scheduler import check_scheduler_address, connect_client, probe_scheduler
 
 CACHE_FORMAT = 1
 """Version of the cache-entry layout; part of every entry, checked on read."""
@@ -63,7 +61,6 @@ RUN_COLUMNS: tuple[str, ...] = ("run_status", "run_error", "run_wall_s")
 OK, FAILED, SKIPPED = "ok", "failed", "skipped"
 
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*\.[A-Za-z0-9_.-]+$")
-_SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|ucx)://(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(\d+)$")
 
 
 # --- discovery --------------------------------------------------------------------------------
@@ -165,16 +162,6 @@ def check_experiments(experiments: Sequence[Experiment]) -> None:
         seen.add(exp.name)
     if problems:
         raise ArgumentError(problems)
-
-
-def check_scheduler_address(address: str) -> str:
-    """Validate a Dask scheduler address such as ``tcp://10.0.0.5:8786``; return it unchanged."""
-    match = _SCHEDULER_RE.match(address)
-    if not match or not 0 < int(match.group(3)) < 65536:
-        raise ArgumentError(
-            f"expected an address like tcp://HOST:8786, got {address!r}", "--scheduler"
-        )
-    return address
 
 
 # --- the sweep --------------------------------------------------------------------------------
@@ -386,6 +373,8 @@ def run_sweep(
                 )
             pending.append(_Pending(exp_index, run_index, spec, key))
 
+    if scheduler is not None and pending and not serial:
+        probe_scheduler(scheduler)  # before the progress bar: a wrong address is one line
     n_cached = sum(r.n_cached for r in results)
     with _progress_bar(console, progress, len(pending), n_cached) as tick:
 
@@ -514,12 +503,9 @@ def _run_on_dask(
             client = stack.enter_context(Client(cluster))
             desc = f"dask LocalCluster, {n} worker processes x 1 thread"
         else:
-            try:
-                client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
-            except OSError as exc:
-                raise ArgumentError(
-                    f"cannot reach the Dask scheduler {scheduler}: {exc}", "--scheduler"
-                ) from None
+            # Probed, connected and asked once under deadlines: a wrong address is one
+            # --scheduler line, never a hang or a huge allocation (cellplan.scheduler).
+            client = stack.enter_context(connect_client(scheduler))
             n_workers = len(client.scheduler_info().get("workers", {}))
             desc = f"dask scheduler {scheduler} ({n_workers} workers)"
         slots = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
