@@ -71,7 +71,7 @@ def serve() -> Iterator[Callable[[Behaviour], str]]:
                 except OSError:
                     return
                 socks.append(conn)
-                threading.Thread(target=lambda: _serve_one(conn, behaviour), daemon=True).start()
+                threading.Thread(target=_serve_one, args=(conn, behaviour), daemon=True).start()
 
         threading.Thread(target=loop, daemon=True).start()
         return f"tcp://127.0.0.1:{srv.getsockname()[1]}"

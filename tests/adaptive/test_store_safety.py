@@ -415,3 +415,47 @@ def test_a_truncated_file_on_the_command_line_is_one_line_exit_2(
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
     assert "Traceback" not in res.stderr and str(db) in res.stderr
     assert db.read_bytes() == good_db[: len(good_db) // 2]
+
+
+@pytest.fixture(scope="module")
+def planner_db(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    """A database an ExperiencePlanner session wrote: two queries and an added object."""
+    from cellplan.adaptive import ExperiencePlanner
+
+    db = tmp_path_factory.mktemp("planner") / "exp.sqlite"
+    with ExperiencePlanner(loads_scenario(POINT_SCENARIO), db=db) as ep:
+        assert ep.plan(None, "g1").success
+        ep.add("lid", {"type": "box", "min": [3.0, 7.05], "max": [7.0, 9.0]})
+        assert ep.plan(None, "home").success
+    return Blob(db.read_bytes())
+
+
+@EXAMPLES
+@given(data=st.data(), value=_JSON, delete=st.booleans())
+def test_tampered_planner_state_is_refused_in_one_line_or_harmless(
+    data: st.DataObject, value: Any, delete: bool, planner_db: bytes, tmp_path: Path
+) -> None:
+    from cellplan.adaptive import ExperiencePlanner
+
+    db = _fresh_copy(tmp_path, planner_db)
+    conn = sqlite3.connect(db)
+    state = json.loads(conn.execute("SELECT value FROM meta WHERE key = 'planner'").fetchone()[0])
+    path = [data.draw(st.sampled_from(sorted(state)))]
+    inner = state[path[0]]
+    if isinstance(inner, dict) and inner and data.draw(st.booleans()):
+        path.append(data.draw(st.sampled_from(sorted(inner))))  # e.g. objects.lid, goals.g1
+    target = state
+    for key in path[:-1]:
+        target = target[key]
+    if delete:
+        del target[path[-1]]
+    else:
+        target[path[-1]] = value
+    conn.execute("UPDATE meta SET value = ? WHERE key = 'planner'", (json.dumps(state),))
+    conn.commit()
+    conn.close()
+    try:
+        with ExperiencePlanner(loads_scenario(POINT_SCENARIO), db=db) as ep:
+            ep.plan(None, "g1")
+    except CellplanError as exc:
+        assert len(exc.problems) == 1 and "\n" not in str(exc), str(exc)

@@ -618,7 +618,7 @@ class ExperienceStore:
 
     def __init__(self, path: str | Path, problem: Scenario | Mapping[str, str]) -> None:
         self.path = Path(path)
-        self.conn: sqlite3.Connection | None = None  # type: ignore[assignment]
+        self.conn: sqlite3.Connection | None = None
         self._lock: DatabaseLock | None = None
         self._sig = dict(problem) if isinstance(problem, Mapping) else signatures(problem)
         where = str(self.path)
