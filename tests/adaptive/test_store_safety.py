@@ -333,6 +333,10 @@ _STRUCTURE = [
     "INSERT INTO edges VALUES (999, 1000, 'free', 0)",
     "INSERT INTO tasks (task, goal) VALUES (9, 'g1')",
     "INSERT INTO meta VALUES ('planner', '{}')",
+    # well-formed edits: only the content digest sees them
+    "UPDATE vertices SET rx = rx + 0.1 WHERE id = (SELECT min(id) FROM vertices)",
+    "UPDATE tasks SET seconds = seconds + 1 WHERE task = 1",
+    "UPDATE edges SET status = 'blocked' WHERE rowid = (SELECT min(rowid) FROM edges)",
 ]
 
 

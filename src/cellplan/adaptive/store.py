@@ -33,9 +33,15 @@ instead (:func:`workcell_signatures`). Two kinds of state live in ``meta``:
 
 Every task is committed in one transaction (:meth:`ExperienceStore.commit_task`),
 so a process killed mid-task leaves the database exactly as after the previous
-task. Opening checks the format and the signatures and refuses a file made for
-another robot or scenario, or one that is not an experience database, with a
-:class:`~cellplan.errors.PersistenceError`.
+task. Each commit also stores ``meta.digest``, a SHA-256 of every stored row
+(:func:`content_digest`).
+
+Opening (see :class:`ExperienceStore`) takes the one-writer lock
+(:class:`DatabaseLock`), creates a new database whole (:func:`create_database`),
+and checks an existing one before writing anything (:func:`check_database`:
+integrity, schema, format, digest, every value); it refuses a file made for another
+robot or scenario, a damaged one, or one that is not an experience database, with a
+:class:`~cellplan.errors.PersistenceError` of one line.
 """
 
 from __future__ import annotations
@@ -290,6 +296,7 @@ def create_database(path: Path, sig: Mapping[str, str]) -> None:
             **sig,
         }
         conn.executemany("INSERT INTO meta VALUES (?, ?)", rows.items())
+        write_digest(conn)
         _creation_step("begun")
         conn.execute("COMMIT")
     finally:
@@ -382,7 +389,46 @@ def check_database(conn: sqlite3.Connection, where: str) -> None:
                 continue
         if have != want:
             raise fail(f"is damaged: the columns of table {table} are not cellplan's")
+    stored = conn.execute("SELECT value FROM meta WHERE key = 'digest'").fetchone()
+    if stored is not None and stored[0] != content_digest(conn):
+        raise fail(
+            "is damaged: its contents do not match their checksum "
+            "(changed outside cellplan, or corrupted on disk)"
+        )
     check_contents(conn, where)
+
+
+#: Primary-key order of each table, for the content digest.
+_ORDER = {
+    "meta": "key",
+    "vertices": "id",
+    "edges": "a, b",
+    "goal_links": "vertex, goal",
+    "tasks": "task",
+}
+
+
+def content_digest(conn: sqlite3.Connection) -> str:
+    """SHA-256 of every stored row (all tables, in key order), the meta ``digest`` aside.
+
+    Rows are hashed as SQLite returns them (``repr`` of each tuple: exact for floats,
+    and it tells text from blobs and integers from reals), so any change to a stored
+    value, a row or a column changes the digest.
+    """
+    h = hashlib.sha256()
+    for table in _TABLES:
+        h.update(f"\x00{table}\x00".encode())
+        for row in conn.execute(f"SELECT * FROM {table} ORDER BY {_ORDER[table]}"):
+            if table == "meta" and row[0] == "digest":
+                continue
+            h.update(repr(tuple(row)).encode())
+            h.update(b"\n")
+    return h.hexdigest()
+
+
+def write_digest(conn: sqlite3.Connection) -> None:
+    """Store :func:`content_digest` in meta (inside the caller's transaction)."""
+    conn.execute("INSERT OR REPLACE INTO meta VALUES ('digest', ?)", (content_digest(conn),))
 
 
 def check_contents(conn: sqlite3.Connection, where: str) -> None:
@@ -863,6 +909,7 @@ class ExperienceStore:
                     f"VALUES ({', '.join('?' * len(cols))})",
                     [row.get(k) for k in cols],
                 )
+            write_digest(c)
 
 
 def export_graphml(graph: ExperienceGraph, path: str | Path) -> Path:
