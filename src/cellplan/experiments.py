@@ -50,7 +50,7 @@ from typing import Any
 from cellplan.core import Experiment, RunSpec, Scalar
 from cellplan.errors import ArgumentError, Problem
 from cellplan.fileio import write_json, write_text
-from cellplan.scheduler import check_scheduler_address, connect_client, probe_scheduler
+from cellplan.scheduler import check_scheduler_address, connect_client
 
 CACHE_FORMAT = 1
 """Version of the cache-entry layout; part of every entry, checked on read."""
@@ -373,29 +373,40 @@ def run_sweep(
                 )
             pending.append(_Pending(exp_index, run_index, spec, key))
 
-    if scheduler is not None and pending and not serial:
-        probe_scheduler(scheduler)  # before the progress bar: a wrong address is one line
     n_cached = sum(r.n_cached for r in results)
-    with _progress_bar(console, progress, len(pending), n_cached) as tick:
+    with contextlib.ExitStack() as stack:
+        client = None
+        if scheduler is not None and pending and not serial:
+            # Probed, connected and asked once under deadlines, before the progress bar:
+            # a wrong address is one --scheduler line, never a hang or a huge allocation.
+            client = stack.enter_context(connect_client(scheduler))
+        with _progress_bar(console, progress, len(pending), n_cached) as tick:
 
-        def finish(item: _Pending, row: dict[str, Scalar]) -> None:
-            results[item.exp_index].rows[item.run_index] = row
-            if row["run_status"] == OK:
-                cache.put(item.key, item.spec, row)
-            tick(row["run_status"] != OK)
+            def finish(item: _Pending, row: dict[str, Scalar]) -> None:
+                results[item.exp_index].rows[item.run_index] = row
+                if row["run_status"] == OK:
+                    cache.put(item.key, item.spec, row)
+                tick(row["run_status"] != OK)
 
-        deadline = None if time_budget_s is None else started + time_budget_s
-        if serial or not pending:
-            scheduler_desc = "serial (in process)"
-            for item in pending:
-                if deadline is not None and time.perf_counter() > deadline:
-                    finish(item, _skipped(item.spec, time_budget_s))
-                else:
-                    finish(item, execute_run(experiments[item.exp_index].run, item.spec))
-        else:
-            scheduler_desc = _run_on_dask(
-                experiments, pending, finish, scheduler, workers, deadline, time_budget_s
-            )
+            deadline = None if time_budget_s is None else started + time_budget_s
+            if serial or not pending:
+                scheduler_desc = "serial (in process)"
+                for item in pending:
+                    if deadline is not None and time.perf_counter() > deadline:
+                        finish(item, _skipped(item.spec, time_budget_s))
+                    else:
+                        finish(item, execute_run(experiments[item.exp_index].run, item.spec))
+            else:
+                scheduler_desc = _run_on_dask(
+                    experiments,
+                    pending,
+                    finish,
+                    scheduler,
+                    client,
+                    workers,
+                    deadline,
+                    time_budget_s,
+                )
 
     wall = time.perf_counter() - started
     metadata = run_metadata(command=command, scheduler=scheduler_desc, quick=quick, runs=runs)
@@ -476,17 +487,22 @@ def _run_on_dask(
     pending: list[_Pending],
     finish: Callable[[_Pending, dict[str, Scalar]], None],
     scheduler: str | None,
+    client: Any,
     workers: int | None,
     deadline: float | None,
     budget: float | None,
 ) -> str:
-    """Run ``pending`` on Dask; call ``finish`` as each run completes. Returns a description."""
+    """Run ``pending`` on Dask; call ``finish`` as each run completes. Returns a description.
+
+    ``client``: connected to ``scheduler`` (:func:`~cellplan.scheduler.connect_client`),
+    or ``None`` for a ``LocalCluster`` started here.
+    """
     import logging
 
     from distributed import Client, LocalCluster, as_completed
 
     with contextlib.ExitStack() as stack:
-        if scheduler is None:
+        if client is None:
             n = workers or usable_cores()
             with _workers_ignore_ctrl_c():
                 cluster = stack.enter_context(
@@ -503,9 +519,6 @@ def _run_on_dask(
             client = stack.enter_context(Client(cluster))
             desc = f"dask LocalCluster, {n} worker processes x 1 thread"
         else:
-            # Probed, connected and asked once under deadlines: a wrong address is one
-            # --scheduler line, never a hang or a huge allocation (cellplan.scheduler).
-            client = stack.enter_context(connect_client(scheduler))
             n_workers = len(client.scheduler_info().get("workers", {}))
             desc = f"dask scheduler {scheduler} ({n_workers} workers)"
         slots = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
