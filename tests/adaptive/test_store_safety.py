@@ -463,3 +463,51 @@ def test_tampered_planner_state_is_refused_in_one_line_or_harmless(
             ep.plan(None, "g1")
     except CellplanError as exc:
         assert len(exc.problems) == 1 and "\n" not in str(exc), str(exc)
+
+
+@pytest.mark.slow
+def test_random_kills_of_the_command_never_lose_or_change_work(
+    scenario_file: Path, tmp_path: Path
+) -> None:
+    """``kill -9`` of ``cellplan adapt`` at random moments while it holds the database
+    (creation included), until a run finishes: its tasks.csv equals an uninterrupted
+    run's. ``CELLPLAN_KILL_TRIALS`` databases (default 4), delays up to
+    ``CELLPLAN_KILL_MAX_S`` seconds (default 2) after the lock appears, at most 12 kills
+    each. The fast tests above cover the same code (kill in task 4, kills at each
+    creation step)."""
+    import random
+    import time
+
+    rng = random.Random(16)
+    trials = int(os.environ.get("CELLPLAN_KILL_TRIALS", "4"))
+    max_s = float(os.environ.get("CELLPLAN_KILL_MAX_S", "2"))
+
+    def table(folder: Path) -> list[list[str]]:
+        lines = (folder / "tasks.csv").read_text(encoding="utf-8").splitlines()
+        drop = lines[0].split(",").index("seconds")
+        return [[c for i, c in enumerate(line.split(",")) if i != drop] for line in lines]
+
+    base = [sys.executable, "-m", "cellplan.cli", "adapt", str(scenario_file)]
+    assert subprocess.run([*base, "-o", str(tmp_path / "ref")], timeout=300).returncode == 0
+    kills = 0
+    for t in range(trials):
+        db, out = tmp_path / f"t{t}.sqlite", tmp_path / f"o{t}"
+        lock = Path(f"{db}.lock")
+        for attempt in range(13):
+            proc = subprocess.Popen(
+                [*base, "--db", str(db), "-o", str(out)], stderr=subprocess.PIPE
+            )
+            while proc.poll() is None and not lock.exists():
+                time.sleep(0.002)
+            if attempt < 12 and proc.poll() is None:
+                time.sleep(rng.uniform(0, max_s))
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.communicate()
+                    kills += 1
+                    continue
+            _, err = proc.communicate(timeout=300)
+            assert proc.returncode == 0, err
+            break
+        assert table(out) == table(tmp_path / "ref")
+    print(f"{trials} databases, {kills} kills while holding the database")
