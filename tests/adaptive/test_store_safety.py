@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 from adaptive_scenarios import POINT_SCENARIO  # type: ignore[import-not-found]
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
 from cellplan.adaptive.runner import run_adaptive
@@ -263,7 +263,9 @@ def _open_and_continue(db: Path, sc: Scenario) -> str:
             run_adaptive(sc, tasks=4, store=store, baseline=False)
     except CellplanError as exc:
         assert len(exc.problems) == 1 and "\n" not in str(exc), str(exc)
+        event("refused")  # counted by --hypothesis-show-statistics
         return "refused"
+    event("ran")
     return "ran"
 
 
@@ -511,3 +513,24 @@ def test_random_kills_of_the_command_never_lose_or_change_work(
             break
         assert table(out) == table(tmp_path / "ref")
     print(f"{trials} databases, {kills} kills while holding the database")
+
+
+def test_a_header_sqlite_would_open_read_only_is_refused(
+    good_db: bytes, sc: Scenario, tmp_path: Path
+) -> None:
+    data = bytearray(good_db)
+    data[18] = 3  # write version 3: SQLite opens the file read-only
+    db = _fresh_copy(tmp_path, bytes(data))
+    with pytest.raises(PersistenceError, match="file-format versions"):
+        ExperienceStore(db, sc)
+
+
+def test_a_write_the_file_system_refuses_is_one_line(sc: Scenario, tmp_path: Path) -> None:
+    db = tmp_path / "exp.sqlite"
+    with ExperienceStore(db, sc) as store:
+        run_adaptive(sc, tasks=1, store=store, baseline=False)
+        store._conn().execute("PRAGMA query_only = ON")  # as if the disk refused writes
+        with pytest.raises(PersistenceError, match="cannot write the database"):
+            run_adaptive(sc, tasks=2, store=store, baseline=False)
+    with ExperienceStore(db, sc) as store:
+        assert store.state()["tasks_done"] == 1  # type: ignore[index]

@@ -311,6 +311,17 @@ def create_database(path: Path, sig: Mapping[str, str]) -> None:
     fsync_path(path.parent)
 
 
+def _check_writable_format(path: Path) -> None:
+    """Refuse a file whose header SQLite would open read-only (its write version, byte
+    18, above 2: a damaged header), before a commit fails half-way through a run."""
+    with path.open("rb") as fh:
+        header = fh.read(20)
+    if len(header) == 20 and not (header[18] in (1, 2) and header[19] in (1, 2)):
+        raise PersistenceError(
+            [Problem(str(path), "is damaged: its SQLite header has unknown file-format versions")]
+        )
+
+
 def _sidecars(path: Path) -> list[Path]:
     return [path, *(path.with_name(path.name + s) for s in ("-wal", "-shm", "-journal"))]
 
@@ -676,6 +687,7 @@ class ExperienceStore:
             if not self._holds_schema():
                 create_database(self.path, self._sig)
             self.conn = sqlite3.connect(self.path, isolation_level=None)
+            _check_writable_format(self.path)
             check_database(self.conn, where)
             self._check_signature()
             # Only now, with the file known to be ours and whole, is anything written.
@@ -780,7 +792,18 @@ class ExperienceStore:
             return self.conn
 
         def __exit__(self, exc_type: object, *rest: object) -> None:
-            self.conn.execute("ROLLBACK" if exc_type is not None else "COMMIT")
+            if exc_type is None:
+                try:
+                    self.conn.execute("COMMIT")
+                    return
+                except sqlite3.Error:
+                    self._rollback()
+                    raise
+            self._rollback()
+
+        def _rollback(self) -> None:
+            if self.conn.in_transaction:
+                self.conn.execute("ROLLBACK")
 
     def transaction(self) -> ExperienceStore._Tx:
         """``with store.transaction():`` - all or nothing."""
@@ -861,7 +884,27 @@ class ExperienceStore:
         links: Mapping[tuple[int, str], bool] | None = None,
         key: str = "state",
     ) -> None:
-        """Write G, the run state (meta ``key``) and one task row in a single transaction."""
+        """Write G, the run state (meta ``key``) and one task row in a single transaction.
+
+        A write the file system refuses (disk full, a read-only file) raises
+        :class:`~cellplan.errors.PersistenceError`; the transaction is rolled back, so
+        the database keeps the previous task.
+        """
+        try:
+            self._commit_task(graph, state, row, links, key)
+        except sqlite3.OperationalError as exc:
+            raise PersistenceError(
+                [Problem(str(self.path), f"cannot write the database ({exc})")]
+            ) from None
+
+    def _commit_task(
+        self,
+        graph: ExperienceGraph,
+        state: Mapping[str, Any],
+        row: Mapping[str, Any] | None,
+        links: Mapping[tuple[int, str], bool] | None,
+        key: str,
+    ) -> None:
         with self.transaction() as c:
             c.execute("DELETE FROM vertices")
             c.execute("DELETE FROM edges")
