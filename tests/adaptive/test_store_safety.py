@@ -22,6 +22,7 @@ import pytest
 from adaptive_scenarios import POINT_SCENARIO  # type: ignore[import-not-found]
 from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
+from hypothesis.control import currently_in_test_context
 
 from cellplan.adaptive.runner import run_adaptive
 from cellplan.adaptive.store import ExperienceStore
@@ -263,10 +264,16 @@ def _open_and_continue(db: Path, sc: Scenario) -> str:
             run_adaptive(sc, tasks=4, store=store, baseline=False)
     except CellplanError as exc:
         assert len(exc.problems) == 1 and "\n" not in str(exc), str(exc)
-        event("refused")  # counted by --hypothesis-show-statistics
+        _count("refused")
         return "refused"
-    event("ran")
+    _count("ran")
     return "ran"
+
+
+def _count(outcome: str) -> None:
+    """Count the outcome in hypothesis' statistics (``--hypothesis-show-statistics``)."""
+    if currently_in_test_context():
+        event(outcome)
 
 
 def _fresh_copy(tmp_path: Path, data: bytes) -> Path:
@@ -534,3 +541,15 @@ def test_a_write_the_file_system_refuses_is_one_line(sc: Scenario, tmp_path: Pat
             run_adaptive(sc, tasks=2, store=store, baseline=False)
     with ExperienceStore(db, sc) as store:
         assert store.state()["tasks_done"] == 1  # type: ignore[index]
+
+
+def test_text_that_is_not_utf8_is_refused(good_db: bytes, sc: Scenario, tmp_path: Path) -> None:
+    data = bytearray(good_db)
+    data[good_db.index(b"CREATE TABLE vertices") + 3] ^= 0x80  # inside SQLite's schema text
+    assert _open_and_continue(_fresh_copy(tmp_path, bytes(data)), sc) == "refused"
+    db = _fresh_copy(tmp_path, good_db)
+    conn = sqlite3.connect(db)
+    conn.execute("UPDATE meta SET value = CAST(x'c5ff' AS TEXT) WHERE key = 'state'")
+    conn.commit()
+    conn.close()
+    assert _open_and_continue(db, sc) == "refused"

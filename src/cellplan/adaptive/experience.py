@@ -488,9 +488,11 @@ class ExperiencePlanner:
     def close(self) -> None:
         """Save and close the database (idempotent)."""
         if self.store is not None:
-            self.save()
-            self.store.close()
-            self.store = None
+            try:
+                self.save()
+            finally:  # release the database's lock even when the last write fails
+                self.store.close()
+                self.store = None
 
     def __enter__(self) -> ExperiencePlanner:
         return self

@@ -687,8 +687,8 @@ class ExperienceStore:
             if not self._holds_schema():
                 create_database(self.path, self._sig)
             self.conn = sqlite3.connect(self.path, isolation_level=None)
-            _check_writable_format(self.path)
             check_database(self.conn, where)
+            _check_writable_format(self.path)
             self._check_signature()
             # Only now, with the file known to be ours and whole, is anything written.
             self.conn.execute("PRAGMA journal_mode=WAL")
@@ -698,6 +698,11 @@ class ExperienceStore:
             self.close()
             raise PersistenceError(
                 [Problem(where, f"not a readable experience database ({exc})")]
+            ) from None
+        except UnicodeDecodeError:  # damaged text, in a value or in SQLite's own messages
+            self.close()
+            raise PersistenceError(
+                [Problem(where, "not a readable experience database (text that is not UTF-8)")]
             ) from None
         except OSError as exc:
             self.close()
