@@ -23,6 +23,7 @@ CORE = [
     "report.py",
     "reproduce_cli.py",
     "scenario.py",
+    "scheduler.py",
     "setup.py",
     "summary.py",
     "trajectory.py",

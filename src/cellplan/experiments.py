@@ -50,9 +50,7 @@ from typing import Any
 from cellplan.core import Experiment, RunSpec, Scalar
 from cellplan.errors import ArgumentError, Problem
 from cellplan.fileio import write_json, write_text
-
-CONNECT_TIMEOUT = "10s"
-"""How long to try reaching an existing Dask scheduler before giving up."""
+from cellplan.scheduler import check_scheduler_address, connect_client
 
 CACHE_FORMAT = 1
 """Version of the cache-entry layout; part of every entry, checked on read."""
@@ -63,7 +61,6 @@ RUN_COLUMNS: tuple[str, ...] = ("run_status", "run_error", "run_wall_s")
 OK, FAILED, SKIPPED = "ok", "failed", "skipped"
 
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*\.[A-Za-z0-9_.-]+$")
-_SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|ucx)://(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(\d+)$")
 
 
 # --- discovery --------------------------------------------------------------------------------
@@ -165,16 +162,6 @@ def check_experiments(experiments: Sequence[Experiment]) -> None:
         seen.add(exp.name)
     if problems:
         raise ArgumentError(problems)
-
-
-def check_scheduler_address(address: str) -> str:
-    """Validate a Dask scheduler address such as ``tcp://10.0.0.5:8786``; return it unchanged."""
-    match = _SCHEDULER_RE.match(address)
-    if not match or not 0 < int(match.group(3)) < 65536:
-        raise ArgumentError(
-            f"expected an address like tcp://HOST:8786, got {address!r}", "--scheduler"
-        )
-    return address
 
 
 # --- the sweep --------------------------------------------------------------------------------
@@ -387,26 +374,39 @@ def run_sweep(
             pending.append(_Pending(exp_index, run_index, spec, key))
 
     n_cached = sum(r.n_cached for r in results)
-    with _progress_bar(console, progress, len(pending), n_cached) as tick:
+    with contextlib.ExitStack() as stack:
+        client = None
+        if scheduler is not None and pending and not serial:
+            # Probed, connected and asked once under deadlines, before the progress bar:
+            # a wrong address is one --scheduler line, never a hang or a huge allocation.
+            client = stack.enter_context(connect_client(scheduler))
+        with _progress_bar(console, progress, len(pending), n_cached) as tick:
 
-        def finish(item: _Pending, row: dict[str, Scalar]) -> None:
-            results[item.exp_index].rows[item.run_index] = row
-            if row["run_status"] == OK:
-                cache.put(item.key, item.spec, row)
-            tick(row["run_status"] != OK)
+            def finish(item: _Pending, row: dict[str, Scalar]) -> None:
+                results[item.exp_index].rows[item.run_index] = row
+                if row["run_status"] == OK:
+                    cache.put(item.key, item.spec, row)
+                tick(row["run_status"] != OK)
 
-        deadline = None if time_budget_s is None else started + time_budget_s
-        if serial or not pending:
-            scheduler_desc = "serial (in process)"
-            for item in pending:
-                if deadline is not None and time.perf_counter() > deadline:
-                    finish(item, _skipped(item.spec, time_budget_s))
-                else:
-                    finish(item, execute_run(experiments[item.exp_index].run, item.spec))
-        else:
-            scheduler_desc = _run_on_dask(
-                experiments, pending, finish, scheduler, workers, deadline, time_budget_s
-            )
+            deadline = None if time_budget_s is None else started + time_budget_s
+            if serial or not pending:
+                scheduler_desc = "serial (in process)"
+                for item in pending:
+                    if deadline is not None and time.perf_counter() > deadline:
+                        finish(item, _skipped(item.spec, time_budget_s))
+                    else:
+                        finish(item, execute_run(experiments[item.exp_index].run, item.spec))
+            else:
+                scheduler_desc = _run_on_dask(
+                    experiments,
+                    pending,
+                    finish,
+                    scheduler,
+                    client,
+                    workers,
+                    deadline,
+                    time_budget_s,
+                )
 
     wall = time.perf_counter() - started
     metadata = run_metadata(command=command, scheduler=scheduler_desc, quick=quick, runs=runs)
@@ -487,17 +487,22 @@ def _run_on_dask(
     pending: list[_Pending],
     finish: Callable[[_Pending, dict[str, Scalar]], None],
     scheduler: str | None,
+    client: Any,
     workers: int | None,
     deadline: float | None,
     budget: float | None,
 ) -> str:
-    """Run ``pending`` on Dask; call ``finish`` as each run completes. Returns a description."""
+    """Run ``pending`` on Dask; call ``finish`` as each run completes. Returns a description.
+
+    ``client``: connected to ``scheduler`` (:func:`~cellplan.scheduler.connect_client`),
+    or ``None`` for a ``LocalCluster`` started here.
+    """
     import logging
 
     from distributed import Client, LocalCluster, as_completed
 
     with contextlib.ExitStack() as stack:
-        if scheduler is None:
+        if client is None:
             n = workers or usable_cores()
             with _workers_ignore_ctrl_c():
                 cluster = stack.enter_context(
@@ -514,12 +519,6 @@ def _run_on_dask(
             client = stack.enter_context(Client(cluster))
             desc = f"dask LocalCluster, {n} worker processes x 1 thread"
         else:
-            try:
-                client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
-            except OSError as exc:
-                raise ArgumentError(
-                    f"cannot reach the Dask scheduler {scheduler}: {exc}", "--scheduler"
-                ) from None
             n_workers = len(client.scheduler_info().get("workers", {}))
             desc = f"dask scheduler {scheduler} ({n_workers} workers)"
         slots = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
@@ -724,7 +723,10 @@ class RunCache:
         """Store a finished row atomically."""
         body = {"format": CACHE_FORMAT, "key": key, "spec": _spec_json(spec), "row": dict(row)}
         entry = {**body, "checksum": _checksum(body)}
-        return write_text(self.path(key, spec.experiment), json.dumps(entry, sort_keys=True) + "\n")
+        # Durable: a finished run lost to a power cut would have to be computed again.
+        return write_text(
+            self.path(key, spec.experiment), json.dumps(entry, sort_keys=True) + "\n", durable=True
+        )
 
 
 def _spec_json(spec: RunSpec) -> dict[str, Any]:

@@ -2,6 +2,14 @@
 
 An interrupted run therefore never leaves a half-written file behind: the
 target either keeps its old content or gets the complete new one.
+
+The rename alone protects against the process dying (a crash, ``kill -9``): the
+operating system still writes the file out. It does not protect against the
+machine losing power or the kernel crashing before the data reached the disk,
+when the renamed file can come back empty or the rename itself can be lost.
+``durable=True`` closes that gap for files whose loss would lose work (cache
+entries of finished runs): the temporary file is flushed to disk (``fsync``)
+before the rename and the folder after it, at the cost of a disk round trip.
 """
 
 from __future__ import annotations
@@ -15,12 +23,23 @@ from pathlib import Path
 from typing import Any
 
 
+def fsync_path(path: str | os.PathLike[str]) -> None:
+    """Flush a file's or a folder's contents to disk (``fsync``; a folder: its entries)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 @contextlib.contextmanager
-def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_path(target: str | os.PathLike[str], durable: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``target``; rename it onto ``target`` on success.
 
     The temporary file keeps the target's suffix so that writers which infer the
-    format from the extension (matplotlib, numpy) behave the same.
+    format from the extension (matplotlib, numpy) behave the same. ``durable``:
+    ``fsync`` the file before the rename and the folder after it (see the module
+    docstring).
     """
     target = Path(target)
     if target.is_dir():
@@ -38,15 +57,22 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
     tmp.chmod(0o666 & ~umask)
     try:
         yield tmp
+        if durable:
+            fsync_path(tmp)
         os.replace(tmp, target)
+        if durable:
+            fsync_path(target.parent)
     finally:
         if tmp.exists():
             tmp.unlink()
 
 
-def write_text(target: str | os.PathLike[str], text: str) -> Path:
-    """Write ``text`` to ``target`` atomically and return the target path."""
-    with atomic_path(target) as tmp:
+def write_text(target: str | os.PathLike[str], text: str, durable: bool = False) -> Path:
+    """Write ``text`` to ``target`` atomically and return the target path.
+
+    ``durable``: flushed to disk before it is renamed into place (:func:`atomic_path`).
+    """
+    with atomic_path(target, durable) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(target)
 

@@ -169,7 +169,7 @@ def register(app: typer.Typer) -> None:
         """Run the papers' experiments (cached, on Dask) and write OUTPUT/index.html."""
         from rich.console import Console
 
-        from cellplan.experiments import check_scheduler_address
+        from cellplan.scheduler import check_scheduler_address
 
         problems: list[Problem] = []
 

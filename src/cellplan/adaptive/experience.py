@@ -488,9 +488,11 @@ class ExperiencePlanner:
     def close(self) -> None:
         """Save and close the database (idempotent)."""
         if self.store is not None:
-            self.save()
-            self.store.close()
-            self.store = None
+            try:
+                self.save()
+            finally:  # release the database's lock even when the last write fails
+                self.store.close()
+                self.store = None
 
     def __enter__(self) -> ExperiencePlanner:
         return self
@@ -528,6 +530,7 @@ class ExperiencePlanner:
             int(saved["generation"]),
         )
         ad.graph = store.load_graph()
+        store.check_state(ad.graph, saved, ad.u.size)
         links, links_gen = store.load_links()
         if links_gen is not None:
             ad.goal_links, ad._links_gen = links, links_gen

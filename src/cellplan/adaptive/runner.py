@@ -260,6 +260,7 @@ def restore_run(planner: ExperiencePlanner, store: ExperienceStore, saved: dict[
             [Problem(str(store.path), "generation does not match the scenario's changes")]
         )
     adapter.graph = store.load_graph()
+    store.check_state(adapter.graph, saved, adapter.u.size)
     links, links_gen = store.load_links()
     if links_gen is not None:
         adapter.goal_links, adapter._links_gen = links, links_gen

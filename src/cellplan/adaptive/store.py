@@ -33,17 +33,29 @@ instead (:func:`workcell_signatures`). Two kinds of state live in ``meta``:
 
 Every task is committed in one transaction (:meth:`ExperienceStore.commit_task`),
 so a process killed mid-task leaves the database exactly as after the previous
-task. Opening checks the format and the signatures and refuses a file made for
-another robot or scenario, or one that is not an experience database, with a
-:class:`~cellplan.errors.PersistenceError`.
+task. Each commit also stores ``meta.digest``, a SHA-256 of every stored row
+(:func:`content_digest`).
+
+Opening (see :class:`ExperienceStore`) takes the one-writer lock
+(:class:`DatabaseLock`), creates a new database whole (:func:`create_database`),
+and checks an existing one before writing anything (:func:`check_database`:
+integrity, schema, format, digest, every value); it refuses a file made for another
+robot or scenario, a damaged one, or one that is not an experience database, with a
+:class:`~cellplan.errors.PersistenceError` of one line.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import functools
 import hashlib
 import json
+import math
+import os
 import sqlite3
-from collections.abc import Mapping
+import time
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +63,7 @@ import numpy as np
 
 from cellplan.adaptive.graph import EDGE_STATUSES, ExperienceGraph
 from cellplan.errors import PersistenceError, Problem
-from cellplan.fileio import atomic_path
+from cellplan.fileio import atomic_path, fsync_path
 from cellplan.geometry import ShapeSet
 from cellplan.scenario import Scenario
 from cellplan.workcell import Workcell
@@ -79,6 +91,8 @@ TASK_COLUMNS = (
     "note",
 )
 _TEXT_COLUMNS = {"goal", "note"}
+#: Task columns a run writes as whole numbers (counts, flags); stored as REAL.
+_INTEGER_TASK_COLUMNS = frozenset({"task", *TASK_COLUMNS} - _TEXT_COLUMNS - {"seconds"})
 #: Task columns added after schema version 1 first shipped; an older file gains them
 #: (empty) when it is opened, so its rows read like new ones.
 _ADDED_COLUMNS = {"s_fallbacks": "REAL DEFAULT 0", "note": "TEXT DEFAULT ''"}
@@ -173,93 +187,561 @@ def shape_from_json(data: Mapping[str, Any]) -> ShapeSet:
     )
 
 
+# --- the writer lock ---------------------------------------------------------------------------
+
+
+class DatabaseLock:
+    """The one-writer lock of a database: ``flock`` on the sidecar ``<db>.lock``.
+
+    An OS file lock, not a lock row or SQLite's own locking, because the kernel drops it
+    when its process dies however it dies (``kill -9`` included): no stale lock is ever
+    left to clear by hand, and a second process learns who holds it, from the PID the
+    holder writes into the file. SQLite's locks are released between transactions (each
+    task commits), so they cannot keep a second run from interleaving its tasks.
+
+    The lock is taken without waiting; a second opener gets a
+    :class:`~cellplan.errors.PersistenceError` naming the holder. :meth:`release`
+    removes the file while still holding the lock; an opener that locked a file
+    removed meanwhile sees its inode gone from the path and tries again.
+    """
+
+    def __init__(self, db: Path) -> None:
+        self.path = db.with_name(db.name + ".lock")
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = _lock_holder(fd)
+                os.close(fd)
+                who = f"process {holder}" if holder else "another process"
+                raise PersistenceError(
+                    [
+                        Problem(
+                            str(db),
+                            f"in use by {who} (one run at a time per database); "
+                            "wait for it to finish or use another --db file",
+                        )
+                    ]
+                ) from None
+            except BaseException:
+                os.close(fd)
+                raise
+            if _same_file(fd, self.path):
+                break
+            os.close(fd)
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self.fd: int | None = fd
+
+    def release(self) -> None:
+        """Remove the lock file and unlock (idempotent)."""
+        if self.fd is None:
+            return
+        with contextlib.suppress(OSError):
+            if _same_file(self.fd, self.path):
+                self.path.unlink()
+        os.close(self.fd)
+        self.fd = None
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        a, b = os.fstat(fd), os.stat(path)
+    except OSError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
+
+
+def _lock_holder(fd: int) -> int | None:
+    """The PID in a held lock file (the holder writes it just after locking)."""
+    for _ in range(20):
+        os.lseek(fd, 0, os.SEEK_SET)
+        text = os.read(fd, 32).decode("ascii", "replace").strip()
+        if text.isdigit():
+            return int(text)
+        time.sleep(0.01)
+    return None
+
+
+# --- creation and checks -----------------------------------------------------------------------
+
+
+def create_database(path: Path, sig: Mapping[str, str]) -> None:
+    """Create the database at ``path`` whole, or not at all.
+
+    The schema and the meta rows are written into ``.<name>.creating`` beside it, which
+    is flushed to disk (``fsync``) and renamed onto ``path``, then the folder is flushed:
+    a process killed at any point leaves either no database (and a leftover temporary
+    file the next creation removes) or a complete one, never a header without a schema.
+    The caller holds the :class:`DatabaseLock`, so the temporary name is its own, and
+    journal files at ``path`` are stale leftovers of a deleted database (SQLite would
+    otherwise replay an old write-ahead log into the new file): they are removed.
+    """
+    tmp = path.with_name(f".{path.name}.creating")
+    for leftover in _sidecars(tmp):
+        leftover.unlink(missing_ok=True)
+    conn = sqlite3.connect(tmp, isolation_level=None)
+    try:
+        conn.execute("PRAGMA journal_mode=WAL")  # recorded in the file's header
+        conn.execute("PRAGMA synchronous=FULL")
+        conn.execute("BEGIN IMMEDIATE")
+        for stmt in _SCHEMA.strip().split(";"):
+            if stmt.strip():
+                conn.execute(stmt)
+        rows = {
+            "format": FORMAT,
+            "schema_version": str(SCHEMA_VERSION),
+            "tasks_done": "0",
+            **sig,
+        }
+        conn.executemany("INSERT INTO meta VALUES (?, ?)", rows.items())
+        write_digest(conn)
+        _creation_step("begun")
+        conn.execute("COMMIT")
+    finally:
+        conn.close()  # checkpoints the write-ahead log into the file and removes it
+    _creation_step("written")
+    fsync_path(tmp)
+    for stale in _sidecars(path)[1:]:
+        stale.unlink(missing_ok=True)
+    _creation_step("synced")
+    os.replace(tmp, path)
+    _creation_step("renamed")
+    fsync_path(path.parent)
+
+
+def _check_writable_format(path: Path) -> None:
+    """Refuse a file whose header SQLite would open read-only (its write version, byte
+    18, above 2: a damaged header), before a commit fails half-way through a run."""
+    with path.open("rb") as fh:
+        header = fh.read(20)
+    if len(header) == 20 and not (header[18] in (1, 2) and header[19] in (1, 2)):
+        raise PersistenceError(
+            [Problem(str(path), "is damaged: its SQLite header has unknown file-format versions")]
+        )
+
+
+def _sidecars(path: Path) -> list[Path]:
+    return [path, *(path.with_name(path.name + s) for s in ("-wal", "-shm", "-journal"))]
+
+
+def _creation_step(step: str) -> None:
+    """Between the steps of :func:`create_database` (``begun``, ``written``, ``synced``,
+    ``renamed``):
+    a seam for the tests that kill the process there; does nothing."""
+
+
+@functools.cache
+def _expected_columns() -> dict[str, list[tuple[str, str, int, int]]]:
+    """(name, type, not null, primary-key position) of every column, from :data:`_SCHEMA`."""
+    conn = sqlite3.connect(":memory:")
+    try:
+        conn.executescript(_SCHEMA)
+        return {t: _columns(conn, t) for t in _TABLES}
+    finally:
+        conn.close()
+
+
+_TABLES = ("meta", "vertices", "edges", "goal_links", "tasks")
+
+
+def _columns(conn: sqlite3.Connection, table: str) -> list[tuple[str, str, int, int]]:
+    return [
+        (str(r[1]), str(r[2]).upper(), int(r[3]), int(r[5]))
+        for r in conn.execute(f"PRAGMA table_info({table})")
+    ]
+
+
+def check_database(conn: sqlite3.Connection, where: str) -> None:
+    """Refuse a file that is damaged or not an experience database of this version.
+
+    Reads only. Checks, in order: ``PRAGMA integrity_check`` (SQLite's own structure),
+    the tables, their columns and declared types (a file of an older cellplan may lack
+    the columns of :data:`_ADDED_COLUMNS`, which opening adds), that there are no
+    triggers or views (cellplan creates none, and one could change what a write does),
+    the format and the schema version, and then every stored value
+    (:func:`check_contents`). Raises :class:`~cellplan.errors.PersistenceError`.
+    """
+
+    def fail(message: str) -> PersistenceError:
+        return PersistenceError([Problem(where, message)])
+
+    report = [str(r[0]) for r in conn.execute("PRAGMA integrity_check(5)")]
+    if report != ["ok"]:
+        found = " ".join(" ".join(report).replace("*** in database main ***", "").split())
+        raise fail(f"is damaged (SQLite integrity check: {found[:200]})")
+    objects = conn.execute("SELECT type, name FROM sqlite_master").fetchall()
+    tables = {str(n) for t, n in objects if t == "table"}
+    if "meta" not in tables:
+        raise fail("is an SQLite file but not a cellplan experience database (no meta table)")
+    if _columns(conn, "meta") != _expected_columns()["meta"]:
+        raise fail("is not a cellplan experience database (its meta table differs)")
+    meta = dict(conn.execute("SELECT key, value FROM meta").fetchall())
+    if meta.get("format") != FORMAT:
+        raise fail("is not a cellplan experience database")
+    if meta.get("schema_version") != str(SCHEMA_VERSION):
+        raise fail(
+            f"has schema version {str(meta.get('schema_version'))[:20]!r}; "
+            f"this cellplan reads {SCHEMA_VERSION}"
+        )
+    missing = [t for t in _TABLES if t not in tables]
+    if missing:
+        raise fail(f"is damaged: missing tables {missing}")
+    others = sorted(f"{t} {n}" for t, n in objects if t in ("trigger", "view"))
+    if others:
+        raise fail(f"is damaged: has {', '.join(others)[:120]}, which cellplan never creates")
+    for table, want in _expected_columns().items():
+        have = _columns(conn, table)
+        if table == "tasks" and len(have) < len(want):
+            # An older file: the added columns come last, and opening adds them.
+            want = want[: len(want) - len(_ADDED_COLUMNS)]
+            if have == want[: len(have)] and len(have) >= len(want):
+                continue
+        if have != want:
+            raise fail(f"is damaged: the columns of table {table} are not cellplan's")
+    stored = conn.execute("SELECT value FROM meta WHERE key = 'digest'").fetchone()
+    if stored is not None and stored[0] != content_digest(conn):
+        raise fail(
+            "is damaged: its contents do not match their checksum "
+            "(changed outside cellplan, or corrupted on disk)"
+        )
+    check_contents(conn, where)
+
+
+#: Primary-key order of each table, for the content digest.
+_ORDER = {
+    "meta": "key",
+    "vertices": "id",
+    "edges": "a, b",
+    "goal_links": "vertex, goal",
+    "tasks": "task",
+}
+
+
+def content_digest(conn: sqlite3.Connection) -> str:
+    """SHA-256 of every stored row (all tables, in key order), the meta ``digest`` aside.
+
+    Rows are hashed as SQLite returns them (``repr`` of each tuple: exact for floats,
+    and it tells text from blobs and integers from reals), so any change to a stored
+    value, a row or a column changes the digest.
+    """
+    h = hashlib.sha256()
+    for table in _TABLES:
+        h.update(f"\x00{table}\x00".encode())
+        for row in conn.execute(f"SELECT * FROM {table} ORDER BY {_ORDER[table]}"):
+            if table == "meta" and row[0] == "digest":
+                continue
+            h.update(repr(tuple(row)).encode())
+            h.update(b"\n")
+    return h.hexdigest()
+
+
+def write_digest(conn: sqlite3.Connection) -> None:
+    """Store :func:`content_digest` in meta (inside the caller's transaction)."""
+    conn.execute("INSERT OR REPLACE INTO meta VALUES ('digest', ?)", (content_digest(conn),))
+
+
+def check_contents(conn: sqlite3.Connection, where: str) -> None:
+    """Check every stored value's type and range, so that nothing read later can crash.
+
+    SQLite stores any type in any column, so a file edited by hand (or damaged where
+    the integrity check cannot see, inside a value) is read row by row: meta counters
+    are whole numbers, the run states are JSON objects of the right shape, vertex
+    coordinates are finite numbers, edges join stored vertices, task rows are numbered
+    from 1 and hold numbers where numbers belong.
+    """
+    problems: list[str] = []
+    meta = dict(conn.execute("SELECT key, value FROM meta").fetchall())
+    for key in ("robot_signature", "scenario_signature", "tasks_done"):
+        if not isinstance(meta.get(key), str):
+            problems.append(f"meta {key} is missing")
+    for key in ("tasks_done", "next_id"):
+        if key in meta and _whole(meta[key]) is None:
+            problems.append(f"meta {key} is not a whole number >= 0")
+    for key, check in (("state", _check_run_state), ("planner", _check_planner_state)):
+        if key in meta:
+            try:
+                value = json.loads(meta[key]) if isinstance(meta[key], str) else None
+            except (ValueError, RecursionError):
+                value = None
+            problem = "is not a JSON object" if not isinstance(value, dict) else check(value)
+            if problem:
+                problems.append(f"meta {key} {problem}")
+    ids: set[int] = set()
+    dims: set[int] = set()
+    for vid, obj, rx, ry, rphi, branch, q in conn.execute(
+        "SELECT id, object, rx, ry, rphi, branch, q FROM vertices"
+    ):
+        coords = _numbers(q)
+        if (
+            not isinstance(vid, int)
+            or vid < 0
+            or not (obj is None or isinstance(obj, str))
+            or not all(_finite(x) for x in (rx, ry, rphi))
+            or not (branch is None or (isinstance(branch, int) and branch in (-1, 0, 1)))
+            or not coords
+        ):
+            problems.append(f"vertex {str(vid)[:20]} holds values of the wrong type")
+            break
+        ids.add(vid)
+        dims.add(len(coords))
+    if len(dims) > 1:
+        problems.append("vertices have configurations of different lengths")
+    for a, b, status, gen in conn.execute("SELECT a, b, status, gen FROM edges"):
+        if a not in ids or b not in ids or status not in EDGE_STATUSES or _whole(gen) is None:
+            problems.append(f"edge ({str(a)[:20]}, {str(b)[:20]}) is not a valid edge of G")
+            break
+    for vertex, goal, ok, gen in conn.execute("SELECT vertex, goal, ok, gen FROM goal_links"):
+        if (
+            vertex not in ids
+            or not isinstance(goal, str)
+            or ok not in (0, 1)
+            or _whole(gen) is None
+        ):
+            problems.append(f"goal link ({str(vertex)[:20]}, {str(goal)[:20]}) is not valid")
+            break
+    cols = [
+        c
+        for c in ("task", *TASK_COLUMNS)
+        if c in {r[1] for r in conn.execute("PRAGMA table_info(tasks)")}
+    ]
+    rows = conn.execute(f"SELECT {', '.join(cols)} FROM tasks ORDER BY task").fetchall()
+    for i, values in enumerate(rows, start=1):
+        row = dict(zip(cols, values, strict=True))
+        bad = [
+            c
+            for c, v in row.items()
+            if not (
+                isinstance(v, str)
+                if c in _TEXT_COLUMNS
+                else (_whole(v) is not None if c in _INTEGER_TASK_COLUMNS else _finite(v))
+            )
+        ]
+        if row["task"] != i:
+            bad.insert(0, "task")
+        if bad:
+            problems.append(f"task row {i} has bad values in {', '.join(bad[:4])}")
+            break
+    if "state" not in meta and (rows or ("planner" not in meta and ids)):
+        problems.append("it holds tasks or G but no run state")
+    if "state" in meta and not problems:
+        done = json.loads(meta["state"])["tasks_done"]
+        if done != len(rows):
+            problems.append(f"the run state has {done} tasks done but the tasks table {len(rows)}")
+    if problems:
+        raise PersistenceError([Problem(where, f"is damaged: {problems[0]}")])
+
+
+_RUN_STATE = {
+    "tasks_done": "whole",
+    "generation": "whole",
+    "u": "numbers",
+    "u_hat": "whole",
+    "link_gen": "whole",
+    "repaired_gen": "whole",
+    "current_goal": "name",
+    "solve_calls": "whole",
+    "u_base": "numbers",
+    "repair": "text",
+    "seed": "int",
+}
+_PLANNER_STATE = {
+    **{k: v for k, v in _RUN_STATE.items() if k not in ("u_base", "repair", "seed")},
+    "resolution": "positive",
+    "counts": "counts",
+    "objects": "objects",
+    "goals": "goals",
+}
+
+
+def _check_run_state(state: dict[str, Any]) -> str:
+    return _check_fields(state, _RUN_STATE)
+
+
+def _check_planner_state(state: dict[str, Any]) -> str:
+    return _check_fields(state, _PLANNER_STATE)
+
+
+def _check_fields(state: dict[str, Any], kinds: Mapping[str, str]) -> str:
+    for key, kind in kinds.items():
+        if key not in state:
+            return f"lacks {key}"
+        if not _KINDS[kind](state[key]):
+            return f"has a bad {key}"
+    return ""
+
+
+def _is_objects(value: Any) -> bool:
+    if not isinstance(value, dict):
+        return False
+    for obj in value.values():
+        if not (isinstance(obj, dict) and _numbers(obj.get("pose")) and len(obj["pose"]) == 3):
+            return False
+        shape = obj.get("shape")
+        if not isinstance(shape, dict) or not all(
+            isinstance(shape.get(k), list) for k in ("verts", "counts", "centres", "radii")
+        ):
+            return False
+        try:
+            s = shape_from_json(shape)
+        except (ValueError, TypeError, OverflowError):
+            return False
+        if not (
+            s.verts.ndim == 3
+            and s.verts.shape[0] == len(s.counts)
+            and s.verts.shape[2] == 2
+            and np.isfinite(s.verts).all()
+            and np.isfinite(s.centres).all()
+            and np.isfinite(s.radii).all()
+            and len(s.centres) == len(s.radii)
+            and (s.radii >= 0).all()
+            and ((s.counts >= 1) & (s.counts <= s.verts.shape[1])).all()
+        ):
+            return False
+    return True
+
+
+def _is_goals(value: Any) -> bool:
+    return isinstance(value, dict) and all(
+        isinstance(g, list)
+        and len(g) == 3
+        and (g[0] is None or isinstance(g[0], str))
+        and _numbers(g[1])
+        and len(g[1]) == 3
+        and (g[2] is None or g[2] in (-1, 0, 1))
+        for g in value.values()
+    )
+
+
+_KINDS: dict[str, Callable[[Any], bool]] = {
+    "whole": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+    "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "numbers": lambda v: bool(_numbers(v)),
+    "name": lambda v: v is None or isinstance(v, str),
+    "text": lambda v: isinstance(v, str),
+    "positive": lambda v: _finite(v) and v > 0,
+    "counts": lambda v: (
+        isinstance(v, dict)
+        and all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in v.values())
+    ),
+    "objects": _is_objects,
+    "goals": _is_goals,
+}
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _whole(value: Any) -> int | None:
+    """``value`` as a whole number >= 0 (an int, a float like 3.0, or its text), else None."""
+    if isinstance(value, str):
+        value = value.strip()
+        if not value.isdigit() or len(value) > 18:
+            return None
+        return int(value)
+    if _finite(value) and float(value).is_integer() and 0 <= value < 2**53:
+        return int(value)
+    return None
+
+
+def _numbers(value: Any) -> list[float] | None:
+    """A non-empty list of finite numbers (or its JSON text), else None."""
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except (ValueError, RecursionError):
+            return None
+    if not isinstance(value, list) or not value or len(value) > 64:
+        return None
+    if not all(_finite(x) for x in value):
+        return None
+    return [float(x) for x in value]
+
+
 class ExperienceStore:
-    """An open experience database.
+    """An open experience database, locked for this process until :meth:`close`.
 
     ``problem`` is the scenario the database belongs to, or the signatures to key it on
     (:func:`signatures`, :func:`workcell_signatures`).
+
+    Opening takes the writer lock (:class:`DatabaseLock`), creates a missing database
+    whole (:func:`create_database`), and checks an existing one before anything is
+    written to it: ``PRAGMA integrity_check``, the tables and columns, the format and
+    schema version, the signatures and every stored value (:func:`check_contents`).
+    Any failure raises :class:`~cellplan.errors.PersistenceError` with one line.
     """
 
     def __init__(self, path: str | Path, problem: Scenario | Mapping[str, str]) -> None:
         self.path = Path(path)
+        self.conn: sqlite3.Connection | None = None
+        self._lock: DatabaseLock | None = None
         self._sig = dict(problem) if isinstance(problem, Mapping) else signatures(problem)
-        fresh = not self.path.exists() or self.path.stat().st_size == 0
-        if self.path.is_dir():
-            raise PersistenceError([Problem(str(self.path), "is a folder, not a database file")])
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        where = str(self.path)
         try:
+            if self.path.is_dir():
+                raise PersistenceError([Problem(where, "is a folder, not a database file")])
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._lock = DatabaseLock(self.path)
+            if not self._holds_schema():
+                create_database(self.path, self._sig)
             self.conn = sqlite3.connect(self.path, isolation_level=None)
-            if not fresh:
-                self._check_foreign()
+            check_database(self.conn, where)
+            _check_writable_format(self.path)
+            self._check_signature()
+            # Only now, with the file known to be ours and whole, is anything written.
             self.conn.execute("PRAGMA journal_mode=WAL")
             self.conn.execute("PRAGMA synchronous=FULL")
-            if fresh:
-                self._create()
-            else:
-                self._check_signature()
-                self._add_columns()
+            self._add_columns()
         except sqlite3.DatabaseError as exc:
             self.close()
             raise PersistenceError(
-                [Problem(str(self.path), f"not a readable experience database ({exc})")]
+                [Problem(where, f"not a readable experience database ({exc})")]
             ) from None
+        except UnicodeDecodeError:  # damaged text, in a value or in SQLite's own messages
+            self.close()
+            raise PersistenceError(
+                [Problem(where, "not a readable experience database (text that is not UTF-8)")]
+            ) from None
+        except OSError as exc:
+            self.close()
+            raise PersistenceError(
+                [Problem(where, f"cannot open the database ({exc.strerror or exc})")]
+            ) from None
+        except BaseException:
+            self.close()
+            raise
 
     # --- opening ---------------------------------------------------------------------------
 
-    def _create(self) -> None:
-        with self.transaction():
-            for stmt in _SCHEMA.strip().split(";"):
-                if stmt.strip():
-                    self.conn.execute(stmt)
-            rows = {
-                "format": FORMAT,
-                "schema_version": str(SCHEMA_VERSION),
-                "tasks_done": "0",
-                **self._sig,
-            }
-            self.conn.executemany("INSERT INTO meta VALUES (?, ?)", rows.items())
+    def _holds_schema(self) -> bool:
+        """Whether the file exists and has a schema: a missing or empty file, or a whole
+        SQLite page 1 with no tables at all (what an older cellplan killed during creation
+        left), holds nothing and is created afresh. Anything else is checked (and a file
+        cut short, or not SQLite, refused) by :func:`check_database`."""
+        if not self.path.exists() or self.path.stat().st_size == 0:
+            return False
+        with self.path.open("rb") as fh:
+            header = fh.read(100)
+        page = int.from_bytes(header[16:18], "big") if len(header) == 100 else 0
+        page = 65536 if page == 1 else page
+        if not header.startswith(b"SQLite format 3\0") or self.path.stat().st_size < max(page, 512):
+            return True  # not an SQLite file, or cut short in its first page: refused later
+        conn = sqlite3.connect(self.path, isolation_level=None)
+        try:
+            return conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0] > 0
+        finally:
+            conn.close()
 
     def _add_columns(self) -> None:
-        have = {r[1] for r in self.conn.execute("PRAGMA table_info(tasks)")}
+        conn = self._conn()
+        have = {r[1] for r in conn.execute("PRAGMA table_info(tasks)")}
         missing = [c for c in _ADDED_COLUMNS if c not in have]
         if missing:
             with self.transaction():
                 for c in missing:
-                    self.conn.execute(f"ALTER TABLE tasks ADD COLUMN {c} {_ADDED_COLUMNS[c]}")
-
-    def _check_foreign(self) -> None:
-        tables = {
-            r[0] for r in self.conn.execute("SELECT name FROM sqlite_master WHERE type='table'")
-        }
-        if "meta" not in tables:
-            raise PersistenceError(
-                [
-                    Problem(
-                        str(self.path),
-                        "is an SQLite file but not a cellplan experience database (no meta table)",
-                    )
-                ]
-            )
-        meta = self.meta()
-        if meta.get("format") != FORMAT:
-            raise PersistenceError(
-                [Problem(str(self.path), "is not a cellplan experience database")]
-            )
-        if meta.get("schema_version") != str(SCHEMA_VERSION):
-            raise PersistenceError(
-                [
-                    Problem(
-                        str(self.path),
-                        f"has schema version {meta.get('schema_version')}; "
-                        f"this cellplan reads {SCHEMA_VERSION}",
-                    )
-                ]
-            )
-        missing = {"vertices", "edges", "goal_links", "tasks"} - tables
-        if missing:
-            raise PersistenceError(
-                [Problem(str(self.path), f"is damaged: missing tables {sorted(missing)}")]
-            )
+                    conn.execute(f"ALTER TABLE tasks ADD COLUMN {c} {_ADDED_COLUMNS[c]}")
 
     def _check_signature(self) -> None:
         meta = self.meta()
@@ -282,12 +764,21 @@ class ExperienceStore:
                 ]
             )
 
+    def _conn(self) -> sqlite3.Connection:
+        if self.conn is None:
+            raise PersistenceError([Problem(str(self.path), "the database is closed")])
+        return self.conn
+
     def close(self) -> None:
-        """Close the connection (idempotent)."""
+        """Close the connection and release the lock (idempotent)."""
         conn = getattr(self, "conn", None)
         if conn is not None:
             conn.close()
-            self.conn = None  # type: ignore[assignment]
+            self.conn = None
+        lock = getattr(self, "_lock", None)
+        if lock is not None:
+            lock.release()
+            self._lock = None
 
     def __enter__(self) -> ExperienceStore:
         return self
@@ -306,17 +797,28 @@ class ExperienceStore:
             return self.conn
 
         def __exit__(self, exc_type: object, *rest: object) -> None:
-            self.conn.execute("ROLLBACK" if exc_type is not None else "COMMIT")
+            if exc_type is None:
+                try:
+                    self.conn.execute("COMMIT")
+                    return
+                except sqlite3.Error:
+                    self._rollback()
+                    raise
+            self._rollback()
+
+        def _rollback(self) -> None:
+            if self.conn.in_transaction:
+                self.conn.execute("ROLLBACK")
 
     def transaction(self) -> ExperienceStore._Tx:
         """``with store.transaction():`` - all or nothing."""
-        return ExperienceStore._Tx(self.conn)
+        return ExperienceStore._Tx(self._conn())
 
     # --- reading ---------------------------------------------------------------------------
 
     def meta(self) -> dict[str, str]:
         """The meta table as raw strings."""
-        return dict(self.conn.execute("SELECT key, value FROM meta").fetchall())
+        return dict(self._conn().execute("SELECT key, value FROM meta").fetchall())
 
     def state(self) -> dict[str, Any] | None:
         """The saved run state (JSON values), or ``None`` for a database with no task yet."""
@@ -333,11 +835,11 @@ class ExperienceStore:
     def load_graph(self) -> ExperienceGraph:
         """The saved experience graph."""
         g = ExperienceGraph()
-        for vid, obj, rx, ry, rphi, branch, q in self.conn.execute(
+        for vid, obj, rx, ry, rphi, branch, q in self._conn().execute(
             "SELECT id, object, rx, ry, rphi, branch, q FROM vertices ORDER BY id"
         ):
             g.add_vertex(np.array(json.loads(q), float), obj, (rx, ry, rphi), branch, vid=vid)
-        for a, b, status, gen in self.conn.execute(
+        for a, b, status, gen in self._conn().execute(
             "SELECT a, b, status, gen FROM edges ORDER BY a, b"
         ):
             g.set_edge(a, b, status, gen)
@@ -346,9 +848,21 @@ class ExperienceStore:
             g.next_id = max(g.next_id, int(next_id))
         return g
 
+    def check_state(self, graph: ExperienceGraph, state: Mapping[str, Any], dim: int) -> None:
+        """Refuse a saved state that does not fit the robot (``dim`` joints) or G."""
+        sizes = {len(v.q) for v in graph.vertices.values()} | {len(state["u"])}
+        if "u_base" in state:
+            sizes.add(len(state["u_base"]))
+        if sizes != {dim}:
+            raise PersistenceError(
+                [Problem(str(self.path), f"is damaged: configurations are not {dim} numbers long")]
+            )
+        if state["u_hat"] not in graph.vertices:
+            raise PersistenceError([Problem(str(self.path), "is damaged: û is not a vertex")])
+
     def load_links(self) -> tuple[dict[tuple[int, str], bool], int | None]:
         """Remembered Reach(vertex, goal) answers and their generation."""
-        rows = self.conn.execute("SELECT vertex, goal, ok, gen FROM goal_links").fetchall()
+        rows = self._conn().execute("SELECT vertex, goal, ok, gen FROM goal_links").fetchall()
         gens = {r[3] for r in rows}
         return {(int(v), str(g)): bool(ok) for v, g, ok, _ in rows}, (
             gens.pop() if len(gens) == 1 else None
@@ -357,8 +871,13 @@ class ExperienceStore:
     def task_rows(self) -> list[dict[str, Any]]:
         """Every saved task row, in order."""
         cols = ("task", *TASK_COLUMNS)
-        rows = self.conn.execute(f"SELECT {', '.join(cols)} FROM tasks ORDER BY task").fetchall()
-        return [dict(zip(cols, r, strict=True)) for r in rows]
+        rows = self._conn().execute(f"SELECT {', '.join(cols)} FROM tasks ORDER BY task")
+        # REAL columns hand back 1.0 for the 1 a run wrote: give every value the type a
+        # fresh run's row has, so a continued run's CSV reads like an uninterrupted one's.
+        return [
+            {c: int(v) if c in _INTEGER_TASK_COLUMNS else v for c, v in zip(cols, r, strict=True)}
+            for r in rows
+        ]
 
     # --- writing ---------------------------------------------------------------------------
 
@@ -370,7 +889,27 @@ class ExperienceStore:
         links: Mapping[tuple[int, str], bool] | None = None,
         key: str = "state",
     ) -> None:
-        """Write G, the run state (meta ``key``) and one task row in a single transaction."""
+        """Write G, the run state (meta ``key``) and one task row in a single transaction.
+
+        A write the file system refuses (disk full, a read-only file) raises
+        :class:`~cellplan.errors.PersistenceError`; the transaction is rolled back, so
+        the database keeps the previous task.
+        """
+        try:
+            self._commit_task(graph, state, row, links, key)
+        except sqlite3.OperationalError as exc:
+            raise PersistenceError(
+                [Problem(str(self.path), f"cannot write the database ({exc})")]
+            ) from None
+
+    def _commit_task(
+        self,
+        graph: ExperienceGraph,
+        state: Mapping[str, Any],
+        row: Mapping[str, Any] | None,
+        links: Mapping[tuple[int, str], bool] | None,
+        key: str,
+    ) -> None:
         with self.transaction() as c:
             c.execute("DELETE FROM vertices")
             c.execute("DELETE FROM edges")
@@ -418,6 +957,7 @@ class ExperienceStore:
                     f"VALUES ({', '.join('?' * len(cols))})",
                     [row.get(k) for k in cols],
                 )
+            write_digest(c)
 
 
 def export_graphml(graph: ExperienceGraph, path: str | Path) -> Path:
