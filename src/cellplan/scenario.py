@@ -26,6 +26,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import re
 import types
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -43,6 +44,7 @@ from pydantic import (
 
 from cellplan.errors import Problem, ScenarioError
 from cellplan.schema import (
+    NAME_PATTERN,
     Bounds,
     Cells,
     Coord,
@@ -57,6 +59,7 @@ from cellplan.schema import (
 # (ScenarioBase plus the registered sections), so its documentation is ScenarioBase's.
 __all__ = [
     "MAX_FILE_BYTES",
+    "MAX_YAML_NODES",
     "SCHEMA_ID",
     "SCHEMA_VERSION",
     "ArmRobotSpec",
@@ -307,8 +310,25 @@ else:
 # --- loading ---------------------------------------------------------------------------------
 
 
+MAX_YAML_NODES = 1_000_000
+"""Most YAML values (scalars, lists, mappings, aliases) a scenario file may hold, and most
+values its aliases may expand to: a bound on the work of validating any file."""
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """SafeLoader that rejects duplicate mapping keys instead of keeping the last one."""
+    """SafeLoader that rejects duplicate mapping keys instead of keeping the last one, and
+    stops composing after :data:`MAX_YAML_NODES` values."""
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node | None:
+        self._nodes = getattr(self, "_nodes", 0) + 1
+        if self._nodes > MAX_YAML_NODES:
+            raise yaml.composer.ComposerError(
+                None,
+                None,
+                f"more than {MAX_YAML_NODES:,} values; a scenario holds far fewer",
+                self.peek_event().start_mark,
+            )
+        return super().compose_node(parent, index)  # type: ignore[no-any-return]
 
 
 def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
@@ -338,15 +358,64 @@ _UniqueKeyLoader.add_constructor(
 def parse_yaml(text: str, source: str = "<string>") -> Any:
     """Parse YAML safely; syntax errors become a :class:`ScenarioError` with line and column."""
     try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)
+        data = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
-        raise ScenarioError([Problem(where, f"YAML syntax: {exc.problem or exc}")]) from None
+        raise ScenarioError(
+            [Problem(where, f"YAML syntax: {_one_line(exc.problem or exc)}")]
+        ) from None
+    except yaml.reader.ReaderError as exc:
+        line = text.count("\n", 0, exc.position) + 1
+        column = exc.position - (text.rfind("\n", 0, exc.position) + 1) + 1
+        raise ScenarioError(
+            [
+                Problem(
+                    f"{source}:{line}:{column}",
+                    f"YAML syntax: character {exc.character!r} is not allowed in YAML text",
+                )
+            ]
+        ) from None
     except yaml.YAMLError as exc:
-        raise ScenarioError([Problem(source, f"YAML syntax: {exc}")]) from None
+        raise ScenarioError([Problem(source, f"YAML syntax: {_one_line(exc)}")]) from None
     except RecursionError:
         raise ScenarioError([Problem(source, "YAML nested too deeply")]) from None
+    if _expanded_size(data, {}) > MAX_YAML_NODES:
+        # Aliases share one parsed node, but validation walks every use of it.
+        raise ScenarioError(
+            [
+                Problem(
+                    source,
+                    f"its aliases (*name) expand to more than {MAX_YAML_NODES:,} values",
+                )
+            ]
+        )
+    return data
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
+
+
+def _expanded_size(node: Any, memo: dict[int, int]) -> int:
+    """Values in ``node`` with every alias expanded (shared nodes counted once per use).
+
+    Capped just above :data:`MAX_YAML_NODES`, and recursive structures (which the safe
+    loader refuses) would be counted as their first visit.
+    """
+    if not isinstance(node, dict | list):
+        return 1
+    key = id(node)
+    if key in memo:
+        return memo[key]
+    memo[key] = 1  # a back-reference while counting (recursive data) counts as one
+    total = 1
+    for child in node.values() if isinstance(node, dict) else node:
+        total += _expanded_size(child, memo)
+        if total > MAX_YAML_NODES:
+            break
+    memo[key] = total
+    return total
 
 
 def format_location(loc: Iterable[Any], data: Any) -> str:
@@ -358,8 +427,10 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
     parts: list[str] = []
     node = data
     for item in loc:
+        if item == "[key]":
+            continue  # the key itself is wrong; the path already ends with it
         if isinstance(node, dict) and item in node:
-            parts.append(str(item))
+            parts.append(_key_text(item))
             node = node[item]
         elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
             parts.append(f"[{item}]")
@@ -369,17 +440,28 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
             if isinstance(item, str) and not _is_union_tag(item, node):
                 parts.append(item)
                 node = None
-        else:
+        elif not (isinstance(item, str) and _is_union_tag(item, node)):
             parts.append(str(item))
     return ".".join(parts).replace(".[", "[")
 
 
+def _key_text(key: Any) -> str:
+    """A mapping key as a path segment: as written when it is a plain name, quoted
+    (``['a b']``) otherwise, so the path stays one readable token."""
+    text = str(key)
+    return text if re.fullmatch(r"[A-Za-z0-9_.\-]+", text) else f"[{text!r}]"
+
+
 def _is_union_tag(item: str, node: Any) -> bool:
-    return (isinstance(node, dict) and node.get("type") == item) or item in {
-        "function-after",
-        "function-before",
-        "tagged-union",
-    }
+    """Whether a location item names a union member rather than a key: a shape's ``type``,
+    a validator wrapper, a member type (``list[RequestSpec]``, ``literal['all']``) or a
+    model class (``RandomTasks``; every field name is lower case)."""
+    return (
+        (isinstance(node, dict) and node.get("type") == item)
+        or item in {"function-after", "function-before", "tagged-union"}
+        or "[" in item
+        or (item[:1].isupper() and item.isidentifier())
+    )
 
 
 def problems_from_validation(
@@ -428,6 +510,8 @@ def _message(err: Any, data: Any, root: type[BaseModel]) -> str:
         if model is not None:
             return f"expected a mapping with {', '.join(model.model_fields)}{_got(err)}"
         return f"expected a mapping{_got(err)}"
+    if kind == "string_pattern_mismatch" and err.get("ctx", {}).get("pattern") == NAME_PATTERN:
+        return f"a name may hold only letters, digits, '_', '.' and '-'{_got(err)}"
     if kind == "union_tag_invalid":
         ctx = err.get("ctx", {})
         return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"

@@ -22,10 +22,12 @@ from pydantic import BaseModel
 from cellplan.assembly.layout import DEFAULT_FILL
 from cellplan.assembly.options import GradientOptions, SequentialOptions
 from cellplan.assembly.section import GeneratorSpec
-from cellplan.cliutil import JsonOpt
+from cellplan.cliutil import JsonOpt, check_output
 from cellplan.errors import ArgumentError, Problem
 
 ALGORITHMS = ("gradient", "sequential", "control")
+MAX_FRAMES = 10_000
+"""Most GIF frames ``--frames`` asks for (each is a drawn picture)."""
 
 
 def _default(model: type[BaseModel], field: str) -> Any:
@@ -130,8 +132,12 @@ def register(app: typer.Typer) -> None:
             problems.append(
                 Problem("--algorithm", f"unknown {algorithm!r}; use {', '.join(ALGORITHMS)}")
             )
-        if frames < 2:
-            problems.append(Problem("--frames", f"must be at least 2, got {frames}"))
+        if not 2 <= frames <= MAX_FRAMES:
+            problems.append(Problem("--frames", f"must be in [2, {MAX_FRAMES}], got {frames}"))
+        try:
+            check_output(output, "--output", folder=True)
+        except ArgumentError as exc:
+            problems.extend(exc.problems)
         options: dict[str, Any] = {
             key: value
             for key, value in (

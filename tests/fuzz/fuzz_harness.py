@@ -1,0 +1,157 @@
+"""Run the ``cellplan`` command line in-process for the fuzzing tests, and check its output.
+
+:func:`run_cli` calls :func:`cellplan.cli.main` exactly as the console script does (the
+same exit-status mapping, including the top-level catch that turns a bug into exit 70),
+with stdout and stderr captured and a time limit per call. :func:`bad_lines` is the
+check every exit-2 answer must pass: each stderr line is one problem that names a field,
+an option or a file.
+"""
+
+from __future__ import annotations
+
+import ast
+import contextlib
+import io
+import os
+import re
+import signal
+import sys
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+
+from cellplan.cli import main
+
+#: Seconds one in-process command may take before the fuzzer calls it a hang.
+HANG_SECONDS = float(os.environ.get("CELLPLAN_FUZZ_HANG_SECONDS", "60"))
+
+
+class Hang(BaseException):
+    """Raised in the test when a command overran :data:`HANG_SECONDS` (a BaseException, so
+    the command's own ``except Exception`` cannot swallow it)."""
+
+
+@dataclass
+class Outcome:
+    """Exit status and captured output of one in-process command."""
+
+    args: tuple[str, ...]
+    code: int
+    stdout: str
+    stderr: str
+
+    def describe(self) -> str:
+        return f"cellplan {' '.join(self.args)} -> exit {self.code}\nstderr:\n{self.stderr[:3000]}"
+
+
+@contextlib.contextmanager
+def _time_limit(seconds: float) -> Iterator[None]:
+    if seconds <= 0 or not hasattr(signal, "SIGALRM"):
+        yield
+        return
+
+    def on_alarm(signum: int, frame: object) -> None:
+        raise Hang(f"over {seconds:g} s")
+
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def run_cli(args: Sequence[str], timeout: float = HANG_SECONDS) -> Outcome:
+    """Run ``cellplan *args`` in this process; an exception escaping ``main`` propagates."""
+    saved = sys.argv
+    sys.argv = ["cellplan", *args]
+    out, err = io.StringIO(), io.StringIO()
+    code = 0
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            with _time_limit(timeout):
+                try:
+                    main()
+                except SystemExit as exc:
+                    code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    finally:
+        sys.argv = saved
+    return Outcome(tuple(args), code, out.getvalue(), err.getvalue())
+
+
+# A field path: dotted keys and [index] parts, with keys that are not plain names quoted
+# (``sources.S1.components[0].min``, ``workcell.obstacles['a b']``).
+_PLAIN = r"[A-Za-z0-9_.\-]+"
+_QUOTED = r"\[(?:'(?:[^'\\]|\\.)*'|\"(?:[^\"\\]|\\.)*\")\]"
+FIELD_RE = re.compile(rf"(?P<root>{_PLAIN}|{_QUOTED})(?:\.{_PLAIN}|\[\d+\]|{_QUOTED})*")
+# a long option, a short one (click reads "-9..." as one), an argument, the program
+OPTION_RE = re.compile(r"--[a-z][a-z0-9\-]*|-[a-z0-9]|[A-Z][A-Z_]*|cellplan")
+MORE_RE = re.compile(r"error: \d+ more problems? not shown")
+
+
+def _root_key(root: str) -> str:
+    """The first key of a field path, unquoted (``['a b']`` -> ``a b``, ``a.b`` -> ``a``)."""
+    if root.startswith("["):
+        return str(ast.literal_eval(root[1:-1]))
+    return root.split(".")[0]
+
+
+def bad_lines(
+    stderr: str,
+    files: Sequence[str] = (),
+    roots: Iterable[str] | None = None,
+    options: bool = False,
+) -> list[str]:
+    """The stderr lines that are not one problem naming a field, option or file.
+
+    A good line is ``error: WHERE: message`` with a message, where WHERE is a file named
+    in ``files`` (optionally with ``:line:col``); or a field path whose first key is one
+    of ``roots`` (the file's top-level keys and the schema's, when given); or, with
+    ``options``, a command-line option (``--radius``) or argument (``SCENARIO``). The
+    last line may say how many more problems were left out. Tracebacks, pydantic dumps,
+    blank answers and lines without a place are bad.
+    """
+    lines = stderr.splitlines()
+    if not lines:
+        return ["(no error line at all)"]
+    allowed_roots = None if roots is None else set(roots)
+    bad = []
+    file_re = re.compile("|".join(rf"{re.escape(f)}(?::\d+:\d+)?" for f in files) or "(?!)")
+    for i, line in enumerate(lines):
+        if i == len(lines) - 1 and i > 0 and MORE_RE.fullmatch(line):
+            continue
+        if not line.startswith("error: "):
+            bad.append(line)
+            continue
+        rest = line[len("error: ") :]
+        ok = False
+        for where_re in (file_re, OPTION_RE if options else None, FIELD_RE):
+            if where_re is None:
+                continue
+            for m in where_re.finditer(rest):
+                if m.start() != 0:
+                    break
+                tail = rest[m.end() :]
+                if not (tail.startswith(": ") and tail[2:].strip()):
+                    continue
+                if where_re is FIELD_RE and allowed_roots is not None:
+                    if _root_key(m.group("root")) not in allowed_roots:
+                        continue
+                ok = True
+                break
+            if ok:
+                break
+        if not ok:
+            bad.append(line)
+    return bad
+
+
+def record(kind: str, name: str, cases: int) -> None:
+    """Append how many cases a fuzz test tried to ``$CELLPLAN_FUZZ_COUNTS`` (JSON lines),
+    when set: the figures docs/reliability.md reports."""
+    target = os.environ.get("CELLPLAN_FUZZ_COUNTS")
+    if target:
+        import json
+
+        with open(target, "a", encoding="utf-8") as f:
+            f.write(json.dumps({"kind": kind, "name": name, "cases": cases}) + "\n")
