@@ -328,7 +328,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                 f"more than {MAX_YAML_NODES:,} values; a scenario holds far fewer",
                 self.peek_event().start_mark,
             )
-        return super().compose_node(parent, index)  # type: ignore[no-any-return]
+        return super().compose_node(parent, index)
 
 
 def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
@@ -430,7 +430,10 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
         if item == "[key]":
             continue  # the key itself is wrong; the path already ends with it
         if isinstance(node, dict) and item in node:
-            parts.append(_key_text(item))
+            # pydantic reports a key true as 1 (equal in Python): name the key as written
+            same = [k for k in node if k == item]
+            written = next((k for k in same if type(k) is type(item)), same[0])
+            parts.append(_key_text(written))
             node = node[item]
         elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
             parts.append(f"[{item}]")
@@ -494,6 +497,7 @@ _EXPECTED = {
     "bool_parsing": "expected true or false",
     "finite_number": "expected a finite number",
     "missing": "missing (required)",
+    "invalid_key": "a key must be text",
 }
 
 
