@@ -429,12 +429,12 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
     for item in loc:
         if item == "[key]":
             continue  # the key itself is wrong; the path already ends with it
-        if isinstance(node, dict) and item in node:
-            # pydantic reports a key true as 1 (equal in Python): name the key as written
-            same = [k for k in node if k == item]
+        same = _keys_matching(node, item) if isinstance(node, dict) else []
+        if same:
+            # pydantic reports a key true as 1 and a key null as 'None': name it as written
             written = next((k for k in same if type(k) is type(item)), same[0])
             parts.append(_key_text(written))
-            node = node[item]
+            node = node[written]
         elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
             parts.append(f"[{item}]")
             node = node[item]
@@ -448,10 +448,21 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
     return ".".join(parts).replace(".[", "[")
 
 
+def _keys_matching(node: dict[Any, Any], item: Any) -> list[Any]:
+    """The keys of ``node`` that a location item stands for (``'None'`` for a null key)."""
+    same = [k for k in node if k == item]
+    return same or [k for k in node if not isinstance(k, str) and str(k) == item]
+
+
 def _key_text(key: Any) -> str:
-    """A mapping key as a path segment: as written when it is a plain name, quoted
-    (``['a b']``) otherwise, so the path stays one readable token."""
-    text = str(key)
+    """A mapping key as a path segment: as written when it is a plain name (``null``,
+    ``true`` for YAML's), quoted (``['a b']``) otherwise, so the path stays one token."""
+    if key is None:
+        text = "null"
+    elif isinstance(key, bool):
+        text = "true" if key else "false"
+    else:
+        text = str(key)
     return text if re.fullmatch(r"[A-Za-z0-9_.\-]+", text) else f"[{text!r}]"
 
 
@@ -481,7 +492,7 @@ def problems_from_validation(
     for err in exc.errors(include_url=False):
         field = format_location(err["loc"], data)
         problems.append(Problem(field, _message(err, data, root)))
-    return problems
+    return list(dict.fromkeys(problems))  # both members of a union may say the same
 
 
 _EXPECTED = {

@@ -16,7 +16,7 @@ import os
 import re
 import signal
 import sys
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 from cellplan.cli import main
@@ -146,7 +146,7 @@ def bad_lines(
     return bad
 
 
-def record(kind: str, name: str, cases: int) -> None:
+def record(kind: str, name: str, cases: int, failures: int = 0) -> None:
     """Append how many cases a fuzz test tried to ``$CELLPLAN_FUZZ_COUNTS`` (JSON lines),
     when set: the figures docs/reliability.md reports."""
     target = os.environ.get("CELLPLAN_FUZZ_COUNTS")
@@ -154,4 +154,36 @@ def record(kind: str, name: str, cases: int) -> None:
         import json
 
         with open(target, "a", encoding="utf-8") as f:
-            f.write(json.dumps({"kind": kind, "name": name, "cases": cases}) + "\n")
+            row = {"kind": kind, "name": name, "cases": cases, "failures": failures}
+            f.write(json.dumps(row) + "\n")
+
+
+class FailureLog:
+    """The slow runs' way of failing: every failing case is written down and the run goes
+    on, so one run gives both the number of cases tried and the number of failures; the
+    test fails at the end if there was any. Cases go to ``$CELLPLAN_FUZZ_FAILURES`` (a
+    folder) when set."""
+
+    def __init__(self, kind: str, name: str) -> None:
+        self.kind, self.name, self.tried, self.failed = kind, name, 0, []
+
+    def check(self, case: Callable[[], None], content: bytes | str = b"") -> None:
+        self.tried += 1
+        try:
+            case()
+        except (AssertionError, Hang) as exc:
+            self.failed.append(f"{type(exc).__name__}: {str(exc)[:2000]}")
+            folder = os.environ.get("CELLPLAN_FUZZ_FAILURES")
+            if folder:
+                stem = f"{folder}/{self.kind}-{self.name.replace(' ', '_')}-{len(self.failed)}"
+                with open(stem + ".txt", "w", encoding="utf-8") as f:
+                    f.write(self.failed[-1])
+                data = content.encode() if isinstance(content, str) else content
+                with open(stem + ".case", "wb") as f:
+                    f.write(data)
+
+    def finish(self) -> None:
+        record(self.kind, self.name, self.tried, len(self.failed))
+        assert not self.failed, (
+            f"{len(self.failed)} of {self.tried} failed; first: {self.failed[0]}"
+        )

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from fuzz_harness import bad_lines, record, run_cli
+from fuzz_harness import FailureLog, bad_lines, run_cli
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
@@ -268,14 +268,12 @@ def test_options(name: str, table: dict, tmp_path: Path) -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", COMMANDS)
 def test_options_thousands(name: str, table: dict, tmp_path: Path) -> None:
-    tried = 0
+    log = FailureLog("options", name)
 
     @option_settings(SLOW_EXAMPLES)
     @given(case=option_case(table, name))
     def check(case: tuple[list[str], str]) -> None:
-        nonlocal tried
-        tried += 1
-        check_case(*case, tmp_path)
+        log.check(lambda: check_case(*case, tmp_path), "\0".join(case[0]))
 
     check()
-    record("options", name, tried)
+    log.finish()

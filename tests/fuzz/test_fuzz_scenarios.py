@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from fuzz_harness import Outcome, bad_lines, record, run_cli
+from fuzz_harness import FailureLog, Outcome, bad_lines, run_cli
 from fuzz_mutations import SCENARIOS, mutated_scenario
 from hypothesis import HealthCheck, Phase, given, settings
 
@@ -47,7 +47,10 @@ def top_keys(content: bytes) -> set[str]:
         data = yaml.safe_load(content)
     except (yaml.YAMLError, RecursionError, ValueError):
         return keys
-    return keys | ({str(k) for k in data} if isinstance(data, dict) else set())
+    if not isinstance(data, dict):
+        return keys
+    yaml_words = {None: "null", True: "true", False: "false"}
+    return keys | {yaml_words[k] if k is None or isinstance(k, bool) else str(k) for k in data}
 
 
 def check_answer(r: Outcome, path: Path, content: bytes) -> None:
@@ -99,30 +102,26 @@ def test_show_mutated_scenarios(name: str, work: Path) -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_validate_mutated_scenarios_thousands(name: str, work: Path) -> None:
-    tried = 0
+    log = FailureLog("scenario", name)
 
     @fuzz_settings(SLOW_EXAMPLES)
     @given(content=mutated_scenario(name))
     def check(content: bytes) -> None:
-        nonlocal tried
-        tried += 1
-        validate_mutant(name, content, work)
+        log.check(lambda: validate_mutant(name, content, work), content)
 
     check()
-    record("scenario", name, tried)
+    log.finish()
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["strategies_tiny", "discs_swap", "adaptive_fig3", "rotating_bar"])
 def test_show_mutated_scenarios_hundreds(name: str, work: Path) -> None:
-    tried = 0
+    log = FailureLog("show", name)
 
     @fuzz_settings(SLOW_EXAMPLES // 8)
     @given(content=mutated_scenario(name))
     def check(content: bytes) -> None:
-        nonlocal tried
-        tried += 1
-        validate_mutant(name, content, work, "show")
+        log.check(lambda: validate_mutant(name, content, work, "show"), content)
 
     check()
-    record("show", name, tried)
+    log.finish()
