@@ -21,7 +21,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 
 from cellplan.scenario import Scenario
 
-FAST_EXAMPLES = 6
+FAST_EXAMPLES = 4
 SLOW_EXAMPLES = int(os.environ.get("CELLPLAN_FUZZ_EXAMPLES", "800"))
 SHOW_EXAMPLES = 3
 
