@@ -32,6 +32,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Union, get_args, get_origin
 
+import shapely
 import yaml
 from pydantic import (
     BaseModel,
@@ -214,6 +215,7 @@ class RegionSpec(StrictModel):
 
     components: list[Shape] = Field(
         min_length=1,
+        max_length=1000,
         description="disjoint shapes (workcell units); a part may be picked or placed at any",
         examples=[[{"type": "box", "min": [2, 2], "max": [6, 5]}]],
     )
@@ -530,6 +532,9 @@ def _message(err: Any, data: Any, root: type[BaseModel]) -> str:
     if kind == "union_tag_invalid":
         ctx = err.get("ctx", {})
         return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
+    if kind == "too_long":
+        ctx = err.get("ctx", {})
+        return f"has {ctx.get('actual_length')} items; at most {ctx.get('max_length')} allowed"
     if kind in _EXPECTED:
         return _EXPECTED[kind] + ("" if kind == "missing" else _got(err))
     for prefix in ("Value error, ", "Assertion failed, "):
@@ -732,14 +737,20 @@ def check_references(sc: Scenario) -> list[Problem]:
                             f"{section}.{name}.components[{i}]", "lies outside the workcell bounds"
                         )
                     )
-                for j in range(i):
-                    if g.intersects(geoms[j]):
-                        problems.append(
-                            Problem(
-                                f"{section}.{name}.components[{i}]",
-                                f"overlaps components[{j}]; components must be disjoint",
-                            )
-                        )
+            # One line per overlapping component, naming the first one it overlaps; the
+            # tree keeps this near-linear for regions of many components.
+            tree = shapely.STRtree(geoms)
+            first: dict[int, int] = {}
+            for i, j in zip(*tree.query(geoms, predicate="intersects"), strict=True):
+                if j < i and (i not in first or j < first[i]):
+                    first[int(i)] = int(j)
+            for i, j in sorted(first.items()):
+                problems.append(
+                    Problem(
+                        f"{section}.{name}.components[{i}]",
+                        f"overlaps components[{j}]; components must be disjoint",
+                    )
+                )
     for name, shape in sc.workcell.obstacles.items():
         if not bounds.intersects(shape.to_shapely()):
             problems.append(
