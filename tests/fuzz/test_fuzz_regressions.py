@@ -58,6 +58,16 @@ BAD_FILES = {
     "speed nan": TINY.replace("speed: 2.5", "speed: .nan").encode(),
     "cells 0": TINY.replace("cells: [12, 12]", "cells: [0, 12]").encode(),
     "disc radius 1e308": SWAP.replace("radius: 1", "radius: 1e308", 1).encode(),
+    "5000 copies of a component": TINY.replace(
+        "D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}",
+        "D1: {components: [&c {type: box, min: [13, 25], max: [17, 28]}" + ", *c" * 5000 + "]}",
+    ).encode(),
+    "900 overlapping components": TINY.replace(
+        "D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}",
+        "D1: {components: [&c {type: box, min: [13, 25], max: [17, 28]}" + ", *c" * 900 + "]}",
+    ).encode(),
+    "null key": TINY.replace("  middle:", "  null:").encode(),
+    "true key": TINY.replace("robot:", "true: 1\nrobot:").encode(),
     "empty file": b"",
     "a list": b"- 1\n- 2\n",
 }
