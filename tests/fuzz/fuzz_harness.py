@@ -89,11 +89,13 @@ OPTION_RE = re.compile(r"--[a-z][a-z0-9\-]*|-[a-z0-9]|[A-Z][A-Z_]*|cellplan")
 MORE_RE = re.compile(r"error: \d+ more problems? not shown")
 
 
-def _root_key(root: str) -> str:
-    """The first key of a field path, unquoted (``['a b']`` -> ``a b``, ``a.b`` -> ``a``)."""
+def _root_keys(root: str) -> list[str]:
+    """What the first key of a field path may be, unquoted (``['a b']`` -> ``a b``;
+    ``a.b`` -> ``a`` or ``a.b``, since keys may hold dots)."""
     if root.startswith("["):
-        return str(ast.literal_eval(root[1:-1]))
-    return root.split(".")[0]
+        return [str(ast.literal_eval(root[1:-1]))]
+    parts = root.split(".")
+    return [".".join(parts[: i + 1]) for i in range(len(parts))]
 
 
 def bad_lines(
@@ -135,7 +137,7 @@ def bad_lines(
                 if not (tail.startswith(": ") and tail[2:].strip()):
                     continue
                 if where_re is FIELD_RE and allowed_roots is not None:
-                    if _root_key(m.group("root")) not in allowed_roots:
+                    if not allowed_roots.intersection(_root_keys(m.group("root"))):
                         continue
                 ok = True
                 break
