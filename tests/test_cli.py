@@ -155,7 +155,7 @@ def test_output_paths_that_cannot_be_written_are_one_line(cellplan, tmp_path):
     folder.mkdir()
     r = cellplan("show", "strategies_tiny", "-o", str(folder))
     assert r.returncode == 2
-    assert r.stderr.strip() == f"error: {folder}: is a folder; give a file name"
+    assert r.stderr.strip() == f"error: --output: {folder} is a folder; give a file name"
     blocker = tmp_path / "file"
     blocker.write_text("x")
     r = cellplan("show", "strategies_tiny", "-o", str(blocker / "cell.png"))

@@ -25,6 +25,7 @@ from cellplan.cliutil import (
     EXIT_INTERRUPTED,
     JsonOpt,
     ScenarioArg,
+    check_output,
     print_json,
 )
 from cellplan.errors import ArgumentError, CellplanError
@@ -130,7 +131,7 @@ def show(scenario: ScenarioArg, output: OutputOpt = Path("workcell.png")) -> Non
 
     check_image_path(output)
     plots.save_scenario(load(scenario), output)
-    out.print(f"wrote {output}")
+    out.print(f"wrote {output}", markup=False)
 
 
 @app.command()
@@ -156,7 +157,7 @@ def cspace(
         raise ArgumentError(
             f"unknown part {carrying!r} (parts: {', '.join(cell.parts) or 'none'})", "--carrying"
         )
-    shape = parse_cells(cells, cell.robot.dim) if cells else cell.default_cells
+    shape = parse_cells(cells, cell.robot.dim) if cells is not None else cell.default_cells
     grid = Grid.for_robot(cell.robot, shape)
     if slice_index is not None and (grid.ndim != 3 or not 0 <= slice_index < grid.shape[2]):
         limit = f"[0, {grid.shape[2] - 1}]" if grid.ndim == 3 else "a 3-D C-space only"
@@ -172,7 +173,7 @@ def cspace(
         title_extra=f"carrying {carrying}" if carrying else "empty",
         carrying=carrying is not None,
     )
-    out.print(f"wrote {output}  (free fraction {free.mean():.3f})")
+    out.print(f"wrote {output}  (free fraction {free.mean():.3f})", markup=False)
 
 
 @app.command()
@@ -181,7 +182,7 @@ def demo(output: OutputOpt = Path("cellplan-out")) -> None:
     from cellplan.demo import run_demo
 
     index = run_demo(output, console=console)
-    out.print(f"demo written: {index}")
+    out.print(f"demo written: {index}", markup=False)
 
 
 def parse_cells(text: str, dim: int) -> tuple[int, ...]:
@@ -206,6 +207,7 @@ def check_image_path(path: Path) -> None:
         raise ArgumentError(
             f"unsupported image type {path.suffix!r}; use .png, .svg or .pdf", "--output"
         )
+    check_output(path)
 
 
 def _register_package_commands() -> None:
@@ -223,51 +225,89 @@ def _register_package_commands() -> None:
 _register_package_commands()
 
 
+MAX_PROBLEM_LINES = 100
+"""Most problems printed for one command; a count of the rest follows (a file with a
+million wrong values gets 101 lines, not a million)."""
+
+
 def main() -> None:
     """Entry point: run the app and turn every outcome into an exit status.
 
-    User errors become one line each and exit 2; an unexpected exception is a bug: one
-    line naming its type, exit 70 (``CELLPLAN_DEBUG=1`` shows the traceback).
+    User errors (ours and the command-line parser's) become one line each, ``error:
+    WHERE: what``, and exit 2; an unexpected exception is a bug: one line naming its
+    type, exit 70 (``CELLPLAN_DEBUG=1`` shows the traceback). Every line is printed as
+    plain text: a name or value from the input is never read as console markup.
     """
     import os
 
     try:
         code = app(standalone_mode=False)
     except CellplanError as exc:
-        for problem in exc.problems:
-            console.print(f"[bold red]error[/]: {problem}", highlight=False, soft_wrap=True)
+        for problem in exc.problems[:MAX_PROBLEM_LINES]:
+            _error_line(str(problem))
+        if len(exc.problems) > MAX_PROBLEM_LINES:
+            more = len(exc.problems) - MAX_PROBLEM_LINES
+            _error_line(f"{more} more problem{'s' if more > 1 else ''} not shown")
         sys.exit(EXIT_BAD_INPUT)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
     except (typer.Abort, KeyboardInterrupt):
-        console.print("interrupted")
+        console.print("interrupted", markup=False)
         sys.exit(EXIT_INTERRUPTED)
     except OSError as exc:
         # A path the user named cannot be read or written (a folder where a file is
         # expected, a missing parent, no permission): their input, not a bug.
         where = exc.filename if exc.filename is not None else "output"
-        console.print(
-            f"[bold red]error[/]: {where}: {exc.strerror or exc}", highlight=False, soft_wrap=True
-        )
+        _error_line(f"{where}: {exc.strerror or exc}")
         sys.exit(EXIT_BAD_INPUT)
     except Exception as exc:
-        # Usage errors (unknown option, missing argument) arrive here in non-standalone
-        # mode; recent typer versions raise their own copy of click's exceptions.
+        # Usage errors (unknown option, missing argument, a value of the wrong type)
+        # arrive here in non-standalone mode; recent typer versions raise their own copy
+        # of click's exceptions.
         if isinstance(exc, _usage_error_types()):
-            exc.show()  # type: ignore[attr-defined]
+            _error_line(_usage_line(exc))
             sys.exit(getattr(exc, "exit_code", EXIT_BAD_INPUT))
         if os.environ.get("CELLPLAN_DEBUG"):
             raise
         detail = " ".join(str(exc).split())[:300]
-        console.print(
-            f"[bold red]internal error[/] (a bug in cellplan, please report it): "
+        _error_line(
             f"{type(exc).__name__}: {detail}",
-            highlight=False,
-            soft_wrap=True,
-            markup=True,
+            label="internal error (a bug in cellplan, please report it)",
         )
         sys.exit(EXIT_INTERNAL)
     sys.exit(code if isinstance(code, int) else 0)
+
+
+def _error_line(text: str, label: str = "error") -> None:
+    """Print ``label: text`` on stderr as one line, ``text`` never read as markup."""
+    from rich.text import Text
+
+    line = Text.assemble((label, "bold red"), ": ", " ".join(text.split()))
+    console.print(line, highlight=False, soft_wrap=True)
+
+
+def _usage_line(exc: Exception) -> str:
+    """A command-line parser error as ``WHERE: what (see 'cellplan CMD -h')``.
+
+    WHERE is the option (its long name) or the argument (upper case) at fault; the
+    parser's own ``Invalid value for '--x':`` preamble is dropped since WHERE says it.
+    """
+    import re
+
+    param = getattr(exc, "param", None)
+    where = getattr(exc, "option_name", None) or ""
+    if param is not None:
+        opts = [o for o in getattr(param, "opts", []) if o.startswith("--")]
+        if getattr(param, "param_type_name", "") == "argument" or not opts:
+            where = str(getattr(param, "name", "") or "argument").upper()
+        else:
+            where = max(opts, key=len)
+    message = exc.format_message() if hasattr(exc, "format_message") else str(exc)
+    message = re.sub(r"^Invalid value for [^:]*: ", "", message)
+    ctx = getattr(exc, "ctx", None)
+    command = getattr(ctx, "command_path", None) or "cellplan"
+    hint = f" (see '{command} -h')"
+    return f"{where}: {message}{hint}" if where else f"{command}: {message}{hint}"
 
 
 def _usage_error_types() -> tuple[type[BaseException], ...]:

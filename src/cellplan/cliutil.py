@@ -152,3 +152,33 @@ def _clean(value: Any) -> Any:
     if isinstance(value, Path):
         return str(value)
     return value
+
+
+def check_output(path: Path, option: str = "--output", folder: bool = False) -> Path:
+    """Refuse an output path that cannot be written, before any work starts.
+
+    ``folder``: the path is a folder to create or fill (it must not be a file); otherwise
+    a file to write (it must not be a folder). Missing parent folders are created later,
+    so every existing ancestor must be a folder, and the nearest one writable.
+
+    Raises
+    ------
+    ArgumentError
+        One line naming ``option``.
+    """
+    import os
+
+    if str(path) == "":
+        raise ArgumentError("is empty; give a path", option)
+    if folder and path.exists() and not path.is_dir():
+        raise ArgumentError(f"{path} exists and is not a folder", option)
+    if not folder and path.is_dir():
+        raise ArgumentError(f"{path} is a folder; give a file name", option)
+    for parent in path.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ArgumentError(f"{parent} is a file, not a folder", option)
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise ArgumentError(f"cannot write in {parent} (permission denied)", option)
+            break
+    return path

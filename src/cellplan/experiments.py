@@ -47,6 +47,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from rich.markup import escape
+
 from cellplan.core import Experiment, RunSpec, Scalar
 from cellplan.errors import ArgumentError, Problem
 from cellplan.fileio import write_json, write_text
@@ -369,7 +371,8 @@ def run_sweep(
             if cache.last_corrupt:
                 result.n_recomputed_corrupt += 1
                 console.print(
-                    f"[yellow]warning[/]: {cache.last_corrupt}; recomputing", highlight=False
+                    f"[yellow]warning[/]: {escape(cache.last_corrupt)}; recomputing",
+                    highlight=False,
                 )
             pending.append(_Pending(exp_index, run_index, spec, key))
 

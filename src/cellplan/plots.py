@@ -213,6 +213,7 @@ def _label(ax: Axes, geom: BaseGeometry, text: str, color: str) -> None:
         color=color,
         weight="bold",
         bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7},
+        parse_math=False,
     )
 
 
@@ -304,7 +305,8 @@ def save_workcell(
     ax.legend(
         handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
     )
-    ax.set_title(cell.name or "workcell")
+    # Names are the user's text: "$x^$" is a title, not matplotlib math to parse.
+    ax.set_title(cell.name or "workcell", parse_math=False)
     return save_figure(fig, path)
 
 
@@ -352,7 +354,7 @@ def save_scenario(setup: Setup, path: str | Path) -> Path:
     ax.legend(
         handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
     )
-    ax.set_title(sc.name or setup.name)
+    ax.set_title(sc.name or setup.name, parse_math=False)
     return save_figure(fig, path)
 
 

@@ -59,9 +59,15 @@ def scenario_path(name: str) -> Path:
 
 def resolve_scenario_path(path_or_name: str | Path) -> Path:
     """A file path as given, or a bundled scenario's path when only a name is given."""
+    if not str(path_or_name).strip():
+        raise ScenarioError(
+            [Problem("SCENARIO", "is empty; give a scenario file or a bundled scenario's name")]
+        )
     path = Path(path_or_name)
     if path.is_file():
         return path
+    if path.is_dir():
+        raise ScenarioError([Problem(str(path_or_name), "is a folder, not a scenario file")])
     if path.suffix == "" and path.parent == Path("."):
         return scenario_path(str(path))
     raise ScenarioError([Problem(str(path_or_name), "no such file")])

@@ -55,10 +55,10 @@ def parse_target(text: str) -> list[str]:
 
 
 def check_output_dir(path: Path) -> Path:
-    """``-o``: a folder, existing or not, but not a file."""
-    if path.exists() and not path.is_dir():
-        raise ArgumentError(f"{path} exists and is not a folder", "--output")
-    return path
+    """``-o``: a folder, existing or not, but not a file, where one can be written."""
+    from cellplan.cliutil import check_output
+
+    return check_output(path, "--output", folder=True)
 
 
 def reproduce(
@@ -187,9 +187,11 @@ def register(app: typer.Typer) -> None:
             attempt(lambda: check_scheduler_address(scheduler))
             if serial:
                 problems.append(Problem("--serial", "--serial and --scheduler exclude each other"))
+        names = [n.strip() for n in (only or "").split(",") if n.strip()]
+        if only is not None and not names:
+            problems.append(Problem("--only", "no experiment names given"))
         if problems or papers is None:
             raise ArgumentError(problems)
-        names = [n.strip() for n in (only or "").split(",") if n.strip()]
         console = Console(stderr=True)
         try:
             index = reproduce(
@@ -209,6 +211,7 @@ def register(app: typer.Typer) -> None:
                 f"interrupted; {cached} runs cached in {output / 'cache'}; "
                 "run the same command to resume",
                 highlight=False,
+                markup=False,
                 soft_wrap=True,
             )
             raise typer.Exit(130) from None

@@ -26,11 +26,13 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import re
 import types
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Union, get_args, get_origin
 
+import shapely
 import yaml
 from pydantic import (
     BaseModel,
@@ -43,6 +45,7 @@ from pydantic import (
 
 from cellplan.errors import Problem, ScenarioError
 from cellplan.schema import (
+    NAME_PATTERN,
     Bounds,
     Cells,
     Coord,
@@ -57,6 +60,7 @@ from cellplan.schema import (
 # (ScenarioBase plus the registered sections), so its documentation is ScenarioBase's.
 __all__ = [
     "MAX_FILE_BYTES",
+    "MAX_YAML_NODES",
     "SCHEMA_ID",
     "SCHEMA_VERSION",
     "ArmRobotSpec",
@@ -211,6 +215,7 @@ class RegionSpec(StrictModel):
 
     components: list[Shape] = Field(
         min_length=1,
+        max_length=1000,
         description="disjoint shapes (workcell units); a part may be picked or placed at any",
         examples=[[{"type": "box", "min": [2, 2], "max": [6, 5]}]],
     )
@@ -307,8 +312,25 @@ else:
 # --- loading ---------------------------------------------------------------------------------
 
 
+MAX_YAML_NODES = 1_000_000
+"""Most YAML values (scalars, lists, mappings, aliases) a scenario file may hold, and most
+values its aliases may expand to: a bound on the work of validating any file."""
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """SafeLoader that rejects duplicate mapping keys instead of keeping the last one."""
+    """SafeLoader that rejects duplicate mapping keys instead of keeping the last one, and
+    stops composing after :data:`MAX_YAML_NODES` values."""
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node | None:
+        self._nodes = getattr(self, "_nodes", 0) + 1
+        if self._nodes > MAX_YAML_NODES:
+            raise yaml.composer.ComposerError(
+                None,
+                None,
+                f"more than {MAX_YAML_NODES:,} values; a scenario holds far fewer",
+                self.peek_event().start_mark,
+            )
+        return super().compose_node(parent, index)
 
 
 def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
@@ -338,15 +360,64 @@ _UniqueKeyLoader.add_constructor(
 def parse_yaml(text: str, source: str = "<string>") -> Any:
     """Parse YAML safely; syntax errors become a :class:`ScenarioError` with line and column."""
     try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)
+        data = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
-        raise ScenarioError([Problem(where, f"YAML syntax: {exc.problem or exc}")]) from None
+        raise ScenarioError(
+            [Problem(where, f"YAML syntax: {_one_line(exc.problem or exc)}")]
+        ) from None
+    except yaml.reader.ReaderError as exc:
+        line = text.count("\n", 0, exc.position) + 1
+        column = exc.position - (text.rfind("\n", 0, exc.position) + 1) + 1
+        raise ScenarioError(
+            [
+                Problem(
+                    f"{source}:{line}:{column}",
+                    f"YAML syntax: character {exc.character!r} is not allowed in YAML text",
+                )
+            ]
+        ) from None
     except yaml.YAMLError as exc:
-        raise ScenarioError([Problem(source, f"YAML syntax: {exc}")]) from None
+        raise ScenarioError([Problem(source, f"YAML syntax: {_one_line(exc)}")]) from None
     except RecursionError:
         raise ScenarioError([Problem(source, "YAML nested too deeply")]) from None
+    if _expanded_size(data, {}) > MAX_YAML_NODES:
+        # Aliases share one parsed node, but validation walks every use of it.
+        raise ScenarioError(
+            [
+                Problem(
+                    source,
+                    f"its aliases (*name) expand to more than {MAX_YAML_NODES:,} values",
+                )
+            ]
+        )
+    return data
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
+
+
+def _expanded_size(node: Any, memo: dict[int, int]) -> int:
+    """Values in ``node`` with every alias expanded (shared nodes counted once per use).
+
+    Capped just above :data:`MAX_YAML_NODES`, and recursive structures (which the safe
+    loader refuses) would be counted as their first visit.
+    """
+    if not isinstance(node, dict | list):
+        return 1
+    key = id(node)
+    if key in memo:
+        return memo[key]
+    memo[key] = 1  # a back-reference while counting (recursive data) counts as one
+    total = 1
+    for child in node.values() if isinstance(node, dict) else node:
+        total += _expanded_size(child, memo)
+        if total > MAX_YAML_NODES:
+            break
+    memo[key] = total
+    return total
 
 
 def format_location(loc: Iterable[Any], data: Any) -> str:
@@ -358,9 +429,14 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
     parts: list[str] = []
     node = data
     for item in loc:
-        if isinstance(node, dict) and item in node:
-            parts.append(str(item))
-            node = node[item]
+        if item == "[key]":
+            continue  # the key itself is wrong; the path already ends with it
+        same = _keys_matching(node, item) if isinstance(node, dict) else []
+        if same:
+            # pydantic reports a key true as 1 and a key null as 'None': name it as written
+            written = next((k for k in same if type(k) is type(item)), same[0])
+            parts.append(_key_text(written))
+            node = node[written]
         elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
             parts.append(f"[{item}]")
             node = node[item]
@@ -369,17 +445,39 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
             if isinstance(item, str) and not _is_union_tag(item, node):
                 parts.append(item)
                 node = None
-        else:
+        elif not (isinstance(item, str) and _is_union_tag(item, node)):
             parts.append(str(item))
     return ".".join(parts).replace(".[", "[")
 
 
+def _keys_matching(node: dict[Any, Any], item: Any) -> list[Any]:
+    """The keys of ``node`` that a location item stands for (``'None'`` for a null key)."""
+    same = [k for k in node if k == item]
+    return same or [k for k in node if not isinstance(k, str) and str(k) == item]
+
+
+def _key_text(key: Any) -> str:
+    """A mapping key as a path segment: as written when it is a plain name (``null``,
+    ``true`` for YAML's), quoted (``['a b']``) otherwise, so the path stays one token."""
+    if key is None:
+        text = "null"
+    elif isinstance(key, bool):
+        text = "true" if key else "false"
+    else:
+        text = str(key)
+    return text if re.fullmatch(r"[A-Za-z0-9_.\-]+", text) else f"[{text!r}]"
+
+
 def _is_union_tag(item: str, node: Any) -> bool:
-    return (isinstance(node, dict) and node.get("type") == item) or item in {
-        "function-after",
-        "function-before",
-        "tagged-union",
-    }
+    """Whether a location item names a union member rather than a key: a shape's ``type``,
+    a validator wrapper, a member type (``list[RequestSpec]``, ``literal['all']``) or a
+    model class (``RandomTasks``; every field name is lower case)."""
+    return (
+        (isinstance(node, dict) and node.get("type") == item)
+        or item in {"function-after", "function-before", "tagged-union"}
+        or "[" in item
+        or (item[:1].isupper() and item.isidentifier())
+    )
 
 
 def problems_from_validation(
@@ -396,7 +494,7 @@ def problems_from_validation(
     for err in exc.errors(include_url=False):
         field = format_location(err["loc"], data)
         problems.append(Problem(field, _message(err, data, root)))
-    return problems
+    return list(dict.fromkeys(problems))  # both members of a union may say the same
 
 
 _EXPECTED = {
@@ -412,6 +510,7 @@ _EXPECTED = {
     "bool_parsing": "expected true or false",
     "finite_number": "expected a finite number",
     "missing": "missing (required)",
+    "invalid_key": "a key must be text",
 }
 
 
@@ -428,9 +527,14 @@ def _message(err: Any, data: Any, root: type[BaseModel]) -> str:
         if model is not None:
             return f"expected a mapping with {', '.join(model.model_fields)}{_got(err)}"
         return f"expected a mapping{_got(err)}"
+    if kind == "string_pattern_mismatch" and err.get("ctx", {}).get("pattern") == NAME_PATTERN:
+        return f"a name may hold only letters, digits, '_', '.' and '-'{_got(err)}"
     if kind == "union_tag_invalid":
         ctx = err.get("ctx", {})
         return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
+    if kind == "too_long":
+        ctx = err.get("ctx", {})
+        return f"has {ctx.get('actual_length')} items; at most {ctx.get('max_length')} allowed"
     if kind in _EXPECTED:
         return _EXPECTED[kind] + ("" if kind == "missing" else _got(err))
     for prefix in ("Value error, ", "Assertion failed, "):
@@ -633,14 +737,20 @@ def check_references(sc: Scenario) -> list[Problem]:
                             f"{section}.{name}.components[{i}]", "lies outside the workcell bounds"
                         )
                     )
-                for j in range(i):
-                    if g.intersects(geoms[j]):
-                        problems.append(
-                            Problem(
-                                f"{section}.{name}.components[{i}]",
-                                f"overlaps components[{j}]; components must be disjoint",
-                            )
-                        )
+            # One line per overlapping component, naming the first one it overlaps; the
+            # tree keeps this near-linear for regions of many components.
+            tree = shapely.STRtree(geoms)
+            first: dict[int, int] = {}
+            for i, j in zip(*tree.query(geoms, predicate="intersects"), strict=True):
+                if j < i and (i not in first or j < first[i]):
+                    first[int(i)] = int(j)
+            for i, j in sorted(first.items()):
+                problems.append(
+                    Problem(
+                        f"{section}.{name}.components[{i}]",
+                        f"overlaps components[{j}]; components must be disjoint",
+                    )
+                )
     for name, shape in sc.workcell.obstacles.items():
         if not bounds.intersects(shape.to_shapely()):
             problems.append(

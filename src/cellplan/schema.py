@@ -29,7 +29,9 @@ CELLS_RANGE: tuple[int, int] = (4, 4096)
 """Allowed grid cells per configuration-space axis, everywhere (files, CLI, library)."""
 Cells = Annotated[int, Field(ge=CELLS_RANGE[0], le=CELLS_RANGE[1])]
 
-Name = Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.\-]+$")]
+NAME_PATTERN = r"^[A-Za-z0-9_.\-]+$"
+"""What a name (of an obstacle, part, region, goal ...) may hold."""
+Name = Annotated[str, Field(min_length=1, pattern=NAME_PATTERN)]
 
 
 class StrictModel(BaseModel):
@@ -121,6 +123,7 @@ class Bounds(StrictModel):
 __all__ = [
     "CELLS_RANGE",
     "COORD_LIMIT",
+    "NAME_PATTERN",
     "Bounds",
     "BoxShape",
     "Cells",

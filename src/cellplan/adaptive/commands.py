@@ -26,8 +26,15 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from cellplan.cliutil import JsonOpt, ScenarioArg, as_flags, finish, progress_bar, progress_enabled
-from cellplan.errors import ArgumentError
+from cellplan.cliutil import (
+    JsonOpt,
+    ScenarioArg,
+    as_flags,
+    check_output,
+    finish,
+    progress_bar,
+    progress_enabled,
+)
 
 if TYPE_CHECKING:
     from cellplan.core import Result
@@ -97,8 +104,9 @@ def run_adapt_command(
     }
     with as_flags():
         parse_options(planner("adaptive"), given)
-    if output.exists() and not output.is_dir():
-        raise ArgumentError(f"{output} exists and is not a folder", "--output")
+    check_output(output, "--output", folder=True)
+    if db is not None:
+        check_output(db, "--db")
     setup = load(scenario_arg)
     with progress_bar(progress_enabled(as_json), "adapt", counts=True) as progress, as_flags():
         result = plan(setup, "adaptive", progress=progress, **given)

@@ -272,18 +272,22 @@ class World:
         """Configuration of a goal in the current environment (``None``: no IK solution)."""
         return self.config_of(self.goals[name])
 
-    def goal_problems(self, where: str) -> list[Problem]:
-        """Goals without IK solution or in collision now (named after ``where``)."""
+    def goal_problems(self, where: str, when: str = "") -> list[Problem]:
+        """Goals without IK solution or in collision now (fields ``where.<goal>``; ``when``
+        ends each message, e.g. " after adaptive.changes[0]")."""
         problems = []
         for name in sorted(self.goals):
             q = self.goal_config(name)
             if q is None:
                 problems.append(
-                    Problem(f"{where}.{name}", "no inverse-kinematics solution on its elbow branch")
+                    Problem(
+                        f"{where}.{name}",
+                        f"no inverse-kinematics solution on its elbow branch{when}",
+                    )
                 )
             elif not (self.robot.within_limits(q[None, :])[0] and self.is_free(q[None, :])[0]):
                 problems.append(
-                    Problem(f"{where}.{name}", "the goal configuration is in collision")
+                    Problem(f"{where}.{name}", f"the goal configuration is in collision{when}")
                 )
         return problems
 
@@ -363,13 +367,14 @@ def preflight(scenario: Scenario, resolution: float | None = None) -> None:
     """
     world = World(scenario, resolution)
     problems = world.goal_problems("adaptive.goals")
+    named = {p.field for p in problems}
     assert world.section is not None
     for i, change in world.section.ordered_changes():
         world.apply(change)
-        for p in world.goal_problems(
-            f"adaptive.changes[{i}] (after task {change.after_task}): goal"
-        ):
-            if p not in problems:
+        when = f" after adaptive.changes[{i}] (after task {change.after_task})"
+        for p in world.goal_problems("adaptive.goals", when):
+            if p.field not in named:  # the first stage where a goal goes wrong is enough
+                named.add(p.field)
                 problems.append(p)
     if problems:
         raise ScenarioError(problems)

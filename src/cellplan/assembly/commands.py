@@ -23,7 +23,7 @@ from cellplan.assembly.layout import DEFAULT_FILL
 from cellplan.assembly.options import GradientOptions, SequentialOptions
 from cellplan.assembly.run import MAX_FRAMES
 from cellplan.assembly.section import GeneratorSpec
-from cellplan.cliutil import GifSizeOpt, JsonOpt
+from cellplan.cliutil import GifSizeOpt, JsonOpt, check_output
 from cellplan.errors import ArgumentError, Problem
 
 ALGORITHMS = ("gradient", "sequential", "control")
@@ -138,6 +138,10 @@ def register(app: typer.Typer) -> None:
         width = GIF_SIZE
         try:
             width = check_gif_size(GIF_SIZE if gif_size is None else gif_size)
+        except ArgumentError as exc:
+            problems.extend(exc.problems)
+        try:
+            check_output(output, "--output", folder=True)
         except ArgumentError as exc:
             problems.extend(exc.problems)
         options: dict[str, Any] = {

@@ -405,7 +405,8 @@ def disc_columns(n: int) -> tuple[str, ...]:
 
 def _arc_length(path: Array) -> Array:
     """Cumulative length in R^2n along ``path`` (m, n, 2), 0 at the start."""
-    seg = np.linalg.norm(np.diff(path, axis=0).reshape(len(path) - 1, -1), axis=1)
+    # explicit width: a run that starts within tolerance has a one-point path
+    seg = np.linalg.norm(np.diff(path, axis=0).reshape(len(path) - 1, path[0].size), axis=1)
     return np.concatenate([[0.0], np.cumsum(seg)])
 
 

@@ -20,7 +20,7 @@ Array = NDArray[np.float64]
 
 def _moments(path: Array, count: int) -> list[int]:
     """Indices of ``count`` moments evenly spaced in arc length (the first and last included)."""
-    seg = np.linalg.norm(np.diff(path, axis=0).reshape(len(path) - 1, -1), axis=1)
+    seg = np.linalg.norm(np.diff(path, axis=0).reshape(len(path) - 1, path[0].size), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
     if s[-1] == 0:
         return [0] * (count - 1) + [len(path) - 1]

@@ -36,6 +36,7 @@ from cellplan.assembly.layout import (
     workspace_center,
 )
 from cellplan.errors import ArgumentError, Problem, ScenarioError
+from cellplan.schema import COORD_LIMIT
 
 if TYPE_CHECKING:
     from cellplan.assembly.section import DiscsSection, GeneratorSpec
@@ -250,6 +251,17 @@ def generated_setup(
     if not 0.0 < fill <= 0.5:
         raise ScenarioError([Problem("fill", f"must be in (0, 0.5], got {fill:g}")])
     ws = default_workspace(gen.n, gen.radius, fill)
+    if not ws.radius + 1.0 <= COORD_LIMIT:  # also an infinite radius (fill 5e-324)
+        raise ScenarioError(
+            [
+                Problem(
+                    "fill" if fill < DEFAULT_FILL else "discs.generate.radius",
+                    f"{gen.n} discs of radius {gen.radius:g} covering {fill:g} of the workspace "
+                    f"need one of radius {ws.radius:.3g}, beyond the coordinate limit "
+                    f"{COORD_LIMIT:g}",
+                )
+            ]
+        )
     half = math.ceil(ws.radius) + 1.0
     label = name or f"random{gen.n}-seed{gen.seed}"
     data = {

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import Field, model_validator
 
 from cellplan.errors import Problem
-from cellplan.schema import PositiveFloat, StrictModel, Vec2
+from cellplan.schema import COORD_LIMIT, Length, PositiveFloat, StrictModel, Vec2
 
 if TYPE_CHECKING:
     from cellplan.scenario import Scenario
@@ -32,7 +32,7 @@ class DiscBoundary(StrictModel):
     """boundary kind"""
     center: Vec2 = (0.0, 0.0)
     """centre of the circular workspace (workcell units)"""
-    radius: PositiveFloat
+    radius: Length
     """its radius (workcell units)"""
 
 
@@ -49,7 +49,7 @@ Boundary = Annotated[DiscBoundary | WorkcellBoundary, Field(discriminator="type"
 class DiscSpec(StrictModel):
     """One disc: radius, start and desired (goal) position of its centre."""
 
-    radius: PositiveFloat
+    radius: Length
     """disc radius (workcell units)"""
     start: Vec2
     """start of the centre (workcell units)"""
@@ -80,17 +80,17 @@ class GeneratorSpec(StrictModel):
     """number of discs (at most MAX_GENERATED_DISCS)"""
     seed: Annotated[int, Field(ge=0)] = 0
     """seed of the generator"""
-    radius: PositiveFloat = 1.0
-    """disc radius (workcell units)"""
+    radius: Annotated[float, Field(ge=1e-6, le=COORD_LIMIT, allow_inf_nan=False)] = 1.0
+    """disc radius (workcell units; at least 1e-6, so the workspace has an area)"""
     pattern: Literal["hex", "random"] = "hex"
     """goal layout: hex (a packed cluster) or random"""
-    gap: PositiveFloat = 0.1
+    gap: Length = 0.1
     """gap between neighbouring hex goals (workcell units)"""
     log10_beta_goal: float | None = None
     """hex goals: log10 of the pairwise product beta(d) of eq. (4) (sets the gap)"""
     starts: Literal["random", "permutation"] = "random"
     """random legal starts, or a permutation of the goals (Sec. 5.2.2)"""
-    min_start_gap: PositiveFloat = 0.05
+    min_start_gap: Length = 0.05
     """smallest gap between random starts (workcell units)"""
 
 

@@ -20,6 +20,7 @@ from cellplan.cliutil import (
     JsonOpt,
     ScenarioArg,
     as_flags,
+    check_output,
     finish,
     progress_bar,
     progress_enabled,
@@ -69,11 +70,14 @@ def _cells(text: str | None) -> list[int] | None:
 def _check_suffix(path: Path, allowed: tuple[str, ...], option: str) -> None:
     if path.suffix.lower() not in allowed:
         raise ArgumentError(f"expected a {' or '.join(allowed)} file, got {path.name!r}", option)
+    check_output(path, option)
 
 
 def _load_strategy(path: Path, setup: Setup) -> Strategy:
     from cellplan.strategies.strategy import Strategy
 
+    if path.is_dir():  # also an empty --strategy, which the parser turns into "."
+        raise ArgumentError(f"{path} is a folder, not a strategy file", "--strategy")
     return Strategy.load(path, setup.scenario).attach(setup.workcell)
 
 
@@ -180,8 +184,7 @@ def simulate_command(
     if gif_size is not None and not gif:
         raise ArgumentError("only with --gif (the default)", "--gif-size")
     width = check_gif_size(GIF_SIZE if gif_size is None else gif_size)
-    if output.exists() and not output.is_dir():
-        raise ArgumentError(f"{output} exists and is not a folder", "--output")
+    check_output(output, "--output", folder=True)
     setup = _load(scenario)
     strat = _load_strategy(strategy, setup)
     given: dict[str, Any] = {"policy": policy, "max_wait": max_wait}

@@ -1,0 +1,127 @@
+"""Fuzzing ``cellplan validate`` and ``cellplan show`` with mutated bundled scenarios.
+
+Every mutated file must get exit status 0 (still valid) or 2 (one line per problem, each
+naming a field or the file), never a traceback, never 70 (a bug), never a hang. The
+default run tries a few examples per bundled scenario with a fixed seed; the ``slow``
+run tries ``CELLPLAN_FUZZ_EXAMPLES`` per scenario (docs/reliability.md gives the figures):
+
+    CELLPLAN_FUZZ_EXAMPLES=800 pytest -m slow tests/fuzz
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+from fuzz_harness import FailureLog, Outcome, bad_lines, run_cli
+from fuzz_mutations import SCENARIOS, mutated_scenario
+from hypothesis import HealthCheck, Phase, given, settings
+
+from cellplan.scenario import Scenario
+
+FAST_EXAMPLES = 4
+SLOW_EXAMPLES = int(os.environ.get("CELLPLAN_FUZZ_EXAMPLES", "800"))
+SHOW_EXAMPLES = 3
+
+
+def fuzz_settings(examples: int) -> settings:
+    """Fixed seed, no example database: the same cases on every machine and run."""
+    return settings(
+        max_examples=examples,
+        derandomize=True,
+        database=None,
+        deadline=None,
+        # no shrinking or explaining: a failing case is printed as drawn, and the
+        # tracer of the explain phase would slow every call tenfold
+        phases=[Phase.explicit, Phase.generate],
+        suppress_health_check=list(HealthCheck),
+    )
+
+
+def top_keys(content: bytes) -> set[str]:
+    """The schema's top-level keys and the file's own (where it still parses)."""
+    keys = set(Scenario.model_fields)
+    try:
+        data = yaml.safe_load(content)
+    except (yaml.YAMLError, RecursionError, ValueError):
+        return keys
+    if not isinstance(data, dict):
+        return keys
+    yaml_words = {None: "null", True: "true", False: "false"}
+    return keys | {yaml_words[k] if k is None or isinstance(k, bool) else str(k) for k in data}
+
+
+def check_answer(r: Outcome, path: Path, content: bytes) -> None:
+    """Exit 0 (nothing on stderr) or 2 (every line names a field or the file), nothing else."""
+    assert r.code in (0, 2), r.describe()
+    if r.code == 2:
+        bad = bad_lines(r.stderr, files=[str(path)], roots=top_keys(content))
+        assert not bad, f"{r.describe()}\nlines not naming a field or the file: {bad[:5]}"
+    else:
+        assert r.stderr == "", r.describe()
+
+
+def validate_mutant(name: str, content: bytes, where: Path, command: str = "validate") -> Outcome:
+    path = where / f"{name}.yaml"
+    path.write_bytes(content)
+    args = [command, str(path)]
+    if command == "show":
+        args += ["-o", str(where / "shown.png")]
+    r = run_cli(args)
+    check_answer(r, path, content)
+    return r
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("fuzz-scenarios")
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_validate_mutated_scenarios(name: str, work: Path) -> None:
+    @fuzz_settings(FAST_EXAMPLES)
+    @given(content=mutated_scenario(name))
+    def check(content: bytes) -> None:
+        validate_mutant(name, content, work)
+
+    check()
+
+
+@pytest.mark.parametrize("name", ["strategies_tiny", "discs_swap", "adaptive_fig3"])
+def test_show_mutated_scenarios(name: str, work: Path) -> None:
+    @fuzz_settings(SHOW_EXAMPLES)
+    @given(content=mutated_scenario(name))
+    def check(content: bytes) -> None:
+        validate_mutant(name, content, work, "show")
+
+    check()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_validate_mutated_scenarios_thousands(name: str, work: Path) -> None:
+    log = FailureLog("scenario", name)
+
+    @fuzz_settings(SLOW_EXAMPLES)
+    @given(content=mutated_scenario(name))
+    def check(content: bytes) -> None:
+        log.check(lambda: validate_mutant(name, content, work), content)
+
+    check()
+    log.finish()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["strategies_tiny", "discs_swap", "adaptive_fig3", "rotating_bar"])
+def test_show_mutated_scenarios_hundreds(name: str, work: Path) -> None:
+    log = FailureLog("show", name)
+
+    @fuzz_settings(SLOW_EXAMPLES // 8)
+    @given(content=mutated_scenario(name))
+    def check(content: bytes) -> None:
+        log.check(lambda: validate_mutant(name, content, work, "show"), content)
+
+    check()
+    log.finish()
