@@ -176,3 +176,20 @@ def test_show_draws_every_kind_of_scenario(cellplan, tmp_path, name):
     r = cellplan("show", name, "-o", str(out))
     assert r.returncode == 0, r.stderr
     assert out.stat().st_size > 10_000
+
+
+def test_validate_refuses_a_cspace_grid_that_cannot_fit_naming_the_field(cellplan, tmp_path):
+    import yaml
+
+    from cellplan.registry import resolve_scenario_path
+
+    data = yaml.safe_load(resolve_scenario_path("rotating_bar").read_text())
+    data.setdefault("cspace", {})["cells"] = [4096, 4096, 4096]
+    path = tmp_path / "big.yaml"
+    path.write_text(yaml.safe_dump(data))
+    r = cellplan("validate", str(path))
+    assert r.returncode == 2 and r.stdout == ""
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("error: cspace.cells 4096,4096,4096: needs about "), lines
+    assert "for the C-space bitmap; this machine has " in lines[0]

@@ -34,7 +34,7 @@ def summarize(setup: Setup) -> dict[str, str]:
 def _workcell_lines(setup: Setup) -> dict[str, str]:
     """Robot, C-space and free fraction; parts, sources and destinations only where the
     scenario has them (an adaptive scenario has none, and "none" lines say nothing)."""
-    from cellplan.cspace import Grid, free_bitmap
+    from cellplan.cspace import Grid, check_memory, free_bitmap
 
     sc, cell = setup.scenario, setup.workcell
     assert sc.robot is not None  # a workcell exists only with a robot
@@ -47,6 +47,7 @@ def _workcell_lines(setup: Setup) -> dict[str, str]:
     if sc.destinations:
         out["destinations (components)"] = regions(cell.destinations)
     grid = Grid.for_robot(cell.robot, cell.default_cells)
+    check_memory(cell, grid, field="cspace.cells" if sc.cspace.cells else "default cells")
     free = free_bitmap(cell, grid)
     shape = " x ".join(str(n) for n in grid.shape)
     sources = ", sources as obstacles" if sc.sources else ""
