@@ -141,3 +141,29 @@ def test_showcase_draws_figure_3_through_the_api_without_printing(
     (figure,) = item.figures
     assert Path(figure).stat().st_size > 10_000 and "cellplan.plan" in item.code
     assert "11 of 11 tasks solved" in item.caption
+
+
+def test_validate_refuses_a_change_that_lands_on_the_parked_robot(cellplan, tmp_path: Path) -> None:
+    from cellplan.registry import resolve_scenario_path
+
+    text = resolve_scenario_path("adaptive_fig3").read_text(encoding="utf-8")
+    # after task 2 the robot is parked at w2 = (3.5, 9.5); drop a box on it
+    text = text.replace(
+        "  changes:\n",
+        "  changes:\n"
+        "    - after_task: 2\n"
+        "      type: add_object\n"
+        "      object: D\n"
+        "      shape: {type: box, min: [3.3, 9.3], max: [3.7, 9.7]}\n",
+    )
+    path = tmp_path / "parked.yaml"
+    path.write_text(text, encoding="utf-8")
+    lines = [line for line in cellplan("validate", str(path)).stderr.splitlines() if line]
+    expected = (
+        "error: adaptive.changes[0]: puts an obstacle on the robot, parked at goal 'w2' "
+        "after task 2"
+    )
+    assert expected in lines, lines
+    adapt = cellplan("adapt", str(path), "-o", str(tmp_path / "out"))
+    assert adapt.returncode == 2 and not (tmp_path / "out").exists()
+    assert [line for line in adapt.stderr.splitlines() if line] == lines

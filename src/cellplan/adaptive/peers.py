@@ -49,7 +49,7 @@ def run_peer(
     sec = scenario.adaptive
     settings = settings_for(scenario, None, seed)
     n = task_count(scenario, tasks)
-    preflight(scenario, settings.resolution)
+    preflight(scenario, settings.resolution, settings.seed)
     world = World(scenario, settings.resolution)
     counter = CheckCounter()
     space = PlanSpace(

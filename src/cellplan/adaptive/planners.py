@@ -83,7 +83,8 @@ def run_adaptive_planner(
     n_tasks = task_count(sc, options.tasks)
     # Every check first: a scenario that fails them must not leave a database file
     # behind (it would then refuse the corrected scenario).
-    preflight(sc, settings_for(sc, options.repair, options.seed).resolution)
+    settings = settings_for(sc, options.repair, options.seed)
+    preflight(sc, settings.resolution, settings.seed)
     store = ExperienceStore(options.db, sc) if options.db is not None else None
 
     def on_task(done: int, total: int, row: dict[str, Any]) -> None:

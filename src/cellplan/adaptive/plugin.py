@@ -51,7 +51,7 @@ def describe(setup: Setup) -> Mapping[str, str]:
     sc = setup.scenario
     sec: AdaptiveSection = setup.section("adaptive")
     settings = settings_for(sc, None, None)
-    preflight(sc, settings.resolution)
+    preflight(sc, settings.resolution, settings.seed)
     kind = f"random, seed {sec.tasks.seed}" if isinstance(sec.tasks, RandomTasks) else "listed"
     return {
         "adaptive goals": f"{len(sec.goals)} ({', '.join(sorted(sec.goals))})",

@@ -155,7 +155,7 @@ def run_adaptive(
     settings = settings_for(scenario, repair_strategy, seed)
     n_tasks = task_count(scenario, tasks)
     if not checked:
-        preflight(scenario, settings.resolution)
+        preflight(scenario, settings.resolution, settings.seed)
     planner = ExperiencePlanner(scenario, settings.repair, seed=settings.seed, hook=hook)
     world, adapter, counter = planner.world, planner.adapter, planner.counter
     changes = sec.ordered_changes()

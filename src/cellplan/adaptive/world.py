@@ -357,24 +357,51 @@ class World:
         self._geoms = None
 
 
-def preflight(scenario: Scenario, resolution: float | None = None) -> None:
+def preflight(scenario: Scenario, resolution: float | None, seed: int) -> None:
     """Check every goal at every stage of the change schedule before any work is done.
+
+    Also follows the task sequence (listed, or drawn with ``seed`` as the run draws it)
+    assuming every task reaches its goal, and refuses a change that puts an obstacle on
+    the robot where the previous task leaves it: the run would stop there.
 
     Raises
     ------
     ScenarioError
-        One problem per goal that is unreachable or in collision at some stage.
+        One problem per goal that is unreachable or in collision at some stage, and one
+        per change that lands on the parked robot.
     """
+    from cellplan.adaptive.runner import choose_goal, task_count
+
     world = World(scenario, resolution)
     problems = world.goal_problems("adaptive.goals")
     named = {p.field for p in problems}
-    assert world.section is not None
-    for i, change in world.section.ordered_changes():
-        world.apply(change)
-        when = f" after adaptive.changes[{i}] (after task {change.after_task})"
-        for p in world.goal_problems("adaptive.goals", when):
-            if p.field not in named:  # the first stage where a goal goes wrong is enough
-                named.add(p.field)
-                problems.append(p)
+    sec = world.section
+    assert sec is not None
+    changes = sec.ordered_changes()
+    n_tasks = task_count(scenario, None)
+    last = max((c.after_task for _, c in changes), default=0)
+    q: FloatArray | None = np.asarray(world.robot.start, float)
+    current: str | None = None
+    for t in range(max(n_tasks, last + 1)):
+        for i, change in changes:
+            if change.after_task != t:
+                continue
+            world.apply(change)
+            when = f" after adaptive.changes[{i}] (after task {change.after_task})"
+            for p in world.goal_problems("adaptive.goals", when):
+                if p.field not in named:  # the first stage where a goal goes wrong is enough
+                    named.add(p.field)
+                    problems.append(p)
+            if t < n_tasks and q is not None and not world.is_free(q[None, :])[0]:
+                where = "at its start" if current is None else f"at goal {current!r}"
+                problems.append(
+                    Problem(
+                        f"adaptive.changes[{i}]",
+                        f"puts an obstacle on the robot, parked {where} after task {t}",
+                    )
+                )
+        if t < n_tasks:
+            current = choose_goal(sec, list(world.goals), t, current, seed)
+            q = world.goal_config(current) if current in world.goals else None
     if problems:
         raise ScenarioError(problems)
