@@ -47,3 +47,21 @@ def cellplan(capsys, monkeypatch) -> Callable[..., Result]:
         return Result(code, out.out, out.err)
 
     return run
+
+
+@pytest.fixture
+def frame_counters(monkeypatch) -> list[str]:
+    """The frame-counter texts of every animation frame rendered during the test."""
+    import cellplan.plots
+
+    counters: list[str] = []
+    render = cellplan.plots.figure_to_rgb
+
+    def spy(fig, width):
+        counters.extend(
+            t.get_text() for ax in fig.axes for t in ax.texts if t.get_gid() == "frame-counter"
+        )
+        return render(fig, width)
+
+    monkeypatch.setattr(cellplan.plots, "figure_to_rgb", spy)
+    return counters

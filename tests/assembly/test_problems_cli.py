@@ -198,21 +198,11 @@ def test_cli_writes_frames_gif_trajectory_and_metrics(tmp_path: Path) -> None:
         assert gif.size[0] == 300
 
 
-def test_every_animation_frame_has_a_time_counter(tmp_path: Path, monkeypatch) -> None:
-    import cellplan.plots
+def test_every_animation_frame_has_a_time_counter(tmp_path: Path, frame_counters) -> None:
     from cellplan import api
     from cellplan.assembly.plots import save_animation
 
-    counters: list[str] = []
-    render = cellplan.plots.figure_to_rgb
-
-    def spy(fig, width):
-        counters.extend(
-            t.get_text() for ax in fig.axes for t in ax.texts if t.get_gid() == "frame-counter"
-        )
-        return render(fig, width)
-
-    monkeypatch.setattr(cellplan.plots, "figure_to_rgb", spy)
+    counters = frame_counters
     result = api.plan(api.load("discs_swap"), "assembly.gradient")
     traj = result.trajectory
     save_animation(

@@ -19,6 +19,8 @@ import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
+from hypothesis import HealthCheck, Phase, settings
+
 from cellplan.cli import main
 
 #: Seconds one in-process command may take before the fuzzer calls it a hang.
@@ -189,3 +191,17 @@ class FailureLog:
         assert not self.failed, (
             f"{len(self.failed)} of {self.tried} failed; first: {self.failed[0]}"
         )
+
+
+def fuzz_settings(examples: int) -> settings:
+    """Fixed seed, no example database: the same cases on every machine and run."""
+    return settings(
+        max_examples=examples,
+        derandomize=True,
+        database=None,
+        deadline=None,
+        # no shrinking or explaining: a failing case is printed as drawn, and the
+        # tracer of the explain phase would slow every call tenfold
+        phases=[Phase.explicit, Phase.generate],
+        suppress_health_check=list(HealthCheck),
+    )

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from fuzz_harness import FailureLog, bad_lines, run_cli
-from hypothesis import HealthCheck, Phase, given, settings
+from fuzz_harness import FailureLog, bad_lines, fuzz_settings, run_cli
+from hypothesis import given
 from hypothesis import strategies as st
 
 FAST_EXAMPLES = 4
@@ -216,17 +216,6 @@ def table(tmp_path_factory: pytest.TempPathFactory) -> dict:
     return commands(tmp, strategy)
 
 
-def option_settings(examples: int) -> settings:
-    return settings(
-        max_examples=examples,
-        derandomize=True,
-        database=None,
-        deadline=None,
-        phases=[Phase.explicit, Phase.generate],
-        suppress_health_check=list(HealthCheck),
-    )
-
-
 COMMANDS = [
     "validate", "show", "cspace", "solve", "simulate", "plot", "adapt", "assemble",
     "assemble --random", "reproduce", "demo",
@@ -257,7 +246,7 @@ def check_case(argv: list[str], bad_flag: str, where: Path) -> None:
 
 @pytest.mark.parametrize("name", COMMANDS)
 def test_options(name: str, table: dict, tmp_path: Path) -> None:
-    @option_settings(FAST_EXAMPLES)
+    @fuzz_settings(FAST_EXAMPLES)
     @given(case=option_case(table, name))
     def check(case: tuple[list[str], str]) -> None:
         check_case(*case, tmp_path)
@@ -270,7 +259,7 @@ def test_options(name: str, table: dict, tmp_path: Path) -> None:
 def test_options_thousands(name: str, table: dict, tmp_path: Path) -> None:
     log = FailureLog("options", name)
 
-    @option_settings(SLOW_EXAMPLES)
+    @fuzz_settings(SLOW_EXAMPLES)
     @given(case=option_case(table, name))
     def check(case: tuple[list[str], str]) -> None:
         log.check(lambda: check_case(*case, tmp_path), "\0".join(case[0]))

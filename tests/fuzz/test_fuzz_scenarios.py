@@ -15,29 +15,15 @@ from pathlib import Path
 
 import pytest
 import yaml
-from fuzz_harness import FailureLog, Outcome, bad_lines, run_cli
+from fuzz_harness import FailureLog, Outcome, bad_lines, fuzz_settings, run_cli
 from fuzz_mutations import SCENARIOS, mutated_scenario
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import given
 
 from cellplan.scenario import Scenario
 
 FAST_EXAMPLES = 4
 SLOW_EXAMPLES = int(os.environ.get("CELLPLAN_FUZZ_EXAMPLES", "800"))
 SHOW_EXAMPLES = 3
-
-
-def fuzz_settings(examples: int) -> settings:
-    """Fixed seed, no example database: the same cases on every machine and run."""
-    return settings(
-        max_examples=examples,
-        derandomize=True,
-        database=None,
-        deadline=None,
-        # no shrinking or explaining: a failing case is printed as drawn, and the
-        # tracer of the explain phase would slow every call tenfold
-        phases=[Phase.explicit, Phase.generate],
-        suppress_health_check=list(HealthCheck),
-    )
 
 
 def top_keys(content: bytes) -> set[str]:

@@ -169,11 +169,10 @@ def test_bad_gif_size_is_one_line_and_writes_nothing(cellplan, scenario, tmp_pat
     assert not out.exists()
 
 
-def test_gif_frames_are_wide_and_carry_a_stage_counter(tmp_path, monkeypatch):
+def test_gif_frames_are_wide_and_carry_a_stage_counter(tmp_path, frame_counters):
     from PIL import Image
     from strategies_helpers import tiny
 
-    import cellplan.plots
     from cellplan.plots import GIF_SIZE
     from cellplan.strategies.plots import save_animation
     from cellplan.strategies.simulate import simulate
@@ -182,16 +181,7 @@ def test_gif_frames_are_wide_and_carry_a_stage_counter(tmp_path, monkeypatch):
     sc, cell = tiny(12)
     strategy, _ = solve_scenario(sc, cell)
     sim = simulate(strategy, 30, seed=1, cell=cell)
-    counters: list[str] = []
-    render = cellplan.plots.figure_to_rgb
-
-    def spy(fig, width):
-        counters.extend(
-            t.get_text() for ax in fig.axes for t in ax.texts if t.get_gid() == "frame-counter"
-        )
-        return render(fig, width)
-
-    monkeypatch.setattr(cellplan.plots, "figure_to_rgb", spy)
+    counters = frame_counters
     gif = save_animation(strategy, cell, sim, tmp_path / "a.gif", max_frames=5)
     with Image.open(gif) as im:
         assert im.size[0] == GIF_SIZE >= 480
