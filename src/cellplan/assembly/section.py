@@ -57,11 +57,11 @@ class DiscSpec(StrictModel):
     """goal of the centre (workcell units)"""
 
 
-#: Most discs of a generated problem: the flows' work grows with the pairs of discs (and
+#: Most discs of a problem, listed or generated: the flows' work grows with the pairs of discs (and
 #: the implicit integrator's with the cube of the dimension). Measured on a shared 2-core
 #: machine (docs/reliability.md): 10 discs 19 s, 60 discs 58 s, 100 discs 12 minutes;
 #: beyond that a run takes hours.
-MAX_GENERATED_DISCS = 100
+MAX_DISCS = 100
 
 
 class GeneratorSpec(StrictModel):
@@ -76,8 +76,8 @@ class GeneratorSpec(StrictModel):
     random permutation of the goals, the paper's hard case of Section 5.2.2).
     """
 
-    n: Annotated[int, Field(ge=1, le=MAX_GENERATED_DISCS)]
-    """number of discs (at most MAX_GENERATED_DISCS)"""
+    n: Annotated[int, Field(ge=1, le=MAX_DISCS)]
+    """number of discs (at most MAX_DISCS)"""
     seed: Annotated[int, Field(ge=0)] = 0
     """seed of the generator"""
     radius: Annotated[float, Field(ge=1e-6, le=COORD_LIMIT, allow_inf_nan=False)] = 1.0
@@ -99,8 +99,8 @@ class DiscsSection(StrictModel):
 
     boundary: Boundary = Field(default_factory=lambda: WorkcellBoundary(type="workcell"))
     """the workspace: the workcell rectangle or a disc"""
-    discs: list[DiscSpec] | None = Field(default=None, min_length=1)
-    """the discs, listed (or use generate)"""
+    discs: list[DiscSpec] | None = Field(default=None, min_length=1, max_length=MAX_DISCS)
+    """the discs, listed (or use generate); at most MAX_DISCS"""
     generate: GeneratorSpec | None = None
     """a seeded random problem (or list discs)"""
     # k: None means the rule of layout.rule_k (docs/assembly.md, "The default k"), the one
