@@ -85,7 +85,10 @@ def run_cli(args: Sequence[str], timeout: float = HANG_SECONDS) -> Outcome:
 # (``sources.S1.components[0].min``, ``workcell.obstacles['a b']``).
 _PLAIN = r"[A-Za-z0-9_.\-]+"
 _QUOTED = r"\[(?:'(?:[^'\\]|\\.)*'|\"(?:[^\"\\]|\\.)*\")\]"
-FIELD_RE = re.compile(rf"(?P<root>{_PLAIN}|{_QUOTED})(?:\.{_PLAIN}|\[\d+\]|{_QUOTED})*")
+# a field path, optionally followed by the request it is about (strategy.requests <P1,S1,D1>)
+FIELD_RE = re.compile(
+    rf"(?P<root>{_PLAIN}|{_QUOTED})(?:\.{_PLAIN}|\[\d+\]|{_QUOTED})*(?: <[\w.,\-]+>)?"
+)
 # a long option, a short one (click reads "-9..." as one), an argument, the program
 OPTION_RE = re.compile(r"--[a-z][a-z0-9\-]*|-[a-z0-9]|[A-Z][A-Z_]*|cellplan")
 MORE_RE = re.compile(r"error: \d+ more problems? not shown")
@@ -179,6 +182,7 @@ class FailureLog:
             self.failed.append(f"{type(exc).__name__}: {str(exc)[:2000]}")
             folder = os.environ.get("CELLPLAN_FUZZ_FAILURES")
             if folder:
+                os.makedirs(folder, exist_ok=True)
                 stem = f"{folder}/{self.kind}-{self.name.replace(' ', '_')}-{len(self.failed)}"
                 with open(stem + ".txt", "w", encoding="utf-8") as f:
                     f.write(self.failed[-1])
