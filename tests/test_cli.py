@@ -127,7 +127,7 @@ def test_validate_json_is_one_object_on_stdout(cellplan):
 def test_a_bug_exits_70_with_one_line(cellplan, monkeypatch):
     import cellplan.summary as summary
 
-    def broken(setup):
+    def broken(setup, progress=None):
         raise KeyError("oops")
 
     monkeypatch.setattr(summary, "summarize", broken)

@@ -112,9 +112,12 @@ def planners() -> None:
 def validate(scenario: ScenarioArg, as_json: JsonOpt = False) -> None:
     """Validate a scenario and print a short summary (modes, C-space dimension, free fraction)."""
     from cellplan.api import load
+    from cellplan.cliutil import progress_bar, progress_enabled
     from cellplan.summary import summarize
 
-    lines = summarize(load(scenario))
+    setup = load(scenario)
+    with progress_bar(progress_enabled(as_json), "validating") as progress:
+        lines = summarize(setup, progress)
     if as_json:
         print_json({"status": "valid", "message": "the scenario is valid", "summary": lines})
         return

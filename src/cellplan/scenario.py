@@ -49,8 +49,8 @@ from cellplan.schema import (
     Bounds,
     Cells,
     Coord,
+    Length,
     Name,
-    PositiveFloat,
     Shape,
     StrictModel,
     Vec2,
@@ -154,9 +154,9 @@ class LinkSpec(StrictModel):
     or a capsule, that rectangle with round end caps (discs of diameter ``width`` centred
     on the link's two joints)."""
 
-    length: PositiveFloat
+    length: Length
     """joint-to-joint length (workcell units)"""
-    width: PositiveFloat
+    width: Length
     """link width, the caps' diameter for capsules (workcell units)"""
     shape: Literal["rectangle", "capsule"] = "rectangle"
     """rectangle, or capsule (round end caps)"""

@@ -6,15 +6,26 @@ has adds its own lines through :attr:`cellplan.core.Package.describe`.
 
 from __future__ import annotations
 
+from cellplan.core import Progress
 from cellplan.registry import packages
 from cellplan.scenario import robot_dimension
 from cellplan.setup import Setup
 
 
-def summarize(setup: Setup) -> dict[str, str]:
+def summarize(setup: Setup, progress: Progress | None = None) -> dict[str, str]:
     """Key facts of a validated scenario: its workcell model, when it has a robot, and the
-    lines of every package whose section it has (which may run that package's checks)."""
+    lines of every package whose section it has (which may run that package's checks).
+
+    ``progress(done, total, text)``, if given, hears which check is running: a package's
+    checks can take minutes (the strategies model of a large scenario is built in full).
+    """
     sc = setup.scenario
+    sections = [
+        pkg
+        for pkg in packages().values()
+        if pkg.section in sc.section_names() and pkg.describe is not None
+    ]
+    steps = 1 + len(sections)
 
     b = sc.workcell.bounds
     out = {
@@ -24,10 +35,14 @@ def summarize(setup: Setup) -> dict[str, str]:
         "sections": ", ".join(sc.section_names()) or "none",
     }
     if sc.robot is not None:
+        if progress is not None:
+            progress(0, steps, "the workcell's free space")
         out |= _workcell_lines(setup)
-    for pkg in packages().values():
-        if pkg.section in sc.section_names() and pkg.describe is not None:
-            out |= dict(pkg.describe(setup))
+    for i, pkg in enumerate(sections):
+        if progress is not None:
+            progress(1 + i, steps, f"the {pkg.section} section's checks")
+        assert pkg.describe is not None
+        out |= dict(pkg.describe(setup))
     return out
 
 

@@ -86,11 +86,11 @@ def run_cli(args: Sequence[str], timeout: float = HANG_SECONDS) -> Outcome:
 _PLAIN = r"[A-Za-z0-9_.\-]+"
 _QUOTED = r"\[(?:'(?:[^'\\]|\\.)*'|\"(?:[^\"\\]|\\.)*\")\]"
 # a field path, optionally followed by the request it is about (strategy.requests <P1,S1,D1>)
-FIELD_RE = re.compile(
-    rf"(?P<root>{_PLAIN}|{_QUOTED})(?:\.{_PLAIN}|\[\d+\]|{_QUOTED})*(?: <[\w.,\-]+>)?"
-)
+# or by the value it holds (strategy.cells 64,64,30: needs about 53 GB ...)
+_ABOUT = r"(?: <[\w.,\-]+>| [\w.,+\-]+)?"
+FIELD_RE = re.compile(rf"(?P<root>{_PLAIN}|{_QUOTED})(?:\.{_PLAIN}|\[\d+\]|{_QUOTED})*{_ABOUT}")
 # a long option, a short one (click reads "-9..." as one), an argument, the program
-OPTION_RE = re.compile(r"--[a-z][a-z0-9\-]*|-[a-z0-9]|[A-Z][A-Z_]*|cellplan")
+OPTION_RE = re.compile(rf"(?:--[a-z][a-z0-9\-]*|-[a-z0-9]|[A-Z][A-Z_]*|cellplan){_ABOUT}")
 MORE_RE = re.compile(r"error: \d+ more problems? not shown")
 
 

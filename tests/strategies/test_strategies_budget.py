@@ -130,3 +130,22 @@ def test_solve_and_simulate_draw_one_transient_bar_when_stdout_is_piped(tmp_path
     assert code == 0, err
     assert out.count("\n") == 1 and "requests served" in out, out
     assert "simulating" in err and re.search(r"\d+/300", err), err[-500:]
+
+
+def test_validate_shows_which_check_runs_and_prints_the_summary_once(tmp_path):
+    code, out, err = _on_a_terminal(["validate", "strategies_tiny"], tmp_path)
+    assert code == 0, err
+    assert "validating" in err and "━" not in out
+    assert out.count("assembly modes:") == 1 and out.count("free fraction:") == 1, out
+
+
+def test_summarize_reports_each_check_before_it_runs():
+    from cellplan.summary import summarize
+
+    calls = []
+    lines = summarize(api.load("strategies_tiny"), lambda d, t, text: calls.append((d, t, text)))
+    assert calls == [
+        (0, 2, "the workcell's free space"),
+        (1, 2, "the strategy section's checks"),
+    ]
+    assert "assembly modes" in lines
