@@ -20,6 +20,7 @@ from cellplan.registry import resolve_scenario_path
 
 TINY = resolve_scenario_path("strategies_tiny").read_text(encoding="utf-8")
 SWAP = resolve_scenario_path("discs_swap").read_text(encoding="utf-8")
+P5 = resolve_scenario_path("strategies_p5").read_text(encoding="utf-8")
 
 
 def write(tmp: Path, text: str | bytes, name: str = "s.yaml") -> Path:
@@ -68,6 +69,10 @@ BAD_FILES = {
     ).encode(),
     "null key": TINY.replace("  middle:", "  null:").encode(),
     "true key": TINY.replace("robot:", "true: 1\nrobot:").encode(),
+    # reached GEOS through the region enclosure test (exit 70) once validate built the model
+    "arm link width 3e300": P5.replace(
+        "{length: 25, width: 3}", "{length: 25, width: 3e300}"
+    ).encode(),
     "empty file": b"",
     "a list": b"- 1\n- 2\n",
 }
