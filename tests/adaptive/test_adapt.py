@@ -168,7 +168,9 @@ def test_bad_input_is_refused_before_work() -> None:
         loads_scenario(POINT_SCENARIO.replace("tasks: [g1, home,", "tasks: [g1, nowhere,"))
     inside = loads_scenario(POINT_SCENARIO.replace("g1: {at: [9.0, 1.0]}", "g1: {at: [5.0, 1.0]}"))
     with pytest.raises(
-        ScenarioError, match=r"adaptive\.goals\.g1: the goal configuration is in collision"
+        ScenarioError,
+        match=r"adaptive\.goals\.g1: the goal configuration collides with \(or is within the "
+        r"clearance of\) obstacle 'A'$",
     ):
         run_adaptive(inside)
     with pytest.raises(ArgumentError, match=r"^repair: unknown repair strategy"):

@@ -386,13 +386,7 @@ class ExperiencePlanner:
         if empty.collides(q[None, :], avoid_sources="none")[0]:
             raise ArgumentError(f"configuration {shown} leaves the workcell bounds", name)
         for margin, how in ((0.0, "collides with"), (world.margin, "is within the clearance")):
-            hits = [
-                n
-                for n in sorted(world.objects)
-                if world.base_cell.with_obstacles({n: world.world_shape(n)}).collides(
-                    q[None, :], avoid_sources="none", margin=margin
-                )[0]
-            ]
+            hits = world.hits(q, margin)
             if hits and margin == 0.0:
                 names = ", ".join(repr(h) for h in hits)
                 raise ArgumentError(f"configuration {shown} {how} obstacle {names}", name)

@@ -201,6 +201,17 @@ class World:
         """Validity of configurations in the current environment (with the clearance margin)."""
         return ~self.workcell().collides(Q, avoid_sources="none", margin=self.margin)
 
+    def hits(self, q: FloatArray, margin: float = 0.0) -> list[str]:
+        """Names of the objects one configuration meets (within ``margin``), sorted."""
+        q = np.asarray(q, float)[None, :]
+        return [
+            n
+            for n in sorted(self.objects)
+            if self.base_cell.with_obstacles({n: self.world_shape(n)}).collides(
+                q, avoid_sources="none", margin=margin
+            )[0]
+        ]
+
     def is_free_exact(self, Q: FloatArray) -> np.ndarray:
         """Validity without the clearance margin: no contact (re-checks of executed paths)."""
         return ~self.workcell().collides(Q, avoid_sources="none")
@@ -286,9 +297,14 @@ class World:
                     )
                 )
             elif not (self.robot.within_limits(q[None, :])[0] and self.is_free(q[None, :])[0]):
-                problems.append(
-                    Problem(f"{where}.{name}", f"the goal configuration is in collision{when}")
+                hits = self.hits(q, self.margin)
+                what = (
+                    f"collides with (or is within the clearance of) obstacle "
+                    f"{', '.join(repr(h) for h in hits)}"
+                    if hits
+                    else "is outside the joint limits or the workcell bounds"
                 )
+                problems.append(Problem(f"{where}.{name}", f"the goal configuration {what}{when}"))
         return problems
 
     # --- changes --------------------------------------------------------------------------
