@@ -290,3 +290,100 @@ def test_exact_evaluation_solves_the_policys_linear_system(mdp, seed, g):
     evaluate(h[m], D[m], live_c, ptr, succ_, wt, cst, dcst, fixed)
     np.testing.assert_allclose(h[m][cells], h_ref, rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(D[m][cells], d_ref, rtol=1e-8, atol=1e-8)
+
+
+# --- live states --------------------------------------------------------------------------
+
+
+def ref_live(mdp):
+    """The live states from their definition (docs/strategies.md, "Live states").
+
+    Plain loops, Jacobi order across layers: a W or C layer keeps the cells from which
+    some chain of actions, each with a live corner in every branch, reaches a cell where
+    its FMP is allowed and lands live; NR keeps the cells with some such action. Iterated
+    from the free bitmaps down to the greatest fixed point, which does not depend on the
+    order the layers are visited in.
+    """
+    M = mdp.n_modes
+    fmp_ok = np.isfinite(mdp.tf)
+    live = np.stack([mdp.free[mdp.vcls[m]] for m in range(M)])
+
+    def action_ok(m, c, a, target, prev):
+        if a >= 0 and not (int(mdp.valid[mdp.vcls[m], c]) >> a) & 1:
+            return False
+        st_ = landing(mdp, m, c, a)
+        for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
+            L, p = int(mdp.branch_layer[b]), float(mdp.branch_prob[b])
+            src = target if L == m else prev[L]
+            if p > 0 and not any(w > 1e-12 and src[i] for i, w in st_.items()):
+                return False
+        return True
+
+    while True:
+        prev = live.copy()
+        for m in range(M):
+            nxt = int(mdp.fmp_next[m])
+            acts = range(0 if nxt >= 0 else -1, int(mdp.nact[mdp.vcls[m]]))
+            if nxt >= 0:
+                target = prev[m] & fmp_ok[m] & prev[nxt]
+            else:
+                target = prev[m].copy()
+            while True:
+                before = target.copy()
+                for c in np.flatnonzero(prev[m]):
+                    good = any(action_ok(m, c, a, before, prev) for a in acts)
+                    if nxt >= 0 and good:
+                        target[c] = True
+                    if nxt < 0 and not good:
+                        target[c] = False
+                if np.array_equal(before, target):
+                    break
+            live[m] = target
+        if np.array_equal(prev, live):
+            return live
+
+
+@st.composite
+def multi_request_models(draw) -> LayeredMDP:
+    """Two sources, two destinations (the second sometimes a copy of the first), changes."""
+    nx, ny = draw(st.integers(3, 6)), draw(st.integers(3, 6))
+    rng = np.random.default_rng(draw(st.integers(0, 2**31 - 1)))
+    n = nx * ny
+    free = rng.random(n) < draw(st.sampled_from([0.6, 0.85, 1.0]))
+    copies = draw(st.booleans())
+    drop_d = rng.random(n) < 0.3
+    drop_e = drop_d if copies else rng.random(n) < 0.3
+    geometry = Geometry(
+        free_nr=free,
+        free_w={"S": free, "T": free & (rng.random(n) < 0.9)},
+        free_c={("P", s): free & (rng.random(n) < 0.9) for s in "ST"},
+        pick={("P", s): rng.random(n) < 0.3 for s in "ST"},
+        drop={("P", "D"): drop_d, ("P", "E"): drop_e},
+        tf_pick={("P", s): np.ones(n) for s in "ST"},
+        tf_drop={("P", d): np.ones(n) for d in "DE"},
+    )
+    nact = draw(st.integers(2, 4))
+    disp = rng.uniform(-1.5, 1.5, size=(nact, 2))
+    acts = ActionSet(np.ascontiguousarray(disp), -1, tuple(f"a{i}" for i in range(nact)))
+    return assemble(
+        shape=(nx, ny),
+        lower=(0.0, 0.0),
+        upper=(float(nx), float(ny)),
+        periodic=(False, draw(st.booleans())),
+        requests=[("P", s, d, 0.25) for s in "ST" for d in "DE"],
+        geometry=geometry,
+        actions_empty=acts,
+        actions_carrying={"P": acts},
+        stage_time=1.0,
+        arrival=0.2,
+        destination_change=draw(st.sampled_from([0.0, 0.1])),
+        source_change=draw(st.sampled_from([0.0, 0.1])),
+    )
+
+
+@settings(max_examples=60, deadline=None)
+@given(multi_request_models())
+def test_live_states_match_their_definition(mdp):
+    # assemble() ran compute_live, which skips layers whose inputs did not change and
+    # copies the result of a layer with identical inputs (the copied destination).
+    np.testing.assert_array_equal(mdp.live, ref_live(mdp))

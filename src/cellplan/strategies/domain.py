@@ -3,7 +3,7 @@
 The MDP is defined on live states only (docs/strategies.md, "Live states"): without this
 a cell that can never deliver would have infinite relative cost and break the
 average-cost iteration, and the input checks could not name a request that is never
-served. :func:`live_pass` shrinks the live sets once;
+served. :func:`live_layer` shrinks one layer's live set once;
 :func:`cellplan.strategies.model.compute_live` repeats it until nothing changes.
 """
 
@@ -17,19 +17,22 @@ from cellplan.strategies.stencils import cell_of_order, move_corners
 
 
 @njit(cache=True)
-def live_pass(live, fmp_ok, model):  # pragma: no cover - numba
-    """Shrink ``live`` (``(M, N)``, in place) once; returns whether anything changed.
+def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
+    """Shrink layer ``m`` of ``live`` (``(M, N)``, in place) once; returns whether it changed.
 
-    Layers with an FMP successor keep the states from which an FMP-capable state
+    A layer with an FMP successor keeps the states from which an FMP-capable state
     (``fmp_ok``) is reachable through actions whose every branch lands on live states (a
     backward closure); a layer without FMP (NR) keeps the states that have some such
-    action. ``model.layers.live`` is not read (``live`` replaces it).
+    action. The result depends only on the rows ``live[m]``, ``fmp_ok[m]``, the
+    successor's and the branch layers' ``live`` rows, and the layer's motion class, and
+    running it again on its own output changes nothing (the caller,
+    :func:`cellplan.strategies.model.compute_live`, relies on both to skip work).
+    ``model.layers.live`` is not read (``live`` replaces it).
     """
     moves = model.moves
     grid = model.grid
     lay = model.layers
     shape = grid.shape
-    M = live.shape[0]
     ncell = live.shape[1]
     d = shape.shape[0]
     mi = np.empty(d, np.int64)
@@ -37,76 +40,75 @@ def live_pass(live, fmp_ok, model):  # pragma: no cover - numba
     w = np.empty(1 << d)
     changed = False
     reach = np.zeros(ncell, np.bool_)
-    for m in range(M):
-        nxt = lay.fmp_next[m]
-        k = lay.vcls[m]
-        na = moves.nact[k]
-        if nxt >= 0:
-            for c in range(ncell):
-                reach[c] = live[m, c] and fmp_ok[m, c] and live[nxt, c]
-            target = reach
-        else:
-            target = live[m].copy()
-        sweep = 0
-        while True:
-            grew = False
-            for kk in range(ncell):
-                c = cell_of_order(kk, shape, sweep % (1 << d), mi)
-                if not live[m, c]:
-                    continue
-                if nxt >= 0 and target[c]:
-                    continue
-                good = False
-                for a in range(-1, na):
-                    if a >= 0:
-                        if ((moves.valid[k, c] >> a) & 1) == 0:
-                            continue
-                        n = move_corners(
-                            k,
-                            a,
-                            c,
-                            mi,
-                            moves.interior[k, c],
-                            moves.offs,
-                            moves.fr,
-                            moves.coff,
-                            moves.cw,
-                            moves.heading_axis,
-                            grid.shape,
-                            grid.periodic,
-                            idx,
-                            w,
-                        )
-                    else:
-                        if nxt >= 0:
-                            continue  # staying never finishes a request
-                        n = 1
-                        idx[0] = c
-                        w[0] = 1.0
-                    allsup = True
-                    for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
-                        L = lay.branch_layer[b]
-                        if lay.branch_prob[b] <= 0.0:
-                            continue
-                        src = target if L == m else live[L]
-                        if not supported(src, idx, w, n):
-                            allsup = False
-                            break
-                    if allsup:
-                        good = True
-                        break
-                if nxt >= 0:
-                    if good:
-                        target[c] = True
-                        grew = True
-                elif not good and target[c]:
-                    target[c] = False
-                    grew = True
-            sweep += 1
-            if not grew:
-                break
+    nxt = lay.fmp_next[m]
+    k = lay.vcls[m]
+    na = moves.nact[k]
+    if nxt >= 0:
         for c in range(ncell):
-            if live[m, c] != target[c]:
-                changed = True
-            live[m, c] = target[c]
+            reach[c] = live[m, c] and fmp_ok[m, c] and live[nxt, c]
+        target = reach
+    else:
+        target = live[m].copy()
+    sweep = 0
+    while True:
+        grew = False
+        for kk in range(ncell):
+            c = cell_of_order(kk, shape, sweep % (1 << d), mi)
+            if not live[m, c]:
+                continue
+            if nxt >= 0 and target[c]:
+                continue
+            good = False
+            for a in range(-1, na):
+                if a >= 0:
+                    if ((moves.valid[k, c] >> a) & 1) == 0:
+                        continue
+                    n = move_corners(
+                        k,
+                        a,
+                        c,
+                        mi,
+                        moves.interior[k, c],
+                        moves.offs,
+                        moves.fr,
+                        moves.coff,
+                        moves.cw,
+                        moves.heading_axis,
+                        grid.shape,
+                        grid.periodic,
+                        idx,
+                        w,
+                    )
+                else:
+                    if nxt >= 0:
+                        continue  # staying never finishes a request
+                    n = 1
+                    idx[0] = c
+                    w[0] = 1.0
+                allsup = True
+                for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+                    L = lay.branch_layer[b]
+                    if lay.branch_prob[b] <= 0.0:
+                        continue
+                    src = target if L == m else live[L]
+                    if not supported(src, idx, w, n):
+                        allsup = False
+                        break
+                if allsup:
+                    good = True
+                    break
+            if nxt >= 0:
+                if good:
+                    target[c] = True
+                    grew = True
+            elif not good and target[c]:
+                target[c] = False
+                grew = True
+        sweep += 1
+        if not grew:
+            break
+    for c in range(ncell):
+        if live[m, c] != target[c]:
+            changed = True
+        live[m, c] = target[c]
     return changed

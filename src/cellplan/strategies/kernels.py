@@ -19,7 +19,7 @@ The names below are re-exported for callers written against the single module.
 from __future__ import annotations
 
 from cellplan.strategies.bellman import bellman_all, bellman_rows
-from cellplan.strategies.domain import live_pass
+from cellplan.strategies.domain import live_layer
 from cellplan.strategies.interpolation import interp, supported
 from cellplan.strategies.motion import motion_ok, valid_moves
 from cellplan.strategies.points import action_values_at, lookahead, query
@@ -41,7 +41,7 @@ __all__ = [
     "displacement",
     "interp",
     "layer_iteration",
-    "live_pass",
+    "live_layer",
     "lookahead",
     "motion_ok",
     "other_branches",

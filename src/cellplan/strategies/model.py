@@ -17,7 +17,7 @@ changes to another of the same part and destination (type 3). FMP moves
 ``d`` with probability one. The loss is equation (7).
 
 A layer's *live* states are the free cells from which its request can be finished
-(computed by :func:`cellplan.strategies.domain.live_pass`); the MDP is defined on live
+(computed by :func:`cellplan.strategies.domain.live_layer`); the MDP is defined on live
 states only, which keeps it unichain-friendly and lets the input checks name a request
 that can never be served.
 """
@@ -34,7 +34,7 @@ import numpy as np
 from cellplan.errors import Problem, ScenarioError
 from cellplan.strategies.actions import ActionSet, action_set
 from cellplan.strategies.bundles import Grid, Layers, Model, Moves
-from cellplan.strategies.domain import live_pass
+from cellplan.strategies.domain import live_layer
 from cellplan.strategies.motion import valid_moves
 
 NR = "NR"
@@ -383,16 +383,74 @@ def corner_tables(
 
 
 def compute_live(mdp: LayeredMDP) -> None:
-    """Restrict ``mdp.live`` to the states that can finish their request (in place)."""
+    """Restrict ``mdp.live`` to the states that can finish their request (in place).
+
+    Repeats :func:`_live_pass` until nothing changes, remembering each layer's inputs so
+    that a later pass skips the layers whose inputs did not change.
+    """
+    fmp_ok = mdp.tf < np.inf
+    settled: list[tuple[Any, ...] | None] = [None] * mdp.n_modes
     for _ in range(100):
-        if not _live_pass(mdp, mdp.live):
+        if not _live_pass(mdp, mdp.live, fmp_ok, settled):
             return
     raise RuntimeError("live-state computation did not settle")  # pragma: no cover
 
 
-def _live_pass(mdp: LayeredMDP, live: np.ndarray) -> bool:
-    """One shrinking pass of ``live`` (:func:`.domain.live_pass`); True if anything changed."""
-    return bool(live_pass(live, mdp.tf < np.inf, mdp.kernel_args()))
+def _live_pass(
+    mdp: LayeredMDP,
+    live: np.ndarray,
+    fmp_ok: np.ndarray,
+    settled: list[tuple[Any, ...] | None] | None = None,
+) -> bool:
+    """One shrinking pass of ``live`` over every layer; True if anything changed.
+
+    :func:`.domain.live_layer` is a function of a few rows of ``live`` and ``fmp_ok``
+    (its *inputs*), and running it on its own output changes nothing. So a layer whose
+    inputs equal, byte for byte, those of a layer already done in this pass copies that
+    layer's result: aliased or repeated destinations give many requests with identical
+    layers, and a scenario with 100 copies of a destination took 124 s to build without
+    this. A layer whose inputs equal those it had when it settled (``settled[m]``, kept
+    across passes by :func:`compute_live`) is skipped. Rows are compared by a 128-bit
+    BLAKE2 digest.
+    """
+    model = mdp.kernel_args()
+    row_digest: dict[tuple[int, int], bytes] = {}
+
+    def digest(which: int, m: int) -> bytes:
+        key = (which, m)
+        if key not in row_digest:
+            row = live[m] if which == 0 else fmp_ok[m]
+            row_digest[key] = hashlib.blake2b(row.tobytes(), digest_size=16).digest()
+        return row_digest[key]
+
+    def inputs(m: int) -> tuple[Any, ...]:
+        lo, hi = mdp.branch_ptr[m], mdp.branch_ptr[m + 1]
+        branches = [int(L) for L in mdp.branch_layer[lo:hi][mdp.branch_prob[lo:hi] > 0]]
+        # The kernel needs every branch supported, so their order does not matter.
+        others = tuple(sorted(digest(0, L) for L in branches if L != m))
+        nxt = int(mdp.fmp_next[m])
+        fmp = (digest(1, m), digest(0, nxt)) if nxt >= 0 else None
+        return (int(mdp.vcls[m]), digest(0, m), fmp, m in branches, others)
+
+    done: dict[tuple[Any, ...], int] = {}
+    changed = False
+    for m in range(mdp.n_modes):
+        key = inputs(m)
+        if settled is not None and settled[m] == key:
+            continue
+        rep = done.get(key)
+        if rep is None:
+            layer_changed = bool(live_layer(live, fmp_ok, model, m))
+            done[key] = m
+        else:
+            layer_changed = not np.array_equal(live[m], live[rep])
+            live[m] = live[rep]
+        if layer_changed:
+            changed = True
+            row_digest.pop((0, m), None)
+        if settled is not None:
+            settled[m] = inputs(m)
+    return changed
 
 
 def live_problems(mdp: LayeredMDP) -> list[Problem]:
@@ -448,7 +506,7 @@ def _split_problems(mdp: LayeredMDP) -> list[Problem]:
     after a delivery at d could never be served, which empties NR (not unichain).
     """
     live = np.stack([mdp.free[mdp.vcls[m]] for m in range(mdp.n_modes)])
-    _live_pass(mdp, live)
+    _live_pass(mdp, live, mdp.tf < np.inf)
     seen = set()
     out = []
     R = mdp.n_requests
@@ -549,16 +607,27 @@ def build_model(
         spec = sec.fine_motion_regions.get(region, sec.fine_motion)
         return fine_motion_field(spec, tool)
 
+    # Regions written twice (a YAML alias, a copied block) are tested once: each test
+    # poses the robot at every grid cell.
+    tested: dict[tuple[str, str | None], np.ndarray] = {}
+
+    def in_region(name: str, carrying: str | None) -> np.ndarray:
+        spec = (scenario.sources | scenario.destinations)[name]
+        key = (spec.model_dump_json(), carrying)
+        if key not in tested:
+            tested[key] = region_bitmap(cell, grid, name, sec.regions, None, carrying)
+        return tested[key]
+
     pick = {}
     tf_pick = {}
     for p, s in free_c:
-        pick[(p, s)] = region_bitmap(cell, grid, s, sec.regions, None, None)
+        pick[(p, s)] = in_region(s, None)
         tf_pick[(p, s)] = tf_of(s)
     drop = {}
     tf_drop = {}
     for p, _, d, _ in requests:
         if (p, d) not in drop:
-            drop[(p, d)] = region_bitmap(cell, grid, d, sec.regions, None, p)
+            drop[(p, d)] = in_region(d, p)
             tf_drop[(p, d)] = tf_of(d)
     geometry = Geometry(free_nr, free_w, free_c, pick, drop, tf_pick, tf_drop)
     empty, carrying = action_sets(sec, robot, parts)
