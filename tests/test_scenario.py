@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from cellplan.errors import ScenarioError
 from cellplan.registry import scenario_names
-from cellplan.scenario import dump_scenario, json_schema, load_scenario, loads_scenario
+from cellplan.scenario import dump_scenario, json_schema, load_scenario, loads_scenario, parse_yaml
 
 BASE = """
 cellplan: 1
@@ -271,3 +271,22 @@ def test_schema_describes_every_field():
     assert undocumented == []
     cells = schema["$defs"]["StrategySection"]["properties"]["cells"]["description"]
     assert "128 x 128" in cells
+
+
+def test_a_bad_character_is_located_in_characters_not_bytes():
+    # libyaml reports a byte offset; the two-byte "é" before it must not shift the column.
+    with pytest.raises(ScenarioError) as err:
+        parse_yaml("cellplan: 1\nname: caf\u00e9 \x07\n", "f.yaml")
+    (problem,) = err.value.problems
+    assert problem.field == "f.yaml:2:12"
+    assert "U+0007" in problem.message
+
+
+def test_nesting_is_refused_before_composing():
+    import cellplan.scenario as scenario_module
+
+    deep = "[" * (scenario_module.MAX_YAML_DEPTH + 1) + "]" * (scenario_module.MAX_YAML_DEPTH + 1)
+    with pytest.raises(ScenarioError, match="nested too deeply"):
+        parse_yaml(deep, "f.yaml")
+    ok = "[" * scenario_module.MAX_YAML_DEPTH + "]" * scenario_module.MAX_YAML_DEPTH
+    assert parse_yaml(ok, "f.yaml") is not None
