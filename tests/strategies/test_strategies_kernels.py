@@ -114,6 +114,12 @@ def ref_bellman(mdp, h):
 # --- random models ------------------------------------------------------------------------
 
 
+def random_actions(rng: np.random.Generator, nact: int) -> ActionSet:
+    """Displacements of up to 1.5 cells (spacing 1): landing points between centres."""
+    disp = rng.uniform(-1.5, 1.5, size=(nact, 2))
+    return ActionSet(np.ascontiguousarray(disp), -1, tuple(f"a{i}" for i in range(nact)))
+
+
 @st.composite
 def models(draw) -> LayeredMDP:
     """A one-request layered MDP on a random 2-D grid with random bitmaps and actions."""
@@ -135,10 +141,7 @@ def models(draw) -> LayeredMDP:
         tf_pick={("P", "S"): 1.0 + rng.random(n)},
         tf_drop={("P", "D"): 1.0 + rng.random(n)},
     )
-    # Displacements of up to 1.5 cells (spacing 1): landing points between centres.
-    nact = draw(st.integers(2, 5))
-    disp = rng.uniform(-1.5, 1.5, size=(nact, 2))
-    acts = ActionSet(np.ascontiguousarray(disp), -1, tuple(f"a{i}" for i in range(nact)))
+    acts = random_actions(rng, draw(st.integers(2, 5)))
     return assemble(
         shape=(nx, ny),
         lower=(0.0, 0.0),
@@ -362,9 +365,7 @@ def multi_request_models(draw) -> LayeredMDP:
         tf_pick={("P", s): np.ones(n) for s in "ST"},
         tf_drop={("P", d): np.ones(n) for d in "DE"},
     )
-    nact = draw(st.integers(2, 4))
-    disp = rng.uniform(-1.5, 1.5, size=(nact, 2))
-    acts = ActionSet(np.ascontiguousarray(disp), -1, tuple(f"a{i}" for i in range(nact)))
+    acts = random_actions(rng, draw(st.integers(2, 4)))
     return assemble(
         shape=(nx, ny),
         lower=(0.0, 0.0),
