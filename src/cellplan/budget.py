@@ -77,14 +77,41 @@ def _cgroup_available() -> int | None:
         return None
 
 
+def _address_space_available() -> int | None:
+    """Room left under the process's address-space limit (``ulimit -v``), if there is one.
+
+    The limit counts virtual memory, so the room is the limit less the process's present
+    virtual size (``VmSize``), not less what it has touched.
+    """
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY:
+        return None
+    try:
+        text = Path("/proc/self/status").read_text()
+    except OSError:  # pragma: no cover - no procfs
+        return soft
+    match = re.search(r"^VmSize:\s+(\d+) kB", text, re.MULTILINE)
+    used = int(match.group(1)) * 1024 if match else 0
+    return max(0, soft - used)
+
+
 def available_memory() -> int:
     """Bytes of memory this process may still allocate without swapping.
 
     The smallest of: the kernel's ``MemAvailable``, the room left under a cgroup limit,
-    and ``CELLPLAN_MEMORY_LIMIT``. Falls back to the physical memory when the system
-    says nothing (non-Linux).
+    the room left under the address-space limit (``ulimit -v``), and
+    ``CELLPLAN_MEMORY_LIMIT``. Falls back to the physical memory when the system says
+    nothing (non-Linux).
     """
-    found = [v for v in (_meminfo_available(), _cgroup_available()) if v is not None]
+    found = [
+        v
+        for v in (_meminfo_available(), _cgroup_available(), _address_space_available())
+        if v is not None
+    ]
     if not found:
         try:
             found.append(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))

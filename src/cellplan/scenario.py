@@ -26,12 +26,14 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import math
 import re
 import types
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Union, get_args, get_origin
 
+import numpy as np
 import shapely
 import yaml
 from pydantic import (
@@ -387,6 +389,34 @@ _UniqueKeyLoader.add_constructor(
     yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
     _construct_mapping,
 )
+
+
+def _strict_scalar(construct: Any) -> Any:
+    """A scalar constructor whose bad values are YAML errors with a position.
+
+    PyYAML's own raise whatever Python raises: ``!!int abc`` a ValueError, ``!!bool
+    maybe`` a KeyError, ``!!timestamp 2001-13-45`` a ValueError, ``!!timestamp ''`` an
+    AttributeError.
+    """
+
+    def strict(loader: _UniqueKeyLoader, node: yaml.Node) -> Any:
+        try:
+            return construct(loader, node)
+        except yaml.YAMLError:
+            raise
+        except (ValueError, TypeError, AttributeError, KeyError, IndexError, OverflowError):
+            value = _one_line(node.value)
+            shown = value if len(value) <= 40 else value[:37] + "..."
+            tag = node.tag.rsplit(":", 1)[-1]
+            reason = f"{shown!r} is not a valid !!{tag} value"
+            raise yaml.constructor.ConstructorError(None, None, reason, node.start_mark) from None
+
+    return strict
+
+
+for _kind in ("null", "bool", "int", "float", "binary", "timestamp", "str"):
+    _tag = f"tag:yaml.org,2002:{_kind}"
+    _UniqueKeyLoader.add_constructor(_tag, _strict_scalar(_UniqueKeyLoader.yaml_constructors[_tag]))
 
 
 def parse_yaml(text: str, source: str = "<string>") -> Any:
@@ -872,4 +902,20 @@ def check_references(sc: Scenario) -> list[Problem]:
     elif sc.parts or sc.sources or sc.destinations:
         problems.append(Problem("robot", "parts, sources and destinations need a robot"))
 
+    # A part reaching further from the gripper than the workcell's diagonal can never be
+    # carried inside the bounds, and the C-space rasters would grow with its size (a part
+    # 209 units long in a 100-unit cell ran the rotating robot's bitmap for minutes).
+    b = sc.workcell.bounds
+    diagonal = math.hypot(b.xmax - b.xmin, b.ymax - b.ymin)
+    for name, part in sc.parts.items():
+        coords = shapely.get_coordinates(part.shape.to_shapely())
+        reach = float(np.max(np.hypot(coords[:, 0], coords[:, 1]))) if len(coords) else 0.0
+        if reach > diagonal:
+            problems.append(
+                Problem(
+                    f"parts.{name}.shape",
+                    f"reaches {reach:.4g} from the gripper, beyond the workcell's diagonal "
+                    f"({diagonal:.4g}); it could never be carried inside the bounds",
+                )
+            )
     return problems

@@ -231,6 +231,8 @@ TAGS = [
     "!!null ''",
 ]
 
+STANDARD_TAGS = ["null", "bool", "int", "float", "timestamp", "binary", "str"]
+
 
 @st.composite
 def text_mutation(draw: st.DrawFn, text: str) -> bytes:
@@ -293,8 +295,11 @@ def text_mutation(draw: st.DrawFn, text: str) -> bytes:
     elif kind == "tag":
         line = lines[at]
         if ":" in line and not line.rstrip().endswith(":"):
-            head, _, _ = line.partition(":")
-            lines[at] = f"{head}: {draw(st.sampled_from(TAGS))}\n"
+            head, _, value = line.partition(":")
+            if draw(st.booleans()):
+                lines[at] = f"{head}: {draw(st.sampled_from(TAGS))}\n"
+            else:  # a standard tag on the value that is there (!!int abc, !!timestamp 3)
+                lines[at] = f"{head}: !!{draw(st.sampled_from(STANDARD_TAGS))} {value.strip()}\n"
         else:
             lines.append(f"extra: {draw(st.sampled_from(TAGS))}\n")
     elif kind == "listkey":

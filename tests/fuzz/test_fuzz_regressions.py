@@ -75,6 +75,14 @@ BAD_FILES = {
     ).encode(),
     "empty file": b"",
     "a list": b"- 1\n- 2\n",
+    # PyYAML's scalar constructors raised plain Python errors (exit 70); the first was
+    # found by the slow fuzzer in a description tagged !!timestamp
+    "bad timestamp": TINY.replace("name: strategies-tiny", "name: !!timestamp ''").encode(),
+    "bad int": TINY.replace("speed: 2.5", "speed: !!int abc").encode(),
+    "bad bool": TINY.replace("speed: 2.5", "speed: !!bool maybe").encode(),
+    "empty float": TINY.replace("speed: 2.5", "speed: !!float ''").encode(),
+    "impossible date": TINY.replace("name: strategies-tiny", "name: 2001-02-30").encode(),
+    "5000-digit int": TINY.replace("speed: 2.5", "speed: " + "9" * 5000).encode(),
 }
 
 
