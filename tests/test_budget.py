@@ -4,6 +4,8 @@ and refusals that come before any allocation (library and command line)."""
 from __future__ import annotations
 
 import gc
+import subprocess
+import sys
 import tracemalloc
 
 import pytest
@@ -38,6 +40,17 @@ def test_the_limit_variable_lowers_what_is_available(monkeypatch):
 def test_available_memory_is_positive_without_the_variable(monkeypatch):
     monkeypatch.delenv(budget.LIMIT_VARIABLE, raising=False)
     assert budget.available_memory() > 0
+
+
+def test_an_address_space_limit_lowers_what_is_available():
+    # ulimit -v: an allocation past it is a MemoryError, so the budget must see it.
+    code = (
+        "import resource; from cellplan import budget; "
+        "resource.setrlimit(resource.RLIMIT_AS, (6 * 2**30, resource.RLIM_INFINITY)); "
+        "print(budget.available_memory())"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert 0 < int(out.stdout) < 6 * 2**30
 
 
 @pytest.mark.parametrize(

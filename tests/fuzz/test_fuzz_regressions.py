@@ -83,6 +83,11 @@ BAD_FILES = {
     "empty float": TINY.replace("speed: 2.5", "speed: !!float ''").encode(),
     "impossible date": TINY.replace("name: strategies-tiny", "name: 2001-02-30").encode(),
     "5000-digit int": TINY.replace("speed: 2.5", "speed: " + "9" * 5000).encode(),
+    # validate ran the C-space rasters for minutes (the rasters grow with the part)
+    "part longer than the workcell": P5.replace(
+        "P1: {shape: {type: box, min: [0, -2.5], max: [5, 2.5]}}",
+        "P1: {shape: {type: box, min: [0, -2000], max: [5, 2.5]}}",
+    ).encode(),
 }
 
 
