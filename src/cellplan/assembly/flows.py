@@ -50,6 +50,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellplan.assembly.eigen import eigvalsh, one_blas_thread, shift_for_length
+from cellplan.assembly.kernels import segment_kernel
 from cellplan.assembly.layout import legality_problems
 from cellplan.assembly.navigation import NavEval, clearances, evaluate, hessian_log_w, log_w
 from cellplan.assembly.problems import DiscProblem
@@ -388,8 +389,26 @@ def segment_is_safe(
     Exact: per pair, the smallest centre distance along the segment (a quadratic in
     the step parameter) minus the radii; for the boundary, the workspace is convex and
     the distance to its boundary concave, so the end points (``bgap``, ``bgap_new``)
-    bound the whole segment.
+    bound the whole segment. One pass over the pairs in a numba kernel
+    (:func:`kernels.segment_kernel`); :func:`segment_is_safe_numpy` is its reference.
     """
+    if not np.all(bgap_new >= fraction * bgap):
+        return False
+    return bool(
+        segment_kernel(
+            np.ascontiguousarray(b, dtype=np.float64),
+            np.ascontiguousarray(delta, dtype=np.float64),
+            radii,
+            gaps,
+            float(fraction),
+        )
+    )
+
+
+def segment_is_safe_numpy(
+    b: Array, delta: Array, radii: Array, gaps: Array, bgap: Array, bgap_new: Array, fraction: float
+) -> bool:
+    """:func:`segment_is_safe` in numpy over ``(n, n)`` arrays (the reference of its kernel)."""
     if not np.all(bgap_new >= fraction * bgap):
         return False
     x0 = b[:, None, :] - b[None, :, :]
@@ -473,7 +492,7 @@ def _integrate_implicit(
         if not np.all(np.isfinite(g)):
             status, reason = Status.STUCK, "non-finite field"
             break
-        hess = hessian_log_w(b, problem, k)[np.ix_(sel, sel)]
+        hess = _hessian(b, problem, k, sel, moving)
         err = float(np.linalg.norm((b - problem.goal).reshape(-1)[sel]))
         length = min(radius, settings.goal_fraction * max(err, 1e-300))
         lw = record.log_ws[-1]
@@ -504,8 +523,16 @@ def _integrate_implicit(
         if status is None and stalled:
             status, reason = Status.STUCK, "no progress"
         if status is Status.STUCK and not reason:
-            reason = critical_point_kind(hessian_log_w(b, problem, k)[np.ix_(sel, sel)])
+            reason = critical_point_kind(_hessian(b, problem, k, sel, moving))
     return record.result(status, steps, evals, reason)
+
+
+def _hessian(
+    b: Array, problem: DiscProblem, k: float, sel: NDArray[np.int_], moving: int | None
+) -> Array:
+    """The Hessian of ``L`` in the moving coordinates ``sel`` (all: ``moving`` None)."""
+    hess = hessian_log_w(b, problem, k)
+    return hess if moving is None else hess[np.ix_(sel, sel)]
 
 
 def critical_point_kind(hess: Array) -> str:
@@ -749,6 +776,25 @@ def _gradient_stage(
         return None
 
     return integrate(problem, b0, k, epsilon, stop=stop, settings=settings, direction=direction)
+
+
+# --- the default step length of the implicit flow (docs/assembly.md "The step length") ------
+
+#: Largest implicit step in R^2n per square root of the number of discs (fitted on the
+#: fitting grid, ``benchmarks/fit_assembly_step.py``); never below ``FlowSettings.step_max``.
+STEP_MAX_PER_SQRT_DISC = 0.02
+
+
+def step_max_rule(n: int) -> float:
+    """The planner's default largest implicit step: ``max(0.05, c sqrt(n))``.
+
+    The arc length is measured in R^2n; a step of length ``h`` moves each of ``m``
+    equally moving discs by ``h / sqrt(m)``, so a fixed ``h`` makes the steps per disc
+    shorter, and the runs longer, as n grows (3,600-4,600 steps of 0.05 for 50 discs).
+    ``c = STEP_MAX_PER_SQRT_DISC``; ``FlowSettings.step_max`` (0.05, the accuracy
+    measured for 7 discs) is the floor.
+    """
+    return max(FlowSettings.step_max, STEP_MAX_PER_SQRT_DISC * math.sqrt(n))
 
 
 # --- the automatic integrator choice (docs/assembly.md "The integrator") ---------------------

@@ -67,6 +67,11 @@ class GradientOptions(FlowOptions):
         description="step of the flow: implicit (linearly implicit, resolves stiff contacts), "
         "rk4, or auto (chosen from the problem, docs/assembly.md 'The integrator')",
     )
+    step_max: PositiveFloat | None = Field(
+        default=None,
+        description="implicit step: largest step in R^2n (default: chosen from n, "
+        "docs/assembly.md 'The step length')",
+    )
 
 
 class SequentialOptions(FlowOptions):
