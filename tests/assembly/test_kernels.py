@@ -91,3 +91,24 @@ def test_segments_clearance_kernel_is_bitwise_the_numpy_reference(
     np.testing.assert_array_equal(
         segments_clearance(p, p.start, i, P, Q), segments_clearance_numpy(p, p.start, i, P, Q)
     )
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 12), box=st.booleans())
+def test_rk4_step_bounds_are_the_numpy_references(seed: int, n: int, box: bool) -> None:
+    from cellplan.assembly.flows import max_dt, max_dt_numpy, step_is_safe, step_is_safe_numpy
+    from cellplan.assembly.navigation import evaluate
+
+    p = _problem(seed, n, box)
+    rng = np.random.default_rng(seed)
+    ev = evaluate(p.start, p, 50.0)
+    moving = (rng.random(n) < 0.5) * rng.random(n)
+    for stiff in (True, False):
+        assert max_dt(-ev.v, ev, moving, ev.gaps, ev.bgap, stiff) == max_dt_numpy(
+            -ev.v, ev, moving, ev.gaps, ev.bgap, stiff
+        )
+    for scale in (1e-3, 0.05, 0.3, 2.0):
+        delta = scale * rng.normal(size=(n, 2))
+        assert step_is_safe(delta, ev.gaps, ev.bgap, 0.5) == step_is_safe_numpy(
+            delta, ev.gaps, ev.bgap, 0.5
+        )

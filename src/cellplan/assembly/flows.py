@@ -50,7 +50,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellplan.assembly.eigen import eigvalsh, one_blas_thread, shift_for_length
-from cellplan.assembly.kernels import segment_kernel
+from cellplan.assembly.kernels import max_dt_kernel, segment_kernel, triangle_safe_kernel
 from cellplan.assembly.layout import legality_problems
 from cellplan.assembly.navigation import NavEval, clearances, evaluate, hessian_log_w, log_w
 from cellplan.assembly.problems import DiscProblem
@@ -185,7 +185,26 @@ def max_dt(
     :class:`NavEval` bound the stiffness, ``|d v / d gap| ~ rep / gap``, so that the
     stiff repulsion near a contact is resolved rather than overshot. ``moving`` (n,)
     is the field's scale factor (``lambda``) for the discs that move, 0 for the others.
+    One pass over the pairs (:func:`kernels.max_dt_kernel`); :func:`max_dt_numpy` is
+    its reference.
     """
+    return float(
+        max_dt_kernel(
+            np.ascontiguousarray(w, dtype=np.float64),
+            ev.rep,
+            ev.rep_bnd,
+            np.ascontiguousarray(moving, dtype=np.float64),
+            gaps,
+            bgap,
+            bool(stiff),
+        )
+    )
+
+
+def max_dt_numpy(
+    w: Array, ev: NavEval, moving: Array, gaps: Array, bgap: Array, stiff: bool = True
+) -> float:
+    """:func:`max_dt` on ``(n, n)`` numpy arrays (the reference of its kernel)."""
     speed = np.sqrt(np.sum(w * w, axis=1))
     # ``moving`` carries the field's scale factor, so the stiffness is scaled with it
     pair_moves = np.maximum(moving[:, None], moving[None, :]) * (1.0 if stiff else 0.0)
@@ -196,7 +215,21 @@ def max_dt(
 
 
 def step_is_safe(delta: Array, gaps: Array, bgap: Array, fraction: float) -> bool:
-    """True when no disc pair or disc and boundary can meet along the straight step."""
+    """True when no disc pair or disc and boundary can meet along the straight step.
+
+    Per pair the centre distance changes by at most ``||delta_i|| + ||delta_j||`` along
+    the step; one pass over the pairs (:func:`kernels.triangle_safe_kernel`),
+    :func:`step_is_safe_numpy` is its reference.
+    """
+    return bool(
+        triangle_safe_kernel(
+            np.ascontiguousarray(delta, dtype=np.float64), gaps, bgap, float(fraction)
+        )
+    )
+
+
+def step_is_safe_numpy(delta: Array, gaps: Array, bgap: Array, fraction: float) -> bool:
+    """:func:`step_is_safe` on ``(n, n)`` numpy arrays (the reference of its kernel)."""
     m = np.sqrt(np.sum(delta * delta, axis=1))
     return bool(np.all(m[:, None] + m[None, :] <= fraction * gaps) and np.all(m <= fraction * bgap))
 

@@ -239,3 +239,49 @@ def segments_gap_kernel(P: Array, Q: Array, x: Array, radii: Array, i: int) -> A
                 best = gap
         out[s] = best
     return out
+
+
+@numba.njit(cache=True)
+def triangle_safe_kernel(delta: Array, gaps: Array, bgap: Array, fraction: float) -> bool:
+    """True when ``|delta_i| + |delta_j| <= fraction gap_ij`` for every pair and
+    ``|delta_i| <= fraction bgap_i`` for every disc (the RK4 step's bound, see
+    :func:`flows.step_is_safe`); the same comparisons as its numpy reference."""
+    n = delta.shape[0]
+    m = np.empty(n)
+    for i in range(n):
+        m[i] = math.sqrt(delta[i, 0] * delta[i, 0] + delta[i, 1] * delta[i, 1])
+    for i in range(n):
+        if not m[i] <= fraction * bgap[i]:
+            return False
+        for j in range(n):
+            if not m[i] + m[j] <= fraction * gaps[i, j]:
+                return False
+    return True
+
+
+@numba.njit(cache=True, error_model="numpy")
+def max_dt_kernel(
+    w: Array, rep: Array, rep_bnd: Array, moving: Array, gaps: Array, bgap: Array, stiff: bool
+) -> float:
+    """The step bound of :func:`flows.max_dt` in one pass over the pairs (its reference
+    is :func:`flows.max_dt_numpy`); a ``nan`` term makes the result ``nan``, as there."""
+    n = w.shape[0]
+    s = 1.0 if stiff else 0.0
+    speed = np.empty(n)
+    for i in range(n):
+        speed[i] = math.sqrt(w[i, 0] * w[i, 0] + w[i, 1] * w[i, 1])
+    best = np.inf
+    for i in range(n):
+        for j in range(n):
+            x = gaps[i, j] / (
+                speed[i] + speed[j] + 2.0 * rep[i, j] * (max(moving[i], moving[j]) * s)
+            )
+            if x != x:
+                return np.nan
+            best = min(best, x)
+    for i in range(n):
+        x = bgap[i] / (speed[i] + rep_bnd[i] * moving[i] * s)
+        if x != x:
+            return np.nan
+        best = min(best, x)
+    return best
