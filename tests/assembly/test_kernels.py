@@ -10,7 +10,10 @@ tolerance.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -112,3 +115,22 @@ def test_rk4_step_bounds_are_the_numpy_references(seed: int, n: int, box: bool) 
         assert step_is_safe(delta, ev.gaps, ev.bgap, 0.5) == step_is_safe_numpy(
             delta, ev.gaps, ev.bgap, 0.5
         )
+
+
+def test_rk4_stages_kernel_gives_the_generic_steps_bit_for_bit(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import cellplan.assembly.flows as flows
+
+    p = generate_problem(GeneratorSpec(n=9, seed=4, min_start_gap=0.05), default_workspace(9))
+    settings_rk4 = flows.FlowSettings(method="rk4")
+    fast = flows.gradient_flow(p, 128.0, settings=settings_rk4)
+
+    def generic(fld: Any, problem: Any, k: float, mask: Any, *args: Any) -> Any:
+        return flows._rk4(fld, *args), 0  # b, w, dt, gaps, bgap
+
+    monkeypatch.setattr(flows, "_rk4_fast", generic)
+    slow = flows.gradient_flow(p, 128.0, settings=settings_rk4)
+    assert fast.status is slow.status and fast.steps == slow.steps > 50
+    assert fast.evaluations == slow.evaluations
+    np.testing.assert_array_equal(fast.path, slow.path)

@@ -50,9 +50,21 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellplan.assembly.eigen import eigvalsh, one_blas_thread, shift_for_length
-from cellplan.assembly.kernels import max_dt_kernel, segment_kernel, triangle_safe_kernel
+from cellplan.assembly.kernels import (
+    max_dt_kernel,
+    rk4_stages_kernel,
+    segment_kernel,
+    triangle_safe_kernel,
+)
 from cellplan.assembly.layout import legality_problems
-from cellplan.assembly.navigation import NavEval, clearances, evaluate, hessian_log_w, log_w
+from cellplan.assembly.navigation import (
+    NavEval,
+    clearances,
+    evaluate,
+    hessian_log_w,
+    log_w,
+    workspace_args,
+)
 from cellplan.assembly.problems import DiscProblem
 from cellplan.core import Status
 
@@ -301,6 +313,8 @@ def integrate(
         vm = ev.v * mask
         return 1.0 / (settings.normalize + float(np.sqrt(np.sum(vm * vm))))
 
+    # the stages in one numba call where the field is the plain -v (bit-identical steps)
+    fast = direction is None and settings.normalize is None
     # near the goal the normalised field has rate 1/eta: keep dt * rate <= 1
     dt_cap = (
         settings.dt_max if settings.normalize is None else min(settings.dt_max, settings.normalize)
@@ -325,7 +339,11 @@ def integrate(
             * max_dt(w, ev, mask[:, 0] * lam_of(ev), gaps, bgap, settings.stiff_bound),
         )
         for _ in range(60):
-            new = _rk4(fld, b, w, dt, gaps, bgap)
+            if fast:
+                new, inner = _rk4_fast(fld, problem, k, mask, b, w, dt, gaps, bgap)
+                evals += inner
+            else:
+                new = _rk4(fld, b, w, dt, gaps, bgap)
             if new is not None and (
                 settings.stiff_bound or log_w(new[2], k) <= log_w(ev, k) + 1e-13
             ):
@@ -605,6 +623,46 @@ def _rk4(
     if not (np.isfinite(ev_new.log_beta) and np.all(np.isfinite(w_new))):
         return None
     return b_new, w_new, ev_new
+
+
+def _rk4_fast(
+    fld: Field,
+    problem: DiscProblem,
+    k: float,
+    mask: Array,
+    b: Array,
+    w1: Array,
+    dt: float,
+    gaps: Array,
+    bgap: Array,
+) -> tuple[tuple[Array, Array, NavEval] | None, int]:
+    """:func:`_rk4` with its three inner stages in one numba call
+    (:func:`kernels.rk4_stages_kernel`: the same operations, so the same step), for
+    the field ``-v * mask`` (no ``direction``, no ``normalize``); also returns the
+    number of stage evaluations (``fld`` counts its own call)."""
+    circle, w0, w1ws = workspace_args(problem.workspace)
+    ok, delta, evals = rk4_stages_kernel(
+        b,
+        w1,
+        float(dt),
+        gaps,
+        bgap,
+        problem.goal,
+        problem.radii,
+        circle,
+        w0,
+        w1ws,
+        float(k),
+        mask,
+        STEP_FRACTION,
+    )
+    if not ok:
+        return None, evals
+    b_new = b + delta
+    w_new, ev_new = fld(b_new)
+    if not (np.isfinite(ev_new.log_beta) and np.all(np.isfinite(w_new))):
+        return None, evals
+    return (b_new, w_new, ev_new), evals
 
 
 # --- the gradient assembly algorithm (Section 4.1) -------------------------------------------

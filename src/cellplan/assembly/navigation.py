@@ -66,6 +66,7 @@ __all__ = [
     "min_clearance",
     "pair_terms",
     "phi_linear",
+    "workspace_args",
 ]
 
 Array = NDArray[np.float64]
@@ -116,7 +117,7 @@ class NavEval:
             return self.log_scale + np.log(np.sqrt(np.sum(self.v * self.v, axis=1)))
 
 
-def _workspace_args(ws: Workspace) -> tuple[bool, Array, Array]:
+def workspace_args(ws: Workspace) -> tuple[bool, Array, Array]:
     """The workspace as the kernels take it: ``(circle, w0, w1)``, see ``nav_kernel``."""
     if isinstance(ws, CircleWorkspace):
         return True, ws.center, np.array([ws.radius, 0.0])
@@ -130,7 +131,7 @@ def evaluate(b: Array, problem: DiscProblem, k: float) -> NavEval:
     """
     from cellplan.assembly.kernels import nav_kernel
 
-    circle, w0, w1 = _workspace_args(problem.workspace)
+    circle, w0, w1 = workspace_args(problem.workspace)
     log_gamma, log_beta, v, rep, rep_bnd, gaps, bgap = nav_kernel(
         np.ascontiguousarray(b, dtype=np.float64),
         problem.goal,
@@ -259,7 +260,7 @@ def hessian_log_w(b: Array, problem: DiscProblem, k: float) -> Array:
     """
     from cellplan.assembly.kernels import hessian_kernel
 
-    circle, w0, w1 = _workspace_args(problem.workspace)
+    circle, w0, w1 = workspace_args(problem.workspace)
     hess: Array = hessian_kernel(
         np.ascontiguousarray(b, dtype=np.float64),
         problem.goal,
