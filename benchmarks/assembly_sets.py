@@ -146,6 +146,7 @@ def _worker() -> int:
             "status": res.status.value,
             "wall_s": wall,
             "ratio": res.stats.get("ratio", float("nan")),
+            "switches_per_disc": res.stats.get("switches_per_disc", float("nan")),
             "message": res.message,
         }
         print(json.dumps(answer), flush=True)
@@ -196,9 +197,11 @@ def compare(cases: list[Case], other: Path, planner: str, opts: dict[str, Any]) 
             rows.append((case, got["other"], got["this"]))
             print(
                 f"{case.label:32s} other {got['other']['status']:8s} "
-                f"{got['other']['wall_s']:7.2f} s ratio {got['other']['ratio']:7.3f} | "
+                f"{got['other']['wall_s']:7.2f} s ratio {got['other']['ratio']:7.3f} "
+                f"sw/disc {got['other']['switches_per_disc']:5.2f} | "
                 f"this {got['this']['status']:8s} {got['this']['wall_s']:7.2f} s "
-                f"ratio {got['this']['ratio']:7.3f}",
+                f"ratio {got['this']['ratio']:7.3f} "
+                f"sw/disc {got['this']['switches_per_disc']:5.2f}",
                 flush=True,
             )
         print(f"n={n}: {_load()}", flush=True)
@@ -264,6 +267,8 @@ def main(argv: list[str] | None = None) -> int:
             "wall_s": wall,
             "ratio": res.stats.get("ratio", float("nan")),
             "k": res.stats.get("k", float("nan")),
+            "solved_at_k": res.stats.get("solved_at_k", float("nan")),
+            "switches_per_disc": res.stats.get("switches_per_disc", float("nan")),
             "message": res.message,
         }
         rows.append(row)
