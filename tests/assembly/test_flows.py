@@ -283,7 +283,8 @@ def test_place_route_goes_round_a_blocking_disc_almost_as_short_as_possible() ->
 
 def test_planner_step_length_grows_with_n_and_can_be_given() -> None:
     import cellplan
-    from cellplan.assembly.flows import STEP_MAX_PER_SQRT_DISC, step_max_rule
+    from cellplan.assembly.flows import step_max_rule
+    from cellplan.assembly.options import STEP_MAX_PER_SQRT_DISC
     from cellplan.assembly.problems import generated_setup
     from cellplan.errors import CellplanError
 

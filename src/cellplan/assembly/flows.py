@@ -65,6 +65,7 @@ from cellplan.assembly.navigation import (
     log_w,
     workspace_args,
 )
+from cellplan.assembly.options import STEP_MAX_FLOOR, STEP_MAX_PER_SQRT_DISC
 from cellplan.assembly.problems import DiscProblem
 from cellplan.core import Status
 
@@ -129,7 +130,7 @@ class FlowSettings:
     stiff_bound: bool = True
     normalize: float | None = None
     method: Literal["implicit", "rk4"] = "implicit"
-    step_max: float = 0.05
+    step_max: float = STEP_MAX_FLOOR
     goal_fraction: float = 0.5
 
 
@@ -871,10 +872,6 @@ def _gradient_stage(
 
 # --- the default step length of the implicit flow (docs/assembly.md "The step length") ------
 
-#: Largest implicit step in R^2n per square root of the number of discs (fitted on the
-#: fitting grid, ``benchmarks/fit_assembly_step.py``); never below ``FlowSettings.step_max``.
-STEP_MAX_PER_SQRT_DISC = 0.02
-
 
 def step_max_rule(n: int) -> float:
     """The planner's default largest implicit step: ``max(0.05, c sqrt(n))``.
@@ -882,10 +879,11 @@ def step_max_rule(n: int) -> float:
     The arc length is measured in R^2n; a step of length ``h`` moves each of ``m``
     equally moving discs by ``h / sqrt(m)``, so a fixed ``h`` makes the steps per disc
     shorter, and the runs longer, as n grows (3,600-4,600 steps of 0.05 for 50 discs).
-    ``c = STEP_MAX_PER_SQRT_DISC``; ``FlowSettings.step_max`` (0.05, the accuracy
-    measured for 7 discs) is the floor.
+    ``c = options.STEP_MAX_PER_SQRT_DISC`` (0.02, fitted on the fitting grid:
+    ``benchmarks/fit_assembly_step.py``); ``options.STEP_MAX_FLOOR`` (0.05, the default
+    of ``FlowSettings.step_max``, whose accuracy was measured for 7 discs) is the floor.
     """
-    return max(FlowSettings.step_max, STEP_MAX_PER_SQRT_DISC * math.sqrt(n))
+    return max(STEP_MAX_FLOOR, STEP_MAX_PER_SQRT_DISC * math.sqrt(n))
 
 
 # --- the automatic integrator choice (docs/assembly.md "The integrator") ---------------------
