@@ -1,4 +1,4 @@
-"""Numba kernel of the flows: the log-space navigation function.
+"""Numba kernels of the flows and the place rule's routes: one pass over the disc pairs.
 
 :func:`nav_kernel` (same formulas as :mod:`navigation`): one pass over the disc pairs
 accumulates ``log beta`` (equations (4)-(5)), ``grad log beta``, the repulsion magnitudes
@@ -6,7 +6,16 @@ used for step control, and the gaps, without the temporary ``(n, n, 2)`` arrays 
 numpy version; it is what the flows call. The numpy version,
 :func:`navigation.evaluate_numpy`, stays as the reference it is tested against.
 
-The implicit step's eigensolver is in :mod:`cellplan.assembly.eigen`.
+The others (issue 13, each with its numpy reference kept and tested,
+``tests/assembly/test_kernels.py``): :func:`hessian_kernel` (the Hessian of
+``L = log alpha^(1/k)``, equations (2)-(5), for the implicit step), :func:`segment_kernel`
+(the implicit step's exact segment test), :func:`triangle_safe_kernel`,
+:func:`max_dt_kernel` and :func:`rk4_stages_kernel` (the RK4 step's bounds and stages,
+the same operations as the numpy code, so bit-identical steps) and
+:func:`segments_gap_kernel` (the place rule's segment clearances). No kernel allocates
+``(n, n, 2)`` or ``(S, n)`` temporaries.
+
+The implicit step's eigen-decomposition is in :mod:`cellplan.assembly.eigen`.
 """
 
 from __future__ import annotations
@@ -304,6 +313,10 @@ def rk4_stages_kernel(
     fraction: float,
 ) -> tuple[bool, Array, int]:
     """The stages of one classical RK4 step of ``b' = w = -(v * mask)`` (the flows' RK4).
+
+    ``v`` is ``grad phi`` rescaled (equation (8) factored, :func:`nav_kernel`): with every
+    disc moving this is the gradient flow (9), with one disc the low-level flow
+    (10)-(12). Workspace arguments as in :func:`nav_kernel` (``ws0``, ``ws1``).
 
     Returns ``(ok, delta, evaluations)``: ``ok`` is False when a stage point or the
     combined step fails the triangle bound (:func:`triangle_safe_kernel`) or a stage
