@@ -4,7 +4,14 @@ Run: ``.venv/bin/python benchmarks/assembly_sets.py [--set report|fit] [--n 7 12
 [--opt k=128 ...] [--planner assembly.gradient] [--csv out.csv]`` plans every problem of
 the set with ``cellplan.plan(setup, planner, **opts)`` (no options: the defaults of
 ``cellplan assemble``) and prints one line per run and a summary per n (solved, mean and
-max seconds per run, mean path-length ratio of the solved runs).
+max seconds per run, mean path-length ratio of the solved runs), with the machine's
+load (1-minute average) before and after each n.
+
+``--compare OTHER_SRC`` (before / after): every problem runs in two worker processes,
+one importing cellplan from ``OTHER_SRC`` (e.g. a worktree of the previous commit,
+``.../src``) and one from this tree's ``src``, one right after the other (alternating
+which goes first), so both see the same machine load; printed per n: solved and mean
+seconds of each, and the ratio of the mean times (other / this).
 
 Every problem is a scenario with a ``discs: generate:`` section
 (:func:`cellplan.assembly.problems.generated_setup`, discs cover 5% of a circular
@@ -29,10 +36,14 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
+import os
 import statistics
+import subprocess
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 #: (goal pattern, gap in radii, starts): the issue's 2 x 2 x 2 grid of problem kinds
@@ -116,7 +127,104 @@ def _value(text: str) -> Any:
     return {"none": None, "true": True, "false": False}.get(text.lower(), text)
 
 
+def _load() -> str:
+    return f"load {os.getloadavg()[0]:.2f}"
+
+
+def _worker() -> int:
+    """Plan the cases named on stdin (one JSON object per line), answer one JSON line each."""
+    import cellplan
+
+    for line in sys.stdin:
+        job = json.loads(line)
+        case = Case(job["n"], job["seed"], *KINDS[job["seed"] % len(KINDS)])
+        setup = case.setup()
+        t0 = time.perf_counter()
+        res = cellplan.plan(setup, job["planner"], **job["opts"])
+        wall = time.perf_counter() - t0
+        answer = {
+            "status": res.status.value,
+            "wall_s": wall,
+            "ratio": res.stats.get("ratio", float("nan")),
+            "switches_per_disc": res.stats.get("switches_per_disc", float("nan")),
+            "message": res.message,
+        }
+        print(json.dumps(answer), flush=True)
+    return 0
+
+
+class _Worker:
+    """A worker process planning with the cellplan found under ``src``."""
+
+    def __init__(self, src: Path) -> None:
+        env = dict(os.environ, PYTHONPATH=str(src))
+        self.proc = subprocess.Popen(
+            [sys.executable, __file__, "--worker"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+
+    def plan(self, case: Case, planner: str, opts: dict[str, Any]) -> dict[str, Any]:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        job = {"n": case.n, "seed": case.seed, "planner": planner, "opts": opts}
+        self.proc.stdin.write(json.dumps(job) + "\n")
+        self.proc.stdin.flush()
+        answer: dict[str, Any] = json.loads(self.proc.stdout.readline())
+        return answer
+
+    def close(self) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.close()
+        self.proc.wait()
+
+
+def compare(cases: list[Case], other: Path, planner: str, opts: dict[str, Any]) -> int:
+    """Before / after: each case on ``other``'s cellplan and on this tree's, back to back."""
+    this = Path(__file__).resolve().parent.parent / "src"
+    workers = {"other": _Worker(other), "this": _Worker(this)}
+    warm = Case(7, 0, *KINDS[0])  # numba compiles (or loads its cache) outside the timing
+    for w in workers.values():
+        w.plan(warm, planner, opts)
+    print(f"other = {other}, this = {this}; planner={planner} options={opts or 'defaults'}")
+    rows: list[tuple[Case, dict[str, Any], dict[str, Any]]] = []
+    for n in sorted({c.n for c in cases}):
+        print(f"n={n}: {_load()}", flush=True)
+        for idx, case in enumerate(c for c in cases if c.n == n):
+            order = ("other", "this") if idx % 2 == 0 else ("this", "other")
+            got = {name: workers[name].plan(case, planner, opts) for name in order}
+            rows.append((case, got["other"], got["this"]))
+            print(
+                f"{case.label:32s} other {got['other']['status']:8s} "
+                f"{got['other']['wall_s']:7.2f} s ratio {got['other']['ratio']:7.3f} "
+                f"sw/disc {got['other']['switches_per_disc']:5.2f} | "
+                f"this {got['this']['status']:8s} {got['this']['wall_s']:7.2f} s "
+                f"ratio {got['this']['ratio']:7.3f} "
+                f"sw/disc {got['this']['switches_per_disc']:5.2f}",
+                flush=True,
+            )
+        print(f"n={n}: {_load()}", flush=True)
+    for w in workers.values():
+        w.close()
+    print("\n| n | other: solved | other: mean s | this: solved | this: mean s | other / this |")
+    print("|---|---|---|---|---|---|")
+    for n in sorted({c.n for c, _, _ in rows}):
+        mine = [(a, b) for c, a, b in rows if c.n == n]
+        t_other = statistics.fmean(a["wall_s"] for a, _ in mine)
+        t_this = statistics.fmean(b["wall_s"] for _, b in mine)
+        ok_other = sum(a["status"] == "solved" for a, _ in mine)
+        ok_this = sum(b["status"] == "solved" for _, b in mine)
+        print(
+            f"| {n} | {ok_other}/{len(mine)} | {t_other:.2f} | {ok_this}/{len(mine)} | "
+            f"{t_this:.2f} | {t_other / t_this:.2f}x |"
+        )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    if (argv if argv is not None else sys.argv[1:]) == ["--worker"]:
+        return _worker()
     import cellplan
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -126,14 +234,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--planner", default="assembly.gradient")
     ap.add_argument("--opt", nargs="*", default=[], help="planner options, name=value")
     ap.add_argument("--csv", help="write one row per run here")
+    ap.add_argument(
+        "--compare", type=Path, help="before / after: another tree's src folder (see above)"
+    )
     args = ap.parse_args(argv)
     opts = {k: _value(v) for k, v in (o.split("=", 1) for o in args.opt)}
     cases = (reporting_set if args.set == "report" else fitting_set)(args.n)
     if args.seeds:
         cases = [c for c in cases if c.seed in args.seeds]
+    if args.compare is not None:
+        return compare(cases, args.compare.resolve(), args.planner, opts)
     print(f"set={args.set} planner={args.planner} options={opts or 'defaults'}", flush=True)
     rows: list[dict[str, Any]] = []
+    current_n = None
     for case in cases:
+        if case.n != current_n:
+            if current_n is not None:
+                print(f"n={current_n}: {_load()}", flush=True)
+            current_n = case.n
+            print(f"n={current_n}: {_load()}", flush=True)
         t0 = time.perf_counter()
         res = cellplan.plan(case.setup(), args.planner, **opts)
         wall = time.perf_counter() - t0
@@ -148,10 +267,14 @@ def main(argv: list[str] | None = None) -> int:
             "wall_s": wall,
             "ratio": res.stats.get("ratio", float("nan")),
             "k": res.stats.get("k", float("nan")),
+            "solved_at_k": res.stats.get("solved_at_k", float("nan")),
+            "switches_per_disc": res.stats.get("switches_per_disc", float("nan")),
             "message": res.message,
         }
         rows.append(row)
         print(f"{case.label:32s} {row['status']:16s} {wall:7.2f} s  {res.message}", flush=True)
+    if current_n is not None:
+        print(f"n={current_n}: {_load()}", flush=True)
     print("\n| n | solved | mean s/run | max s | mean ratio (solved) |")
     print("|---|---|---|---|---|")
     for n in sorted({r["n"] for r in rows}):

@@ -1,8 +1,9 @@
 """Benchmark of the assembly package: log-space vs plain linear-space phi, time vs n.
 
 Run: ``.venv/bin/python benchmarks/bench_assembly.py`` (add ``--quick`` for a short run;
-``--only-eigh`` for section 4 alone). No environment variable is needed: the flows limit
-the BLAS to one thread themselves (section 4).
+``--only-eigh`` for section 4 alone, ``--only-kernels`` for section 5 alone). No
+environment variable is needed: the flows limit the BLAS to one thread themselves
+(section 4).
 
 1. Where each formulation fails. For n discs (random legal starts; a hexagonal goal
    cluster up to 15 discs, random legal goals beyond), the same RK4 gradient-flow
@@ -29,6 +30,14 @@ the BLAS to one thread themselves (section 4).
    ``--quick`` 5) with both steps (same paths to rounding); a 50-disc flow with both
    steps, same process, same problem (full run; ``--quick``: the first 300 steps of
    each). Ratios printed are baseline / LAPACK (above 1: LAPACK faster).
+5. The numba kernels (issue 13) against the numpy functions they replaced, kept as
+   references, same process, same inputs (hexagonal clusters, gap 0.01, at their
+   start): ms per call of the Hessian of L, the implicit step's exact segment test, the
+   place rule's segment clearances (a parking search's 48 x 48 exit-spot segments) and
+   one RK4 step (three stages in one numba call against the generic stages), at 7, 15
+   and 50 discs; then whole RK4 flows (random goals, the planner's k rule) with both
+   stage paths, checking the paths are equal. Ratios printed are numpy / numba.
+   Prints the machine's load.
 """
 
 from __future__ import annotations
@@ -47,7 +56,13 @@ from baseline_eigen import implicit_step_kernel as baseline_step_kernel
 from baseline_eigen import sym_eigh as baseline_eigh
 from cellplan.assembly import eigen, experiments, flows
 from cellplan.assembly.flows import FlowSettings, gradient_flow, implicit_step
-from cellplan.assembly.navigation import evaluate, grad_linear, hessian_log_w, log_beta_parts
+from cellplan.assembly.navigation import (
+    NavEval,
+    evaluate,
+    grad_linear,
+    hessian_log_w,
+    log_beta_parts,
+)
 from cellplan.assembly.options import GradientOptions
 from cellplan.assembly.problems import DiscProblem, default_workspace, generate_problem
 from cellplan.assembly.section import GeneratorSpec
@@ -272,13 +287,95 @@ def eigh_section(quick: bool) -> None:
     flow_new_vs_old(50, 300 if quick else 60000)
 
 
+def kernel_costs(n: int) -> None:
+    """One row of section 5: ms per call, numpy reference / numba kernel, at n discs."""
+    from cellplan.assembly.layout import clearances, rule_k
+    from cellplan.assembly.navigation import hessian_log_w_numpy
+    from cellplan.assembly.routes import segments_clearance, segments_clearance_numpy
+
+    p = generate_problem(GeneratorSpec(n=n, seed=0, gap=0.01), default_workspace(n))
+    k, b = rule_k(p.radii, p.workspace), p.start
+    rng = np.random.default_rng(0)
+    reps = 200 if n < 50 else 50
+    h_np = per_call_ms(lambda: hessian_log_w_numpy(b, p, k), reps)
+    h_nb = per_call_ms(lambda: hessian_log_w(b, p, k), reps)
+    gaps, bgap = clearances(b, p.radii, p.workspace)
+    delta = 0.01 * rng.normal(size=b.shape)
+    args = (b, delta, p.radii, gaps, bgap, clearances(b + delta, p.radii, p.workspace)[1], 0.5)
+    s_np = per_call_ms(lambda: flows.segment_is_safe_numpy(*args), reps)
+    s_nb = per_call_ms(lambda: flows.segment_is_safe(*args), reps)
+    # a parking search's exit -> spot segments: 48 x 48
+    P = np.repeat(b[0] + rng.normal(size=(48, 2)), 48, axis=0)
+    Q = np.tile(b[0] + 5.0 * rng.normal(size=(48, 2)), (48, 1))
+    r_np = per_call_ms(lambda: segments_clearance_numpy(p, b, 0, P, Q), max(reps // 10, 5))
+    r_nb = per_call_ms(lambda: segments_clearance(p, b, 0, P, Q), max(reps // 10, 5))
+    ev = evaluate(b, p, k)
+    w, mask = -ev.v, np.ones((n, 1))
+    dt = 0.3 * flows.max_dt(w, ev, mask[:, 0], gaps, bgap)
+
+    def fld(x: np.ndarray) -> tuple[np.ndarray, NavEval]:
+        e = evaluate(x, p, k)
+        return -(e.v * mask) * 1.0, e
+
+    g_np = per_call_ms(lambda: flows._rk4(fld, b, w, dt, gaps, bgap), reps)
+    g_nb = per_call_ms(lambda: flows._rk4_fast(fld, p, k, mask, b, w, dt, gaps, bgap), reps)
+    print(
+        f"{n:4d}  {h_np:6.3f} {h_nb:6.3f} {h_np / h_nb:5.1f}x | {s_np:6.3f} {s_nb:6.3f} "
+        f"{s_np / s_nb:5.1f}x | {r_np:6.3f} {r_nb:6.3f} {r_np / r_nb:5.1f}x | "
+        f"{g_np:6.3f} {g_nb:6.3f} {g_np / g_nb:5.1f}x"
+    )
+
+
+def kernels_section(quick: bool) -> None:
+    """Section 5: each numba kernel against the numpy reference it replaced."""
+    import os
+
+    from cellplan.assembly.layout import rule_k
+
+    print(
+        f"\n5. numba kernels against their numpy references (ms per call, median of 7 "
+        f"batches; load {os.getloadavg()[0]:.2f})"
+    )
+    print(
+        "   n  hessian np/nb  ratio | segment np/nb  ratio | routes np/nb  ratio | "
+        "rk4 step np/nb ratio"
+    )
+    for n in (7, 15, 50):
+        kernel_costs(n)
+    print("   whole RK4 flows, random goals (seconds; generic / numba stages; same path?)")
+    for n in (20,) if quick else (20, 30, 50):
+        p = generate_problem(
+            GeneratorSpec(n=n, seed=0, pattern="random", min_start_gap=0.1), default_workspace(n)
+        )
+        k = rule_k(p.radii, p.workspace)
+        rk4 = FlowSettings(method="rk4")
+        t0 = time.perf_counter()
+        fast = gradient_flow(p, k, settings=rk4)
+        t1 = time.perf_counter()
+        generic = mock.patch.object(
+            flows, "_rk4_fast", lambda fld, prob, kk, m, *a: (flows._rk4(fld, *a), 0)
+        )
+        with generic:
+            slow = gradient_flow(p, k, settings=rk4)
+        t2 = time.perf_counter()
+        same = bool(np.array_equal(fast.path, slow.path))
+        print(
+            f"{n:4d}  {fast.steps} steps  generic {t2 - t1:6.2f}  numba {t1 - t0:6.2f}  "
+            f"{(t2 - t1) / (t1 - t0):4.1f}x  same path: {same}  load {os.getloadavg()[0]:.2f}"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--only-eigh", action="store_true", help="section 4 alone")
+    ap.add_argument("--only-kernels", action="store_true", help="section 5 alone")
     args = ap.parse_args()
     if args.only_eigh:
         eigh_section(args.quick)
+        return
+    if args.only_kernels:
+        kernels_section(args.quick)
         return
     sizes = (3, 7, 15) if args.quick else (3, 5, 7, 10, 15, 20, 30, 50)
     max_steps = 4000 if args.quick else 60000
@@ -298,6 +395,7 @@ def main() -> None:
     else:
         fifteen(20, (128.0, 256.0, 512.0, 1024.0), 256.0)
     eigh_section(args.quick)
+    kernels_section(args.quick)
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellplan.assembly.control import simulate_control
-from cellplan.assembly.flows import gradient_flow
+from cellplan.assembly.flows import FlowSettings, gradient_flow
 from cellplan.assembly.navigation import clearances, min_clearance
 from cellplan.assembly.problems import CircleWorkspace, DiscProblem, generate_problem
 from cellplan.assembly.routes import segment_clearance
@@ -68,7 +68,6 @@ def test_larger_k_gives_shorter_paths() -> None:
 
 
 def test_budget_exhausted_is_reported() -> None:
-    from cellplan.assembly.flows import FlowSettings
 
     res = gradient_flow(_problem(0), 32.0, settings=FlowSettings(max_steps=5))
     assert res.status is Status.BUDGET_EXHAUSTED and res.steps == 5
@@ -172,7 +171,6 @@ def test_safe_segments_keep_half_of_every_gap(seed: int, scale: float) -> None:
 
 
 def test_implicit_step_follows_the_rk4_path_in_fewer_steps() -> None:
-    from cellplan.assembly.flows import FlowSettings
 
     for s in range(3):
         p = _problem(s, 7)
@@ -219,12 +217,14 @@ def test_lowering_k_leaves_a_spurious_minimum_and_says_so() -> None:
     assert res.min_clearance > 0 and _swept_ok(res.path, p, samples=5)
     assert res.steps == sum(s.steps for s in res.stages)
     # the planner with this escape (escapes=6 by default; its default escape is now the
-    # place rule, issue 13) reports it, and its trajectory marks each escape
+    # place rule, issue 13) reports it, and its trajectory marks each escape; the step
+    # length of gradient_flow's default settings (the planner's own grows with n)
     planned = cellplan.plan(
         generated_setup({"n": 10, "seed": 25, "gap": 0.1}),
         "assembly.gradient",
         k=256.0,
         escape="halve-k",
+        step_max=FlowSettings.step_max,
     )
     stats = planned.stats
     assert stats["solved_at_k"] == 0.0 and stats["escapes"] == res.escapes
@@ -279,3 +279,27 @@ def test_place_route_goes_round_a_blocking_disc_almost_as_short_as_possible() ->
     theta = np.arccos(2.0 / 5.0)
     shortest = 2.0 * np.sqrt(25.0 - 4.0) + 2.0 * (np.pi - 2.0 * theta)
     assert shortest - 1e-9 < length < 1.01 * shortest
+
+
+def test_planner_step_length_grows_with_n_and_can_be_given() -> None:
+    import cellplan
+    from cellplan.assembly.flows import step_max_rule
+    from cellplan.assembly.options import STEP_MAX_PER_SQRT_DISC
+    from cellplan.assembly.problems import generated_setup
+    from cellplan.errors import CellplanError
+
+    assert step_max_rule(3) == FlowSettings.step_max  # the floor
+    assert step_max_rule(50) == pytest.approx(STEP_MAX_PER_SQRT_DISC * 50**0.5)
+    assert step_max_rule(50) > step_max_rule(20) > FlowSettings.step_max
+    setup = generated_setup({"n": 10, "seed": 3, "gap": 0.1})
+    rule = cellplan.plan(setup, "assembly.gradient", integrator="implicit", escapes=0)
+    given = cellplan.plan(
+        setup, "assembly.gradient", integrator="implicit", escapes=0, step_max=0.05
+    )
+    assert rule.stats["step_max"] == step_max_rule(10) and given.stats["step_max"] == 0.05
+    assert rule.success and given.success
+    # a longer step: fewer steps on the same path (ratios within 1%, the fitted tolerance)
+    assert rule.stats["steps"] < given.stats["steps"]
+    assert rule.stats["ratio"] == pytest.approx(given.stats["ratio"], rel=0.01)
+    with pytest.raises(CellplanError, match="step_max"):
+        cellplan.plan(setup, "assembly.gradient", step_max=0.0)

@@ -128,6 +128,8 @@ def test_illegal_goal_pattern_is_reported(tmp_path: Path) -> None:
         (["--random", "5", "--rule", "magic"], "--rule"),
         (["--random", "0"], "--random"),
         (["--random", "5", "--escapes", "-1"], "--escapes"),
+        (["--random", "5", "--step-max", "0"], "--step-max"),
+        (["--random", "5", "--algorithm", "sequential", "--step-max", "0.1"], "--step-max"),
         (["--random", "5", "--fill", "0"], "--fill"),
         (["--random", "5", "--fill", "0.7"], "--fill"),
         (["--random", "5", "--tolerance", "0"], "--tolerance"),

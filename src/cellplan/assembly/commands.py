@@ -20,7 +20,7 @@ import typer
 from pydantic import BaseModel
 
 from cellplan.assembly.layout import DEFAULT_FILL
-from cellplan.assembly.options import GradientOptions, SequentialOptions
+from cellplan.assembly.options import STEP_MAX_RULE, GradientOptions, SequentialOptions
 from cellplan.assembly.run import MAX_FRAMES
 from cellplan.assembly.section import GeneratorSpec
 from cellplan.cliutil import GifSizeOpt, JsonOpt, check_output
@@ -48,6 +48,7 @@ _ESCAPE_HELP = (
 _INTEGRATOR_HELP = (
     f"gradient: auto | implicit | rk4 (default {_default(GradientOptions, 'integrator')})"
 )
+_STEP_MAX_HELP = f"gradient, implicit step: largest step in R^2n (default {STEP_MAX_RULE})"
 _RULE_HELP = f"sequential rule: paper | place (default: {_default(SequentialOptions, 'rule')})"
 _SEED_HELP = f"--random: seed (default {_default(GeneratorSpec, 'seed')})"
 _RADIUS_HELP = f"--random: disc radius (default {_default(GeneratorSpec, 'radius'):g})"
@@ -88,6 +89,7 @@ def register(app: typer.Typer) -> None:
         escapes: Annotated[int | None, typer.Option(help=_ESCAPES_HELP)] = None,
         escape: Annotated[str | None, typer.Option(help=_ESCAPE_HELP)] = None,
         integrator: Annotated[str | None, typer.Option(help=_INTEGRATOR_HELP)] = None,
+        step_max: Annotated[float | None, typer.Option(help=_STEP_MAX_HELP)] = None,
         random_n: Annotated[int | None, typer.Option("--random", help="generate N discs")] = None,
         seed: Annotated[int | None, typer.Option(help=_SEED_HELP)] = None,
         permutation: Annotated[
@@ -154,6 +156,7 @@ def register(app: typer.Typer) -> None:
                 ("escapes", escapes),
                 ("escape", escape),
                 ("integrator", integrator),
+                ("step_max", step_max),
             )
             if value is not None
         }

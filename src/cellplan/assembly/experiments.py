@@ -56,6 +56,7 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
     every other option at its default (tolerance, epsilon, escapes).
     """
     from cellplan import api
+    from cellplan.assembly.flows import FlowSettings
     from cellplan.assembly.problems import DEFAULT_FILL, generated_setup, log10_beta_pairs
 
     prm = spec.params
@@ -72,8 +73,16 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
     k = float(prm["k"])
     if str(prm["algorithm"]) == "gradient":
         # the Section 5 runs keep the paper's escape (k lowered, Sec. 3.2) and the implicit
-        # step they were measured with, whatever the planner's defaults (issue 13)
-        res = api.plan(setup, "assembly.gradient", k=k, escape="halve-k", integrator="implicit")
+        # step and step length they were measured with, whatever the planner's defaults
+        # (issue 13)
+        res = api.plan(
+            setup,
+            "assembly.gradient",
+            k=k,
+            escape="halve-k",
+            integrator="implicit",
+            step_max=FlowSettings.step_max,
+        )
     else:
         res = api.plan(setup, "assembly.sequential", k=k, rule=str(prm["rule"]))
     problem = res.solution.problem

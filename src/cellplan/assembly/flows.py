@@ -50,8 +50,22 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellplan.assembly.eigen import eigvalsh, one_blas_thread, shift_for_length
+from cellplan.assembly.kernels import (
+    max_dt_kernel,
+    rk4_stages_kernel,
+    segment_kernel,
+    triangle_safe_kernel,
+)
 from cellplan.assembly.layout import legality_problems
-from cellplan.assembly.navigation import NavEval, clearances, evaluate, hessian_log_w, log_w
+from cellplan.assembly.navigation import (
+    NavEval,
+    clearances,
+    evaluate,
+    hessian_log_w,
+    log_w,
+    workspace_args,
+)
+from cellplan.assembly.options import STEP_MAX_FLOOR, STEP_MAX_PER_SQRT_DISC
 from cellplan.assembly.problems import DiscProblem
 from cellplan.core import Status
 
@@ -116,7 +130,7 @@ class FlowSettings:
     stiff_bound: bool = True
     normalize: float | None = None
     method: Literal["implicit", "rk4"] = "implicit"
-    step_max: float = 0.05
+    step_max: float = STEP_MAX_FLOOR
     goal_fraction: float = 0.5
 
 
@@ -184,7 +198,26 @@ def max_dt(
     :class:`NavEval` bound the stiffness, ``|d v / d gap| ~ rep / gap``, so that the
     stiff repulsion near a contact is resolved rather than overshot. ``moving`` (n,)
     is the field's scale factor (``lambda``) for the discs that move, 0 for the others.
+    One pass over the pairs (:func:`kernels.max_dt_kernel`); :func:`max_dt_numpy` is
+    its reference.
     """
+    return float(
+        max_dt_kernel(
+            np.ascontiguousarray(w, dtype=np.float64),
+            ev.rep,
+            ev.rep_bnd,
+            np.ascontiguousarray(moving, dtype=np.float64),
+            gaps,
+            bgap,
+            bool(stiff),
+        )
+    )
+
+
+def max_dt_numpy(
+    w: Array, ev: NavEval, moving: Array, gaps: Array, bgap: Array, stiff: bool = True
+) -> float:
+    """:func:`max_dt` on ``(n, n)`` numpy arrays (the reference of its kernel)."""
     speed = np.sqrt(np.sum(w * w, axis=1))
     # ``moving`` carries the field's scale factor, so the stiffness is scaled with it
     pair_moves = np.maximum(moving[:, None], moving[None, :]) * (1.0 if stiff else 0.0)
@@ -195,7 +228,21 @@ def max_dt(
 
 
 def step_is_safe(delta: Array, gaps: Array, bgap: Array, fraction: float) -> bool:
-    """True when no disc pair or disc and boundary can meet along the straight step."""
+    """True when no disc pair or disc and boundary can meet along the straight step.
+
+    Per pair the centre distance changes by at most ``||delta_i|| + ||delta_j||`` along
+    the step; one pass over the pairs (:func:`kernels.triangle_safe_kernel`),
+    :func:`step_is_safe_numpy` is its reference.
+    """
+    return bool(
+        triangle_safe_kernel(
+            np.ascontiguousarray(delta, dtype=np.float64), gaps, bgap, float(fraction)
+        )
+    )
+
+
+def step_is_safe_numpy(delta: Array, gaps: Array, bgap: Array, fraction: float) -> bool:
+    """:func:`step_is_safe` on ``(n, n)`` numpy arrays (the reference of its kernel)."""
     m = np.sqrt(np.sum(delta * delta, axis=1))
     return bool(np.all(m[:, None] + m[None, :] <= fraction * gaps) and np.all(m <= fraction * bgap))
 
@@ -267,6 +314,8 @@ def integrate(
         vm = ev.v * mask
         return 1.0 / (settings.normalize + float(np.sqrt(np.sum(vm * vm))))
 
+    # the stages in one numba call where the field is the plain -v (bit-identical steps)
+    fast = direction is None and settings.normalize is None
     # near the goal the normalised field has rate 1/eta: keep dt * rate <= 1
     dt_cap = (
         settings.dt_max if settings.normalize is None else min(settings.dt_max, settings.normalize)
@@ -291,7 +340,11 @@ def integrate(
             * max_dt(w, ev, mask[:, 0] * lam_of(ev), gaps, bgap, settings.stiff_bound),
         )
         for _ in range(60):
-            new = _rk4(fld, b, w, dt, gaps, bgap)
+            if fast:
+                new, inner = _rk4_fast(fld, problem, k, mask, b, w, dt, gaps, bgap)
+                evals += inner
+            else:
+                new = _rk4(fld, b, w, dt, gaps, bgap)
             if new is not None and (
                 settings.stiff_bound or log_w(new[2], k) <= log_w(ev, k) + 1e-13
             ):
@@ -388,8 +441,26 @@ def segment_is_safe(
     Exact: per pair, the smallest centre distance along the segment (a quadratic in
     the step parameter) minus the radii; for the boundary, the workspace is convex and
     the distance to its boundary concave, so the end points (``bgap``, ``bgap_new``)
-    bound the whole segment.
+    bound the whole segment. One pass over the pairs in a numba kernel
+    (:func:`kernels.segment_kernel`); :func:`segment_is_safe_numpy` is its reference.
     """
+    if not np.all(bgap_new >= fraction * bgap):
+        return False
+    return bool(
+        segment_kernel(
+            np.ascontiguousarray(b, dtype=np.float64),
+            np.ascontiguousarray(delta, dtype=np.float64),
+            radii,
+            gaps,
+            float(fraction),
+        )
+    )
+
+
+def segment_is_safe_numpy(
+    b: Array, delta: Array, radii: Array, gaps: Array, bgap: Array, bgap_new: Array, fraction: float
+) -> bool:
+    """:func:`segment_is_safe` in numpy over ``(n, n)`` arrays (the reference of its kernel)."""
     if not np.all(bgap_new >= fraction * bgap):
         return False
     x0 = b[:, None, :] - b[None, :, :]
@@ -473,7 +544,7 @@ def _integrate_implicit(
         if not np.all(np.isfinite(g)):
             status, reason = Status.STUCK, "non-finite field"
             break
-        hess = hessian_log_w(b, problem, k)[np.ix_(sel, sel)]
+        hess = _hessian(b, problem, k, sel, moving)
         err = float(np.linalg.norm((b - problem.goal).reshape(-1)[sel]))
         length = min(radius, settings.goal_fraction * max(err, 1e-300))
         lw = record.log_ws[-1]
@@ -504,8 +575,16 @@ def _integrate_implicit(
         if status is None and stalled:
             status, reason = Status.STUCK, "no progress"
         if status is Status.STUCK and not reason:
-            reason = critical_point_kind(hessian_log_w(b, problem, k)[np.ix_(sel, sel)])
+            reason = critical_point_kind(_hessian(b, problem, k, sel, moving))
     return record.result(status, steps, evals, reason)
+
+
+def _hessian(
+    b: Array, problem: DiscProblem, k: float, sel: NDArray[np.int_], moving: int | None
+) -> Array:
+    """The Hessian of ``L`` in the moving coordinates ``sel`` (all: ``moving`` None)."""
+    hess = hessian_log_w(b, problem, k)
+    return hess if moving is None else hess[np.ix_(sel, sel)]
 
 
 def critical_point_kind(hess: Array) -> str:
@@ -545,6 +624,46 @@ def _rk4(
     if not (np.isfinite(ev_new.log_beta) and np.all(np.isfinite(w_new))):
         return None
     return b_new, w_new, ev_new
+
+
+def _rk4_fast(
+    fld: Field,
+    problem: DiscProblem,
+    k: float,
+    mask: Array,
+    b: Array,
+    w1: Array,
+    dt: float,
+    gaps: Array,
+    bgap: Array,
+) -> tuple[tuple[Array, Array, NavEval] | None, int]:
+    """:func:`_rk4` with its three inner stages in one numba call
+    (:func:`kernels.rk4_stages_kernel`: the same operations, so the same step), for
+    the field ``-v * mask`` (no ``direction``, no ``normalize``); also returns the
+    number of stage evaluations (``fld`` counts its own call)."""
+    circle, w0, w1ws = workspace_args(problem.workspace)
+    ok, delta, evals = rk4_stages_kernel(
+        b,
+        w1,
+        float(dt),
+        gaps,
+        bgap,
+        problem.goal,
+        problem.radii,
+        circle,
+        w0,
+        w1ws,
+        float(k),
+        mask,
+        STEP_FRACTION,
+    )
+    if not ok:
+        return None, evals
+    b_new = b + delta
+    w_new, ev_new = fld(b_new)
+    if not (np.isfinite(ev_new.log_beta) and np.all(np.isfinite(w_new))):
+        return None, evals
+    return (b_new, w_new, ev_new), evals
 
 
 # --- the gradient assembly algorithm (Section 4.1) -------------------------------------------
@@ -749,6 +868,22 @@ def _gradient_stage(
         return None
 
     return integrate(problem, b0, k, epsilon, stop=stop, settings=settings, direction=direction)
+
+
+# --- the default step length of the implicit flow (docs/assembly.md "The step length") ------
+
+
+def step_max_rule(n: int) -> float:
+    """The planner's default largest implicit step: ``max(0.05, c sqrt(n))``.
+
+    The arc length is measured in R^2n; a step of length ``h`` moves each of ``m``
+    equally moving discs by ``h / sqrt(m)``, so a fixed ``h`` makes the steps per disc
+    shorter, and the runs longer, as n grows (3,600-4,600 steps of 0.05 for 50 discs).
+    ``c = options.STEP_MAX_PER_SQRT_DISC`` (0.02, fitted on the fitting grid:
+    ``benchmarks/fit_assembly_step.py``); ``options.STEP_MAX_FLOOR`` (0.05, the default
+    of ``FlowSettings.step_max``, whose accuracy was measured for 7 discs) is the floor.
+    """
+    return max(STEP_MAX_FLOOR, STEP_MAX_PER_SQRT_DISC * math.sqrt(n))
 
 
 # --- the automatic integrator choice (docs/assembly.md "The integrator") ---------------------

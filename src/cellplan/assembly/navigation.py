@@ -60,11 +60,13 @@ __all__ = [
     "grad_linear",
     "grad_log_phi",
     "hessian_log_w",
+    "hessian_log_w_numpy",
     "log_beta_parts",
     "log_w",
     "min_clearance",
     "pair_terms",
     "phi_linear",
+    "workspace_args",
 ]
 
 Array = NDArray[np.float64]
@@ -115,6 +117,13 @@ class NavEval:
             return self.log_scale + np.log(np.sqrt(np.sum(self.v * self.v, axis=1)))
 
 
+def workspace_args(ws: Workspace) -> tuple[bool, Array, Array]:
+    """The workspace as the kernels take it: ``(circle, w0, w1)``, see ``nav_kernel``."""
+    if isinstance(ws, CircleWorkspace):
+        return True, ws.center, np.array([ws.radius, 0.0])
+    return False, ws.lo, ws.hi
+
+
 def evaluate(b: Array, problem: DiscProblem, k: float) -> NavEval:
     """Evaluate ``phi`` and its gradient (equations (2)-(8)) in log space (numba kernel).
 
@@ -122,11 +131,7 @@ def evaluate(b: Array, problem: DiscProblem, k: float) -> NavEval:
     """
     from cellplan.assembly.kernels import nav_kernel
 
-    ws = problem.workspace
-    if isinstance(ws, CircleWorkspace):
-        w0, w1, circle = ws.center, np.array([ws.radius, 0.0]), True
-    else:
-        w0, w1, circle = ws.lo, ws.hi, False
+    circle, w0, w1 = workspace_args(problem.workspace)
     log_gamma, log_beta, v, rep, rep_bnd, gaps, bgap = nav_kernel(
         np.ascontiguousarray(b, dtype=np.float64),
         problem.goal,
@@ -248,16 +253,37 @@ def log_w(ev: NavEval, k: float) -> float:
 
 
 def hessian_log_w(b: Array, problem: DiscProblem, k: float) -> Array:
-    """Hessian ``(2n, 2n)`` of ``L = log gamma - log(beta) / k`` (see :func:`log_w`).
+    """Hessian ``(2n, 2n)`` of ``L = log gamma - log(beta) / k`` (numba kernel).
+
+    Same result as :func:`hessian_log_w_numpy` (the reference it is tested against), in
+    one pass over the pairs (:func:`kernels.hessian_kernel`); what the flows call.
+    """
+    from cellplan.assembly.kernels import hessian_kernel
+
+    circle, w0, w1 = workspace_args(problem.workspace)
+    hess: Array = hessian_kernel(
+        np.ascontiguousarray(b, dtype=np.float64),
+        problem.goal,
+        problem.radii,
+        circle,
+        w0,
+        w1,
+        float(k),
+    )
+    return hess
+
+
+def hessian_log_w_numpy(b: Array, problem: DiscProblem, k: float) -> Array:
+    """Hessian ``(2n, 2n)`` of ``L = log gamma - log(beta) / k`` (numpy reference).
 
     Differentiates equations (3)-(5) (and the boundary term) twice, in log form:
     ``D^2 log gamma = I / gamma - e e^T / gamma^2``; per pair, with ``x = b_i - b_j``,
     ``D_x^2 log beta_ij = I / beta_ij - x x^T / beta_ij^2`` entered with signs ``+`` on
     the ``ii``, ``jj`` and ``-`` on the ``ij``, ``ji`` blocks; for the circular boundary,
     ``y = b_i - c``, ``D^2 log beta_0i = -I / w - y y^T / w^2``; for the box
-    ``-1 / t^2`` per wall on the diagonal. Vectorised, O(n^2). Used by the linearly
-    implicit step of :mod:`cellplan.assembly.flows`, where it resolves the stiff
-    repulsion near contacts.
+    ``-1 / t^2`` per wall on the diagonal. Vectorised, O(n^2). The linearly implicit
+    step of :mod:`cellplan.assembly.flows`, where it resolves the stiff repulsion near
+    contacts, uses the same formulas through :func:`hessian_log_w`.
     """
     n = problem.n
     diff, B, _ = pair_terms(b, problem.radii)

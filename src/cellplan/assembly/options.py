@@ -21,6 +21,15 @@ from cellplan.schema import PositiveFloat
 #: rule ends when ``||x - d|| < max(discs.tolerance, SEQUENTIAL_TOLERANCE)`` in R^2n.
 SEQUENTIAL_TOLERANCE = 1e-2
 
+#: The implicit step's largest step in R^2n: ``FlowSettings().step_max`` (what the
+#: Section 5 experiments use) and the floor of the planner's rule
+#: ``max(STEP_MAX_FLOOR, STEP_MAX_PER_SQRT_DISC sqrt(n))`` (:func:`flows.step_max_rule`).
+STEP_MAX_FLOOR = 0.05
+#: The rule's constant, fitted on the fitting grid (``benchmarks/fit_assembly_step.py``,
+#: docs/assembly.md "The step length").
+STEP_MAX_PER_SQRT_DISC = 0.02
+STEP_MAX_RULE = f"max({STEP_MAX_FLOOR:g}, {STEP_MAX_PER_SQRT_DISC:g} sqrt(n))"
+
 Escapes = Annotated[int, Field(ge=0, le=20)]
 
 
@@ -66,6 +75,11 @@ class GradientOptions(FlowOptions):
         default="auto",
         description="step of the flow: implicit (linearly implicit, resolves stiff contacts), "
         "rk4, or auto (chosen from the problem, docs/assembly.md 'The integrator')",
+    )
+    step_max: PositiveFloat | None = Field(
+        default=None,
+        description=f"implicit step: largest step in R^2n (default: {STEP_MAX_RULE}, "
+        "docs/assembly.md 'The step length')",
     )
 
 

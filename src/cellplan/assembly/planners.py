@@ -106,6 +106,7 @@ def plan_gradient(setup: Setup, options: GradientOptions, progress: Progress | N
         options.escapes,
         escape=options.escape,
         integrator=options.integrator,
+        step_max=options.step_max,
         scenario=setup.name,
     )
     if progress is not None:
@@ -160,6 +161,7 @@ def run_gradient(
     *,
     escape: str = ESCAPE,
     integrator: str = INTEGRATOR,
+    step_max: float | None = None,
     scenario: str = "",
 ) -> Result:
     """The gradient assembly algorithm (Section 4.1); ratio in the R^2n norm (Section 5.1).
@@ -172,17 +174,20 @@ def run_gradient(
     the place rule, 0 without it); ``ratio`` is over the whole path, every stage
     included. ``integrator``: ``implicit``, ``rk4`` or ``auto``
     (:func:`flows.choose_method`); the statistic ``rk4`` says which ran (1.0: RK4).
+    ``step_max``: the implicit step's largest step in R^2n (``None``: the rule
+    :func:`flows.step_max_rule`; statistic ``step_max``).
     """
-    from cellplan.assembly.flows import FlowSettings, choose_method, gradient_flow
+    from cellplan.assembly.flows import FlowSettings, choose_method, gradient_flow, step_max_rule
 
     t0 = time.perf_counter()
     method = choose_method(problem) if integrator == "auto" else integrator
+    step = step_max_rule(problem.n) if step_max is None else float(step_max)
     res = gradient_flow(
         problem,
         k,
         epsilon,
         tol,
-        settings=FlowSettings(method=method),  # type: ignore[arg-type]
+        settings=FlowSettings(method=method, step_max=step),  # type: ignore[arg-type]
         escapes=escapes,
         escape=escape,  # type: ignore[arg-type]
     )
@@ -192,6 +197,7 @@ def run_gradient(
         "ratio": res.length() / straight if straight > 0 else 1.0,
         "k": float(k),
         "rk4": float(method == "rk4"),
+        "step_max": step,
         "solved_at_k": float(first.status is Status.SOLVED),
         "escapes": float(res.escapes),
         "k_final": float(res.stages[-1].k),

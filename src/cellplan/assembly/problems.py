@@ -13,6 +13,7 @@ generate:`` section, so that a generated problem is planned like any file.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -27,6 +28,7 @@ from cellplan.assembly.layout import (
     CircleWorkspace,
     Workspace,
     boundary_from_section,
+    clearances,
     default_workspace,
     gap_for_beta,
     generator_problems,
@@ -82,6 +84,12 @@ class DiscProblem:
     @property
     def n(self) -> int:
         return int(self.radii.shape[0])
+
+    @functools.cached_property
+    def goal_gap(self) -> float:
+        """Smallest gap between two goals (``inf`` for one disc), computed once."""
+        gaps, _ = clearances(self.goal, self.radii, self.workspace)
+        return float(np.min(gaps))
 
     def with_start(self, start: Array) -> DiscProblem:
         return DiscProblem(self.radii, np.asarray(start, dtype=float), self.goal, self.workspace)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from cellplan.assembly.navigation import clearances
+from cellplan.assembly.kernels import segments_gap_kernel
 from cellplan.assembly.problems import CircleWorkspace, DiscProblem
 
 Array = NDArray[np.float64]
@@ -34,10 +34,36 @@ def segments_clearance(problem: DiscProblem, x: Array, i: int, P: Array, Q: Arra
     """Smallest gap while disc i moves straight from each ``P[s]`` to ``Q[s]`` (S,).
 
     The other discs stand at ``x``. Exact: the distance from each other centre to the
-    segment minus the radii; the workspace is convex, so the boundary gap is smallest
-    at an end point.
+    segment minus the radii (one numba pass over segments and discs,
+    :func:`kernels.segments_gap_kernel`); the workspace is convex, so the boundary gap
+    is smallest at an end point. :func:`segments_clearance_numpy` is the reference.
     """
-    # components as (S, n) arrays: no (S, n, 2) temporaries, no norm calls (hot path)
+    gap = segments_gap_kernel(
+        np.ascontiguousarray(P, dtype=np.float64),
+        np.ascontiguousarray(Q, dtype=np.float64),
+        np.ascontiguousarray(x, dtype=np.float64),
+        problem.radii,
+        int(i),
+    )
+    return np.minimum(gap, _boundary_gap(problem, i, P, Q))
+
+
+def _boundary_gap(problem: DiscProblem, i: int, P: Array, Q: Array) -> Array:
+    """Smallest boundary gap of disc i at the segments' end points (S,)."""
+    ends = np.concatenate([P, Q])
+    ws = problem.workspace
+    if isinstance(ws, CircleWorkspace):
+        bgap = ws.radius - problem.radii[i] - np.linalg.norm(ends - ws.center, axis=1)
+    else:
+        walls = np.concatenate([ends - ws.lo, ws.hi - ends], axis=1)
+        bgap = np.min(walls, axis=1) - problem.radii[i]
+    out: Array = np.minimum(bgap[: len(P)], bgap[len(P) :])
+    return out
+
+
+def segments_clearance_numpy(problem: DiscProblem, x: Array, i: int, P: Array, Q: Array) -> Array:
+    """:func:`segments_clearance` on ``(S, n)`` numpy arrays (the reference of its kernel)."""
+    # components as (S, n) arrays: no (S, n, 2) temporaries, no norm calls
     sx, sy = Q[:, 0] - P[:, 0], Q[:, 1] - P[:, 1]
     rx = x[None, :, 0] - P[:, 0, None]
     ry = x[None, :, 1] - P[:, 1, None]
@@ -49,15 +75,7 @@ def segments_clearance(problem: DiscProblem, x: Array, i: int, P: Array, Q: Arra
     dy = ry - t * sy[:, None]
     gap = np.sqrt(dx * dx + dy * dy) - problem.radii[None] - problem.radii[i]
     gap[:, i] = np.inf
-    ends = np.concatenate([P, Q])
-    ws = problem.workspace
-    if isinstance(ws, CircleWorkspace):
-        bgap = ws.radius - problem.radii[i] - np.linalg.norm(ends - ws.center, axis=1)
-    else:
-        walls = np.concatenate([ends - ws.lo, ws.hi - ends], axis=1)
-        bgap = np.min(walls, axis=1) - problem.radii[i]
-    bgap = np.minimum(bgap[: len(P)], bgap[len(P) :])
-    return np.minimum(np.min(gap, axis=1), bgap)
+    return np.minimum(np.min(gap, axis=1), _boundary_gap(problem, i, P, Q))
 
 
 def segment_clearance(problem: DiscProblem, x: Array, i: int, target: Array) -> float:
@@ -71,8 +89,7 @@ def route_margin(problem: DiscProblem) -> float:
     1e-3 of the smallest radius, or a quarter of the tightest goal gap if the pattern
     is tighter (Fig. 5(e) has gaps of about 1e-4 radii).
     """
-    gaps, _ = clearances(problem.goal, problem.radii, problem.workspace)
-    return float(min(1e-3 * float(np.min(problem.radii)), 0.25 * float(np.min(gaps))))
+    return float(min(1e-3 * float(np.min(problem.radii)), 0.25 * problem.goal_gap))
 
 
 def segment_is_free(problem: DiscProblem, x: Array, i: int, target: Array) -> bool:
