@@ -118,13 +118,16 @@ def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - nu
             const[v] = cv
             dconst[v] = dv
         elif pa >= 0:
-            decode(c, shape, mi)
+            inner = moves.interior[kcls, c]
+            # The multi-index is read only at the border or for a robot-frame heading.
+            if not inner or moves.heading_axis >= 0:
+                decode(c, shape, mi)
             nc = move_corners(
                 kcls,
                 pa,
                 c,
                 mi,
-                moves.interior[kcls, c],
+                inner,
                 moves.offs,
                 moves.fr,
                 moves.coff,

@@ -95,6 +95,9 @@ def sweep_policy(
     for b in range(b0, b1):
         if branch_layer[b] == m:
             pself += branch_prob[b]
+    # A C or W layer without mode changes has one branch, into itself with probability 1:
+    # its moves read the stencil tables directly (the same sums, about twice as fast).
+    single = b1 - b0 == 1 and branch_layer[b0] == m and branch_prob[b0] == 1.0
     maxchange = 0.0
     c = -1
     for kk in range(ncell):
@@ -148,6 +151,28 @@ def sweep_policy(
         t = mi[heading_axis] if heading_axis >= 0 else 0
         for a in range(na):
             if ((vb >> a) & 1) == 0:
+                continue
+            if single and inner:
+                ssum = 0.0
+                vsum = 0.0
+                for jj in range(ncorner):
+                    wj = cw[kcls, a, t, jj]
+                    if wj <= EPS_W:
+                        break
+                    i = c + coff[kcls, a, t, jj]
+                    if livem[i]:
+                        hv = hm[i]
+                        if hv < np.inf:
+                            ssum += wj
+                            vsum += wj * hv
+                if ssum <= EPS_W:
+                    continue
+                val = step_cost + vsum / ssum
+                if a == pold:
+                    oldv = val
+                if val < best:
+                    best = val
+                    barg = a
                 continue
             if inner:
                 nc = 0
