@@ -316,8 +316,9 @@ def with_idle_branch(model, m):
 @settings(max_examples=60, deadline=None)
 @given(models(), st.integers(0, 2**31 - 1), st.floats(0.0, 0.9), st.integers(0, 3))
 def test_single_branch_fast_paths_equal_the_general_loops(mdp, seed, g, flips):
-    # A C and a W layer (one branch each): one Gauss-Seidel sweep with the recorded policy
-    # and one Jacobi backup give bit for bit what the general loops give.
+    # A C and a W layer (one branch each): one Gauss-Seidel sweep recording its policy, that
+    # policy's linear system and one Jacobi backup give bit for bit what the general loops
+    # give.
     rng = np.random.default_rng(seed)
     h = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
     D = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
@@ -337,6 +338,11 @@ def test_single_branch_fast_paths_equal_the_general_loops(mdp, seed, g, flips):
         np.testing.assert_array_equal(d1, d2)
         np.testing.assert_array_equal(p1, p2)
         np.testing.assert_array_equal(n1, n2)
+        # The linear system of the recorded policy (an exact evaluation's input).
+        cells, local = live_cells(mdp.live[m])
+        systems = [layer_system(m, h1, d1, g, p1, cells, local, mod) for mod in (model, general)]
+        for a, b in zip(*systems, strict=True):
+            np.testing.assert_array_equal(a, b)
         outs = []
         for mod in (model, general):
             out = np.full_like(h, np.nan)

@@ -213,8 +213,20 @@ def sweep_policy(
             if ok and val < best:
                 best = val
                 barg = a
-        if track and barg >= 0:
+        if track and barg >= 0 and single and inner:
             # The derivative of the winning move only (cheaper than one per action).
+            ssum = 0.0
+            dsum = 0.0
+            for jj in range(ncorner):
+                wj = cw[kcls, barg, t, jj]
+                if wj <= EPS_W:
+                    break
+                i = c + coff[kcls, barg, t, jj]
+                if livem[i] and hm[i] < np.inf:
+                    ssum += wj
+                    dsum += wj * D[m, i]
+            bestd = -1.0 + dsum / ssum
+        elif track and barg >= 0:
             nc = move_corners(
                 kcls,
                 barg,
