@@ -368,10 +368,18 @@ def compare_p1(n: int, generic: bool, storm: bool) -> None:
         res = solve(mdp, "structured", tol=tol)
         times.append(time.perf_counter() - t)
     t_struct = min(times)
+    # CPU time of a one-thread solve: less sensitive to other jobs on the machine than the
+    # wall time (it still includes their effect on the caches).
+    cpu = []
+    for _ in range(3):
+        t = time.process_time()
+        solve(mdp, "structured", tol=tol, threads=1)
+        cpu.append(time.process_time() - t)
     states = int(mdp.live.sum())
     print(
         f"P1 {n}x{n} ({states:,} states, 16 headings): model build {t_build:.2f} s; "
-        f"structured {t_struct:.3f} s (best of {', '.join(f'{v:.3f}' for v in times)}), "
+        f"structured {t_struct:.3f} s (best of {', '.join(f'{v:.3f}' for v in times)}; "
+        f"1 thread: CPU {min(cpu):.3f} s, best of 3), "
         f"gain {res.gain:.9f} in [{res.gain_lower:.9f}, {res.gain_upper:.9f}], "
         f"{res.outer_iterations} passes, {res.sweeps} full sweeps + {res.eval_sweeps} "
         f"evaluations, {res.status}; {load()}",
@@ -437,14 +445,16 @@ def solve_problem(p: str, cells: list[int] | None) -> None:
         return
     t_build = time.perf_counter() - t
     t = time.perf_counter()
+    cpu = time.process_time()
     sec = sc.strategy
     assert sec is not None
     res = solve(mdp, sec.solver.method, sec.solver.tolerance, sec.solver.max_sweeps)
     print(
         f"{p}: cells {tuple(int(v) for v in mdp.shape)}, {mdp.n_modes} modes, "
         f"build {t_build:.2f} s, "
-        f"solve ({res.method}) {time.perf_counter() - t:.2f} s, gain {res.gain:.6f}, "
-        f"gain in [{res.gain_lower:.6f}, {res.gain_upper:.6f}], "
+        f"solve ({res.method}) {time.perf_counter() - t:.2f} s "
+        f"(CPU {time.process_time() - cpu:.2f} s, all threads), gain {res.gain:.9f}, "
+        f"gain in [{res.gain_lower:.9f}, {res.gain_upper:.9f}], "
         f"{res.outer_iterations} passes, {res.status}; peak RSS {peak_mb():.0f} MB; {load()}",
         flush=True,
     )
