@@ -417,12 +417,16 @@ class _Layers:
     def _merge_request_branches(self) -> None:
         """Group NR's request branches whose W layers share one live set.
 
-        Where the live sets agree the interpolation weights of a landing point agree too,
-        so ``sum_b P_b H_{W_b}(x')`` is the interpolation of ``sum_b P_b h_{W_b}`` over
-        that live set: one interpolation per group instead of one per request (problem
-        1: one group of 8, problem 6: two of 4). ``merged`` is a model with NR and one
-        layer per group, the group's probability on one branch; :meth:`nr_layer` fills
-        ``self.hg``/``self.Dg`` with the probability-weighted means of the group's values.
+        A request ``r`` arrives in NR with probability ``P pi_r`` and leads to ``W_r``
+        (Section III-B). The interpolation of Section IV-B renormalises a landing point's
+        weights over the live corners of the layer it reads, so where the live sets agree
+        the weights agree too and ``sum_b P_b H_{W_b}(x')`` is the interpolation of
+        ``sum_b P_b h_{W_b}`` over that live set: one interpolation per group instead of
+        one per request (problem 1: one group of 8, problem 6: two of 4). ``merged`` is a
+        model whose layers are NR and one per group (only ``live`` and the branches of NR
+        are read from it: :func:`.sweeps.other_branches` of layer 0), each group on one
+        branch with its total probability; :meth:`_merged_values` fills ``hg`` and ``Dg``
+        with the probability-weighted means of the group's values.
         """
         mdp = self.mdp
         ptr, lay, prob = mdp.branch_ptr, mdp.branch_layer, mdp.branch_prob

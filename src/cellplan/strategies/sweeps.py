@@ -96,7 +96,8 @@ def sweep_policy(
         if branch_layer[b] == m:
             pself += branch_prob[b]
     # A C or W layer without mode changes has one branch, into itself with probability 1:
-    # its moves read the stencil tables directly (the same sums, about twice as fast).
+    # its moves and the winner's D read the stencil tables directly (the same sums in the
+    # same order; a sweep of a P1 200 x 200 C layer 5.1 -> 2.8 ms).
     single = b1 - b0 == 1 and branch_layer[b0] == m and branch_prob[b0] == 1.0
     maxchange = 0.0
     c = -1
