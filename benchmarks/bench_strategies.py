@@ -16,12 +16,16 @@
    ratios, with the machine load.
 2. One online action query (equation (9) at a real-valued state).
 3. Absolute times of ``solve`` on the bundled problems and the peak memory.
+4. ``--kernels P[=cells]``: one sweep and one exact evaluation of a C and a W layer
+   (thread CPU time), to compare the hot loops of two trees.
 
 Run: ``.venv/bin/python benchmarks/bench_strategies.py --peer storm --problems ""`` for
 the comparison alone; other grids with ``--skip-p1 --problems p3,p6 --cells
-p3=128,128,64``. Without stormpy the Storm rows are skipped with one line. numba
-compilation is cached and excluded (a warm-up solve on a small grid runs first). The
-structured P1 solves are timed best of 3 (the machine is shared); the others once.
+p3=128,128,64``. Every solve line also gives the CPU time (for the P1 rows, of a
+one-thread solve), which other jobs on the machine disturb less than the wall time.
+Without stormpy the Storm rows are skipped with one line. numba compilation is cached
+and excluded (a warm-up solve on a small grid runs first). The structured P1 solves are
+timed best of 3 (the machine is shared); the others once.
 """
 
 from __future__ import annotations
@@ -39,10 +43,12 @@ import scipy.sparse as sp
 from numba import njit
 
 from cellplan.errors import CellplanError
+from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
 from cellplan.strategies.model import LayeredMDP, build_model
 from cellplan.strategies.solver import solve
 from cellplan.strategies.stencils import decode, table_stencil
 from cellplan.strategies.strategy import Strategy
+from cellplan.strategies.sweeps import sweep_policy
 from cellplan.strategies.threads import default_threads
 from cellplan.workcell import load_workcell
 
@@ -337,6 +343,13 @@ def main() -> None:
         help="solve problem P on another grid, e.g. --cells p3=64,64,64 (repeatable)",
     )
     ap.add_argument("--skip-p1", action="store_true", help="skip the P1 comparison and query")
+    ap.add_argument(
+        "--kernels",
+        default="",
+        metavar="P[=N,N[,N]]",
+        help="time one sweep and one exact evaluation of a C and a W layer of problem P "
+        "(thread CPU time, best of 7), e.g. --kernels p1=200,200 or --kernels p6",
+    )
     args = ap.parse_args()
     grids = {k: [int(v) for v in g.split(",")] for k, g in (c.split("=") for c in args.cells)}
     print(f"start: {load()}; threads {default_threads()}", flush=True)
@@ -351,6 +364,9 @@ def main() -> None:
         query_time()
     for p in [p for p in args.problems.split(",") if p]:
         solve_problem(p, grids.get(p))
+    if args.kernels:
+        name, _, cells = args.kernels.partition("=")
+        kernel_times(name, [int(v) for v in cells.split(",")] if cells else None)
     print(f"end: {load()}")
 
 
@@ -368,10 +384,18 @@ def compare_p1(n: int, generic: bool, storm: bool) -> None:
         res = solve(mdp, "structured", tol=tol)
         times.append(time.perf_counter() - t)
     t_struct = min(times)
+    # CPU time of a one-thread solve: less sensitive to other jobs on the machine than the
+    # wall time (it still includes their effect on the caches).
+    cpu = []
+    for _ in range(3):
+        t = time.process_time()
+        solve(mdp, "structured", tol=tol, threads=1)
+        cpu.append(time.process_time() - t)
     states = int(mdp.live.sum())
     print(
         f"P1 {n}x{n} ({states:,} states, 16 headings): model build {t_build:.2f} s; "
-        f"structured {t_struct:.3f} s (best of {', '.join(f'{v:.3f}' for v in times)}), "
+        f"structured {t_struct:.3f} s (best of {', '.join(f'{v:.3f}' for v in times)}; "
+        f"1 thread: CPU {min(cpu):.3f} s, best of 3), "
         f"gain {res.gain:.9f} in [{res.gain_lower:.9f}, {res.gain_upper:.9f}], "
         f"{res.outer_iterations} passes, {res.sweeps} full sweeps + {res.eval_sweeps} "
         f"evaluations, {res.status}; {load()}",
@@ -426,6 +450,50 @@ def query_time() -> None:
     print(f"online action query (P1): {best:.1f} microseconds (best of 3 x {n})")
 
 
+def _best_ms(fn: Any) -> float:
+    """Thread CPU time of ``fn()`` in milliseconds, best of 7."""
+    times = []
+    for _ in range(7):
+        t = time.thread_time()
+        fn()
+        times.append(time.thread_time() - t)
+    return min(times) * 1e3
+
+
+def _layer_kernels(mdp: LayeredMDP, m: int, h: np.ndarray, pol: np.ndarray, g: float) -> str:
+    model = mdp.kernel_args()
+    D = np.zeros_like(h)
+    nchg = np.zeros(1, np.int64)
+    t_sweep = _best_ms(lambda: sweep_policy(m, 1, h, D, g, False, True, pol, 1, nchg, 1e-9, model))
+    cells, local = live_cells(mdp.live[m])
+
+    def one_evaluation() -> None:
+        system = layer_system(m, h, D, g, pol, cells, local, model)
+        evaluate(h[m], D[m], cells, *system)
+
+    t_eval = _best_ms(one_evaluation)
+    return f"layer {m} ({cells.size:,} live): sweep {t_sweep:.2f} ms, evaluation {t_eval:.2f} ms"
+
+
+def kernel_times(p: str, cells: list[int] | None) -> None:
+    """One Gauss-Seidel sweep (every action, policy and dh/dg recorded) and one exact
+    evaluation of the recorded policy, on the first C and W layers of a solved problem.
+
+    Thread CPU time, best of 7: the hot loops alone, for comparing trees (run the same
+    command with ``PYTHONPATH`` on the other tree's ``src``).
+    """
+    sc, cell = load_workcell(f"strategies_{p}")
+    mdp = build_model(sc, cell, cells)
+    res = solve(mdp, "structured", threads=1)
+    h = np.where(mdp.live, res.values, 0.0)
+    pol = res.policy.astype(np.int16)
+    out = [
+        f"{kind} {_layer_kernels(mdp, m, h.copy(), pol.copy(), res.gain)}"
+        for kind, m in (("C", mdp.c_layer(0)), ("W", mdp.w_layer(0)))
+    ]
+    print(f"kernels {p} {tuple(int(v) for v in mdp.shape)}: {'; '.join(out)}; {load()}")
+
+
 def solve_problem(p: str, cells: list[int] | None) -> None:
     name = f"strategies_{p}"
     sc, cell = load_workcell(name)
@@ -437,14 +505,16 @@ def solve_problem(p: str, cells: list[int] | None) -> None:
         return
     t_build = time.perf_counter() - t
     t = time.perf_counter()
+    cpu = time.process_time()
     sec = sc.strategy
     assert sec is not None
     res = solve(mdp, sec.solver.method, sec.solver.tolerance, sec.solver.max_sweeps)
     print(
         f"{p}: cells {tuple(int(v) for v in mdp.shape)}, {mdp.n_modes} modes, "
         f"build {t_build:.2f} s, "
-        f"solve ({res.method}) {time.perf_counter() - t:.2f} s, gain {res.gain:.6f}, "
-        f"gain in [{res.gain_lower:.6f}, {res.gain_upper:.6f}], "
+        f"solve ({res.method}) {time.perf_counter() - t:.2f} s "
+        f"(CPU {time.process_time() - cpu:.2f} s, all threads), gain {res.gain:.9f}, "
+        f"gain in [{res.gain_lower:.9f}, {res.gain_upper:.9f}], "
         f"{res.outer_iterations} passes, {res.status}; peak RSS {peak_mb():.0f} MB; {load()}",
         flush=True,
     )

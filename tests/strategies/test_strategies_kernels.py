@@ -19,7 +19,7 @@ from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
 from cellplan.strategies.interpolation import interp
 from cellplan.strategies.model import Geometry, LayeredMDP, assemble
 from cellplan.strategies.stencils import MAX_DIM, stencil
-from cellplan.strategies.sweeps import sweep_layer
+from cellplan.strategies.sweeps import sweep_layer, sweep_policy
 
 # --- references ---------------------------------------------------------------------------
 
@@ -388,3 +388,65 @@ def test_live_states_match_their_definition(mdp):
     # assemble() ran compute_live, which skips layers whose inputs did not change and
     # copies the result of a layer with identical inputs (the copied destination).
     np.testing.assert_array_equal(mdp.live, ref_live(mdp))
+
+
+# --- the single-branch fast paths ---------------------------------------------------------
+
+
+def with_idle_branch(model, m):
+    """The model with a second, zero-probability branch of layer ``m`` into itself.
+
+    The layer's equation is unchanged, but it no longer has exactly one branch, so the
+    kernels take their general loop over branches instead of the single-branch fast path.
+    """
+    lay = model.layers
+    end = int(lay.branch_ptr[m + 1])
+    ptr = lay.branch_ptr.copy()
+    ptr[m + 1 :] += 1
+    layers = lay._replace(
+        branch_ptr=ptr,
+        branch_layer=np.insert(lay.branch_layer, end, m),
+        branch_prob=np.insert(lay.branch_prob, end, 0.0),
+    )
+    return model._replace(layers=layers)
+
+
+@settings(max_examples=60, deadline=None)
+@given(models(), st.integers(0, 2**31 - 1), st.floats(0.0, 0.9), st.integers(0, 3))
+def test_single_branch_fast_paths_equal_the_general_loops(mdp, seed, g, flips):
+    # A C and a W layer (one branch each): one Gauss-Seidel sweep recording its policy, that
+    # policy's linear system and one Jacobi backup give bit for bit what the general loops
+    # give.
+    rng = np.random.default_rng(seed)
+    h = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
+    D = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
+    model = mdp.kernel_args()
+    for m in (mdp.c_layer(0), mdp.w_layer(0)):
+        general = with_idle_branch(model, m)
+        runs = []
+        for mod in (model, general):
+            hh, DD = h.copy(), D.copy()
+            pol = np.full(h.shape, -3, np.int16)
+            nchg = np.zeros(1, np.int64)
+            change = sweep_policy(m, flips, hh, DD, g, False, True, pol, 1, nchg, 1e-9, mod)
+            runs.append((change, hh, DD, pol, nchg))
+        (c1, h1, d1, p1, n1), (c2, h2, d2, p2, n2) = runs
+        assert c1 == c2
+        np.testing.assert_array_equal(h1, h2)
+        np.testing.assert_array_equal(d1, d2)
+        np.testing.assert_array_equal(p1, p2)
+        np.testing.assert_array_equal(n1, n2)
+        # The linear system of the recorded policy (an exact evaluation's input).
+        cells, local = live_cells(mdp.live[m])
+        systems = [layer_system(m, h1, d1, g, p1, cells, local, mod) for mod in (model, general)]
+        for a, b in zip(*systems, strict=True):
+            np.testing.assert_array_equal(a, b)
+        outs = []
+        for mod in (model, general):
+            out = np.full_like(h, np.nan)
+            policy = np.full(h.shape, -3, np.int64)
+            gap = np.full_like(h, np.nan)
+            bellman_all(h, out, policy, gap, np.zeros((0, 0), np.bool_), mod)
+            outs.append((out, policy, gap))
+        for a, b in zip(*outs, strict=True):
+            np.testing.assert_array_equal(a[m], b[m])

@@ -11,7 +11,10 @@ from strategies_helpers import empty, tiny
 
 from cellplan.core import Status
 from cellplan.strategies.model import build_model
-from cellplan.strategies.solver import solve_general, solve_structured
+from cellplan.strategies.solver import _Layers, solve_general, solve_structured
+from cellplan.strategies.sweeps import other_branches
+from cellplan.strategies.threads import Workers
+from cellplan.workcell import load_workcell
 
 
 def _stencil(q, mdp):
@@ -264,3 +267,31 @@ def test_rotating_robot_matches_plain_sparse_rvi_and_serves_requests():
     assert np.nanmax(np.abs(a - b)) < 1e-6
     sim = simulate(Strategy.from_solution(mdp, s, sc), 2000, 0, start=cell.robot.start, cell=cell)
     assert sim.metrics()["served"] > 10
+
+
+def test_merged_request_branches_give_the_same_expectations():
+    # NR's request branches into W layers with one live set are interpolated once, as
+    # the probability-weighted mean of their values: the same E (and dE/dg) per action.
+    # Problem 1 (coarse): its eight requests wait in W layers with one live set.
+    sc, cell = load_workcell("strategies_p1")
+    mdp = build_model(sc, cell, [34, 34])
+    run = _Layers(mdp, 100, Workers(1))
+    assert run.merged is not None
+    assert max(len(bs) for bs in run.nr_groups) > 1
+    rng = np.random.default_rng(5)
+    run.h[:] = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
+    run.D[:] = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
+    assert run._merged_values()
+    n = mdp.live.shape[1]
+    ref, ref_d = np.empty_like(run.E), np.empty_like(run.E)
+    other_branches(0, run.h, run.D, ref, ref_d, 0, n, mdp.kernel_args())
+    got, got_d = np.empty_like(run.E), np.empty_like(run.E)
+    other_branches(0, run.hg, run.Dg, got, got_d, 0, n, run.merged)
+    assert np.array_equal(np.isinf(ref), np.isinf(got))
+    fin = np.isfinite(ref)
+    np.testing.assert_allclose(got[fin], ref[fin], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got_d[fin], ref_d[fin], rtol=1e-12, atol=1e-12)
+    # An unreached W state keeps the branches apart.
+    w = mdp.w_layer(0)
+    run.h[w][np.flatnonzero(mdp.live[w])[0]] = np.inf
+    assert not run._merged_values()

@@ -61,6 +61,11 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
         b0 = lay.branch_ptr[m]
         b1 = lay.branch_ptr[m + 1]
         cost = lay.cost[m]
+        # One branch into the layer itself (C and W without mode changes): the moves read
+        # the stencil tables directly (the same sums as the general loop below).
+        single = b1 - b0 == 1 and branch_layer[b0] == m and branch_prob[b0] == 1.0
+        livem = live[m]
+        hm = h[m]
         for c in range(max(start - m * ncell, 0), min(stop - m * ncell, ncell)):
             if not live[m, c]:
                 out[m, c] = np.nan
@@ -95,6 +100,27 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
             t = mi[heading_axis] if heading_axis >= 0 else 0
             for a in range(na):
                 if ((vb >> a) & 1) == 0:
+                    continue
+                if single and inner:
+                    ssum = 0.0
+                    vsum = 0.0
+                    for jj in range(ncorner):
+                        wj = cw[kcls, a, t, jj]
+                        if wj <= EPS_W:
+                            break
+                        i = c + coff[kcls, a, t, jj]
+                        if livem[i]:
+                            ssum += wj
+                            vsum += wj * hm[i]
+                    if ssum <= EPS_W:
+                        continue
+                    val = cost + vsum / ssum
+                    if val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
+                        second = best
+                        best = val
+                        arg = a
+                    elif val < second:
+                        second = val
                     continue
                 # Written out as in sweeps.sweep_policy (an inlined helper is slower here).
                 if inner:

@@ -73,6 +73,11 @@ def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - nu
         if branch_layer[b] == m and branch_prob[b] > 0.0:
             nself += 1
     cap = n * max(1, nself * ncorner)
+    # One branch into the layer itself (C and W without mode changes): interior moves read
+    # the stencil tables directly (the same weights as the general loop below).
+    single = b1 - b0 == 1 and branch_layer[b0] == m and branch_prob[b0] == 1.0
+    livem = live[m]
+    hm = h[m]
     ptr = np.zeros(n + 1, np.int64)
     succ = np.empty(cap, np.int64)
     wt = np.empty(cap)
@@ -117,14 +122,44 @@ def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - nu
                     dv += p * D[L, c]
             const[v] = cv
             dconst[v] = dv
+        elif pa >= 0 and single and moves.interior[kcls, c]:
+            t = 0
+            if moves.heading_axis >= 0:
+                decode(c, shape, mi)
+                t = mi[moves.heading_axis]
+            ssum = 0.0
+            for jj in range(ncorner):
+                wj = moves.cw[kcls, pa, t, jj]
+                if wj <= EPS_W:
+                    break
+                i = c + moves.coff[kcls, pa, t, jj]
+                if livem[i] and hm[i] < np.inf:
+                    ssum += wj
+            if ssum <= EPS_W:
+                ok = False
+            else:
+                for jj in range(ncorner):
+                    wj = moves.cw[kcls, pa, t, jj]
+                    if wj <= EPS_W:
+                        break
+                    i = c + moves.coff[kcls, pa, t, jj]
+                    if livem[i] and hm[i] < np.inf:
+                        succ[ne] = local[i]
+                        wt[ne] = wj / ssum
+                        ne += 1
+                const[v] = step_cost
+                dconst[v] = -1.0
         elif pa >= 0:
-            decode(c, shape, mi)
+            inner = moves.interior[kcls, c]
+            # The multi-index is read only at the border or for a robot-frame heading.
+            if not inner or moves.heading_axis >= 0:
+                decode(c, shape, mi)
             nc = move_corners(
                 kcls,
                 pa,
                 c,
                 mi,
-                moves.interior[kcls, c],
+                inner,
                 moves.offs,
                 moves.fr,
                 moves.coff,

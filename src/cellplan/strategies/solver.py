@@ -328,6 +328,7 @@ class _Layers:
         self.E = np.empty((live.shape[1], n_act + 1))
         self.ED = np.empty_like(self.E)
         self.p_self = float(sum(prob[b] for b in range(ptr[0], ptr[1]) if lay[b] == 0))
+        self._merge_request_branches()
 
     # --- step 1: the C and W layers ---------------------------------------------------------
 
@@ -413,6 +414,61 @@ class _Layers:
 
     # --- step 2: NR ---------------------------------------------------------------------------
 
+    def _merge_request_branches(self) -> None:
+        """Group NR's request branches whose W layers share one live set.
+
+        A request ``r`` arrives in NR with probability ``P pi_r`` and leads to ``W_r``
+        (Section III-B). The interpolation of Section IV-B renormalises a landing point's
+        weights over the live corners of the layer it reads, so where the live sets agree
+        the weights agree too and ``sum_b P_b H_{W_b}(x')`` is the interpolation of
+        ``sum_b P_b h_{W_b}`` over that live set: one interpolation per group instead of
+        one per request (problem 1: one group of 8, problem 6: two of 4). ``merged`` is a
+        model whose layers are NR and one per group (only ``live`` and the branches of NR
+        are read from it: :func:`.sweeps.other_branches` of layer 0), each group on one
+        branch with its total probability; :meth:`_merged_values` fills ``hg`` and ``Dg``
+        with the probability-weighted means of the group's values.
+        """
+        mdp = self.mdp
+        ptr, lay, prob = mdp.branch_ptr, mdp.branch_layer, mdp.branch_prob
+        groups: dict[bytes, list[int]] = {}
+        for b in range(ptr[0], ptr[1]):
+            if lay[b] != 0 and prob[b] > 0.0:
+                groups.setdefault(self.live[lay[b]].tobytes(), []).append(b)
+        self.nr_groups = list(groups.values())
+        self.merged: Model | None = None
+        if len(self.nr_groups) == sum(len(bs) for bs in self.nr_groups):
+            return  # nothing to merge
+        n_groups = len(self.nr_groups)
+        live = np.empty((n_groups + 1, self.live.shape[1]), np.bool_)
+        live[0] = self.live[0]
+        for k, bs in enumerate(self.nr_groups):
+            live[k + 1] = self.live[lay[bs[0]]]
+        self.group_prob = np.array([float(prob[bs].sum()) for bs in self.nr_groups])
+        layers = self.model.layers._replace(
+            live=live,
+            branch_ptr=np.array([0, n_groups + 1], np.int64),
+            branch_layer=np.arange(n_groups + 1, dtype=np.int64),
+            branch_prob=np.concatenate([[self.p_self], self.group_prob]),
+        )
+        self.merged = self.model._replace(layers=layers)
+        self.hg = np.zeros(live.shape)
+        self.Dg = np.zeros(live.shape)
+
+    def _merged_values(self) -> bool:
+        """Fill the merged layers' values; False where a W layer still has an unreached
+        live state (the groups then read differently, so the branches stay separate)."""
+        if self.merged is None:
+            return False
+        lay, prob = self.mdp.branch_layer, self.mdp.branch_prob
+        for k, bs in enumerate(self.nr_groups):
+            members = self.h[lay[bs]]
+            if not np.all(np.isfinite(members[:, self.live[lay[bs[0]]]])):
+                return False
+            p = prob[bs][:, None]
+            self.hg[k + 1] = (p * members).sum(axis=0) / self.group_prob[k]
+            self.Dg[k + 1] = (p * self.D[lay[bs]]).sum(axis=0) / self.group_prob[k]
+        return True
+
     def nr_layer(self, g: float, accuracy: float, cold: bool) -> None:
         """Solve NR for the gain ``g`` with the W layers fixed.
 
@@ -427,8 +483,15 @@ class _Layers:
         """
         n = self.live.shape[1]
 
+        h: np.ndarray = self.h
+        D: np.ndarray = self.D
+        model = self.model
+        if self._merged_values():
+            assert self.merged is not None
+            h, D, model = self.hg, self.Dg, self.merged
+
         def branches(r: tuple[int, int]) -> None:
-            sweeps.other_branches(0, self.h, self.D, self.E, self.ED, r[0], r[1], self.model)
+            sweeps.other_branches(0, h, D, self.E, self.ED, r[0], r[1], model)
 
         self.workers.map(branches, self.workers.ranges(n))
         if cold:

@@ -95,6 +95,10 @@ def sweep_policy(
     for b in range(b0, b1):
         if branch_layer[b] == m:
             pself += branch_prob[b]
+    # A C or W layer without mode changes has one branch, into itself with probability 1:
+    # its moves and the winner's D read the stencil tables directly (the same sums in the
+    # same order; a sweep of a P1 200 x 200 C layer 5.1 -> 2.8 ms).
+    single = b1 - b0 == 1 and branch_layer[b0] == m and branch_prob[b0] == 1.0
     maxchange = 0.0
     c = -1
     for kk in range(ncell):
@@ -149,6 +153,28 @@ def sweep_policy(
         for a in range(na):
             if ((vb >> a) & 1) == 0:
                 continue
+            if single and inner:
+                ssum = 0.0
+                vsum = 0.0
+                for jj in range(ncorner):
+                    wj = cw[kcls, a, t, jj]
+                    if wj <= EPS_W:
+                        break
+                    i = c + coff[kcls, a, t, jj]
+                    if livem[i]:
+                        hv = hm[i]
+                        if hv < np.inf:
+                            ssum += wj
+                            vsum += wj * hv
+                if ssum <= EPS_W:
+                    continue
+                val = step_cost + vsum / ssum
+                if a == pold:
+                    oldv = val
+                if val < best:
+                    best = val
+                    barg = a
+                continue
             if inner:
                 nc = 0
                 for jj in range(ncorner):
@@ -188,8 +214,20 @@ def sweep_policy(
             if ok and val < best:
                 best = val
                 barg = a
-        if track and barg >= 0:
+        if track and barg >= 0 and single and inner:
             # The derivative of the winning move only (cheaper than one per action).
+            ssum = 0.0
+            dsum = 0.0
+            for jj in range(ncorner):
+                wj = cw[kcls, barg, t, jj]
+                if wj <= EPS_W:
+                    break
+                i = c + coff[kcls, barg, t, jj]
+                if livem[i] and hm[i] < np.inf:
+                    ssum += wj
+                    dsum += wj * D[m, i]
+            bestd = -1.0 + dsum / ssum
+        elif track and barg >= 0:
             nc = move_corners(
                 kcls,
                 barg,
