@@ -200,7 +200,7 @@ def data_mutation(draw: st.DrawFn, data: Any) -> Any:
         dicts = [p for p in paths if isinstance(_get(data, p), dict) and _get(data, p)]
         path = draw(st.sampled_from(dicts)) if dicts else ()
         node = _get(data, path)
-        if isinstance(node, dict):
+        if isinstance(node, dict) and node:  # the whole file may have been emptied
             key = draw(st.sampled_from(list(node)))
             node[draw(st.sampled_from(HOSTILE_NAMES))] = node.pop(key)
         return data

@@ -112,20 +112,22 @@ def check_resolution(robot: Robot, resolution: float, field: str = "adaptive.res
     span = np.where(
         np.asarray(robot.periodic, bool), math.pi, np.asarray(robot.upper) - robot.lower
     )
-    steps = math.ceil(float(np.linalg.norm(span)) / resolution)
+    # A float first: a resolution of 5e-324 makes the ratio infinite, which ceil refuses.
+    ratio = float(np.linalg.norm(span)) / resolution
     shown = units.degrees(resolution) if isinstance(robot, PlanarArm) else resolution
     where = f"{field} {shown:g}"
-    if steps > MAX_SEGMENT_STEPS:
+    if not ratio <= MAX_SEGMENT_STEPS:
         raise ScenarioError(
             [
                 Problem(
                     where,
-                    f"a segment across the configuration space would take {steps:.3g} "
+                    f"a segment across the configuration space would take {ratio:.3g} "
                     f"collision checks (the limit is {MAX_SEGMENT_STEPS:,}); use a coarser "
                     "resolution",
                 )
             ]
         )
+    steps = math.ceil(ratio)
     budget.require(segment_memory(robot, steps), where, "per straight segment", ScenarioError)
 
 
