@@ -62,6 +62,7 @@ from cellplan.schema import (
 # (ScenarioBase plus the registered sections), so its documentation is ScenarioBase's.
 __all__ = [
     "MAX_FILE_BYTES",
+    "MAX_NAMED",
     "MAX_YAML_NODES",
     "SCHEMA_ID",
     "SCHEMA_VERSION",
@@ -237,6 +238,13 @@ class CSpaceSpec(StrictModel):
 # --- the scenario ----------------------------------------------------------------------------
 
 
+MAX_NAMED = 100
+"""Most parts, most sources and most destinations a scenario may name. The paper's
+problems use at most 6, 4 and 4; each source is an obstacle in every other source's free
+space (equations (1)-(2)), so checking a file costs the square of the number of sources
+(5,000 copies of a source kept ``validate`` busy for over 5 minutes; 100 take 4 s)."""
+
+
 class ScenarioBase(StrictModel):
     """A cellplan scenario: a workcell, what moves in it, and each planner's settings.
 
@@ -257,13 +265,19 @@ class ScenarioBase(StrictModel):
         "degrees); none for disc assembly",
     )
     parts: dict[Name, PartSpec] = Field(
-        default_factory=dict, description="parts by name, in the gripper frame"
+        default_factory=dict,
+        max_length=MAX_NAMED,
+        description="parts by name, in the gripper frame",
     )
     sources: dict[Name, RegionSpec] = Field(
-        default_factory=dict, description="regions where parts are picked up, by name"
+        default_factory=dict,
+        max_length=MAX_NAMED,
+        description="regions where parts are picked up, by name",
     )
     destinations: dict[Name, RegionSpec] = Field(
-        default_factory=dict, description="regions where parts are delivered, by name"
+        default_factory=dict,
+        max_length=MAX_NAMED,
+        description="regions where parts are delivered, by name",
     )
     cspace: CSpaceSpec = Field(
         default_factory=CSpaceSpec,
@@ -563,9 +577,19 @@ def problems_from_validation(
     mean" when a close name is allowed there.
     """
     root = Scenario if root is None else root
+    errors = exc.errors(include_url=False)
+    fields = [format_location(err["loc"], data) for err in errors]
+    # In a union such as 'all' | [requests], the member the value's type chose says what
+    # is wrong; the literal member's "must be 'all'" would only add noise.
+    chosen = {f for f, err in zip(fields, errors, strict=True) if err["type"] != "literal_error"}
     problems = []
-    for err in exc.errors(include_url=False):
-        field = format_location(err["loc"], data)
+    for field, err in zip(fields, errors, strict=True):
+        if (
+            err["type"] == "literal_error"
+            and not isinstance(err.get("input"), str)
+            and any(f == field or f.startswith((field + ".", field + "[")) for f in chosen)
+        ):
+            continue
         problems.append(Problem(field, _message(err, data, root)))
     return list(dict.fromkeys(problems))  # both members of a union may say the same
 
@@ -607,7 +631,10 @@ def _message(err: Any, data: Any, root: type[BaseModel]) -> str:
         return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
     if kind == "too_long":
         ctx = err.get("ctx", {})
-        return f"has {ctx.get('actual_length')} items; at most {ctx.get('max_length')} allowed"
+        n = ctx.get("actual_length")
+        if n is None and hasattr(err.get("input"), "__len__"):
+            n = len(err["input"])  # pydantic leaves it out for mappings
+        return f"has {n:,} items; at most {ctx.get('max_length'):,} allowed"
     if kind in _EXPECTED:
         return _EXPECTED[kind] + ("" if kind == "missing" else _got(err))
     for prefix in ("Value error, ", "Assertion failed, "):

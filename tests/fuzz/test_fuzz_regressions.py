@@ -83,6 +83,18 @@ BAD_FILES = {
     "empty float": TINY.replace("speed: 2.5", "speed: !!float ''").encode(),
     "impossible date": TINY.replace("name: strategies-tiny", "name: 2001-02-30").encode(),
     "5000-digit int": TINY.replace("speed: 2.5", "speed: " + "9" * 5000).encode(),
+    # each source is an obstacle for every other: 5,000 copies kept validate busy > 5 min
+    "5000 copies of a source": TINY.replace(
+        "  S2: {components: [{type: box, min: [24, 2], max: [28, 5]}]}\n",
+        "  S2: &s2 {components: [{type: box, min: [24, 2], max: [28, 5]}]}\n"
+        + "".join(f"  S{i}: *s2\n" for i in range(3, 5003)),
+    ).encode(),
+    "1001 requests": TINY.replace(
+        "speed: 2.5",
+        "speed: 2.5\n  requests: ["
+        + ", ".join(["{part: P1, source: S1, destination: D1}"] * 1001)
+        + "]",
+    ).encode(),
     # validate ran the C-space rasters for minutes (the rasters grow with the part)
     "part longer than the workcell": P5.replace(
         "P1: {shape: {type: box, min: [0, -2.5], max: [5, 2.5]}}",

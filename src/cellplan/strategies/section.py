@@ -30,6 +30,11 @@ if TYPE_CHECKING:
 
 _SUM_TOL = 1e-9
 
+MAX_REQUESTS = 1000
+"""Most requestable (part, source, destination) triples: ``2R + 1`` modes, each a layer
+of the grid. The paper's largest problem has 72; 1,000 requests on the tiny workcell
+validate in about 10 s."""
+
 
 class Rate(StrictModel):
     """A per-stage probability, given directly or as a Poisson rate (equation (4)).
@@ -142,7 +147,7 @@ class StrategySection(StrictModel):
         default_factory=dict, description="per part: speed multiplier while carrying it"
     )
     arrival: Rate = Field(description="request arrival while in NR (transition type 1)")
-    requests: Literal["all"] | list[RequestSpec] = Field(
+    requests: Literal["all"] | Annotated[list[RequestSpec], Field(max_length=MAX_REQUESTS)] = Field(
         default="all", description="'all' (every part x source x destination, uniform) or a list"
     )
     destination_change: Rate | None = Field(
@@ -229,6 +234,16 @@ class StrategySection(StrictModel):
                 )
         if isinstance(self.requests, list):
             problems.extend(self._check_requests(scenario, self.requests))
+        elif scenario.parts and scenario.sources and scenario.destinations:
+            n = len(scenario.parts) * len(scenario.sources) * len(scenario.destinations)
+            if n > MAX_REQUESTS:
+                problems.append(
+                    Problem(
+                        "strategy.requests",
+                        f"'all' makes {n:,} requests (parts x sources x destinations); at "
+                        f"most {MAX_REQUESTS:,}: list the requests that occur",
+                    )
+                )
         dim = _dimension(robot)
         if self.cells is not None and len(self.cells) != dim:
             problems.append(
