@@ -47,5 +47,5 @@ def test_a_file_listing_more_discs_than_the_limit_is_refused_before_any_pair_is_
     r = cellplan("validate", str(path))
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [
-        f"error: discs.discs: has {n} items; at most {MAX_DISCS} allowed"
+        f"error: discs.discs: has {n:,} items; at most {MAX_DISCS} allowed"
     ]

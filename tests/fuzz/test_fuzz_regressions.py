@@ -95,6 +95,8 @@ BAD_FILES = {
         + ", ".join(["{part: P1, source: S1, destination: D1}"] * 1001)
         + "]",
     ).encode(),
+    # an infinite move per stage became garbage integers in the stencil tables
+    "stage_time 1e300": TINY.replace("speed: 2.5", "speed: 2.5\n  stage_time: 1e300").encode(),
     # validate ran the C-space rasters for minutes (the rasters grow with the part)
     "part longer than the workcell": P5.replace(
         "P1: {shape: {type: box, min: [0, -2.5], max: [5, 2.5]}}",

@@ -225,6 +225,7 @@ class StrategySection(StrictModel):
         for part in self.carry_speed_factor:
             if part not in scenario.parts:
                 problems.append(Problem(f"strategy.carry_speed_factor.{part}", "unknown part"))
+        problems.extend(self._check_steps(scenario))
         for region in self.fine_motion_regions:
             if region not in scenario.sources and region not in scenario.destinations:
                 problems.append(
@@ -264,6 +265,41 @@ class StrategySection(StrictModel):
         if self.source_change is not None and not problems:
             problems.extend(self._check_changes(scenario, "source"))
         return problems
+
+    def _check_steps(self, scenario: Scenario) -> list[Problem]:
+        """Refuse a move per stage longer than the workcell (or than a turn, in degrees).
+
+        Such a move leaves the grid from every cell, and at 1e308 it is not even finite,
+        so the stencil tables would hold garbage integers.
+        """
+        robot = scenario.robot
+        if robot is None:
+            return []
+        factor = max([1.0, *self.carry_speed_factor.values()])
+        b = scenario.workcell.bounds
+        if robot.type == "arm":
+            limit, unit = 360.0, "degrees, a full turn"
+        else:
+            limit, unit = math.hypot(b.xmax - b.xmin, b.ymax - b.ymin), "the workcell's diagonal"
+        out = []
+        step = self.speed * self.stage_time * factor
+        if not step <= limit:
+            out.append(
+                Problem(
+                    "strategy.speed",
+                    f"speed x stage_time{' x carry_speed_factor' if factor > 1 else ''} = "
+                    f"{step:.4g} per stage, more than {limit:.4g} ({unit})",
+                )
+            )
+        if self.turn_speed is not None and not self.turn_speed * self.stage_time <= 360.0:
+            turn = self.turn_speed * self.stage_time
+            out.append(
+                Problem(
+                    "strategy.turn_speed",
+                    f"turn_speed x stage_time = {turn:.4g} degrees per stage, more than a turn",
+                )
+            )
+        return out
 
     def _check_requests(self, scenario: Scenario, requests: list[RequestSpec]) -> list[Problem]:
         problems: list[Problem] = []
