@@ -136,6 +136,12 @@ def read_arrays(
             name = info.filename
             if not name.endswith(".npy") or name[:-4] in members:
                 raise fail(name, "unexpected member of the archive")
+            # numpy writes stored or deflated members, never encrypted ones; a flipped
+            # flag bit or method would make zipfile raise RuntimeError/NotImplementedError.
+            if info.flag_bits & 0x1:
+                raise fail(name, "encrypted member (not written by numpy; a damaged file?)")
+            if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+                raise fail(name, f"unsupported compression method {info.compress_type}")
             members[name[:-4]] = info
         missing = [n for n in specs if n not in members]
         if missing:
@@ -155,7 +161,15 @@ def read_arrays(
                     )
             except PersistenceError:
                 raise
-            except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+            except (
+                zipfile.BadZipFile,
+                zlib.error,
+                EOFError,
+                OSError,
+                ValueError,
+                RuntimeError,
+                NotImplementedError,
+            ) as exc:
                 raise fail(name, f"unreadable ({_short(exc)})") from None
             if name == (first[-1] if first else None) and after_first is not None:
                 after_first(out, sizes)

@@ -265,6 +265,32 @@ def test_a_pickle_is_never_loaded(base, tmp_path):
         Strategy.load(path, setup.scenario)
 
 
+@pytest.mark.parametrize(
+    ("field", "value", "words"),
+    [
+        ("flag_bits", 0x1, "encrypted member"),
+        ("compress_type", zipfile.ZIP_BZIP2, "unsupported compression method"),
+    ],
+)
+def test_an_encrypted_or_foreign_member_is_named(base, tmp_path, field, value, words):
+    # One flipped bit in a member's header used to reach zipfile's RuntimeError (exit 70).
+    # The headers are edited in place: zipfile will not write an encrypted member.
+    setup, good, _, _ = base
+    raw = bytearray(good.read_bytes())
+    # (signature, offset of the flags; the method follows at +2)
+    for signature, offset in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
+        at = raw.index(signature) + offset + (2 if field == "compress_type" else 0)
+        old = int.from_bytes(raw[at : at + 2], "little")
+        new = old | value if field == "flag_bits" else value
+        raw[at : at + 2] = new.to_bytes(2, "little")
+    path = tmp_path / "odd.npz"
+    path.write_bytes(bytes(raw))
+    with zipfile.ZipFile(path) as check:  # the edit reached the header zipfile reads
+        assert getattr(check.infolist()[0], field) & value == value
+    with pytest.raises(PersistenceError, match=words):
+        Strategy.load(path, setup.scenario)
+
+
 def test_a_zip_bomb_header_is_refused_before_reading(base, tmp_path, monkeypatch):
     """An array whose header declares more memory than there is: refused, not allocated."""
     setup, good, _, _ = base
