@@ -343,7 +343,7 @@ it keeps the composer's recursion, in C or in Python, far from any stack limit."
 _BaseLoader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
-class _UniqueKeyLoader(_BaseLoader):  # type: ignore[misc]
+class _UniqueKeyLoader(_BaseLoader):
     """Safe loader that rejects duplicate mapping keys instead of keeping the last one.
 
     :func:`parse_yaml` first counts the file's values and depth on the event stream (see
@@ -377,7 +377,7 @@ def _check_size(text: str, source: str) -> None:
             depth -= 1
         if reason:
             mark = event.start_mark
-            where = f"{source}:{mark.line + 1}:{mark.column + 1}"
+            where = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
             raise ScenarioError([Problem(where, reason)])
 
 
