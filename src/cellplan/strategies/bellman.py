@@ -3,14 +3,16 @@
 For relative values ``h`` the operator of the average-cost problem is (the right-hand
 side of equation (9), Section III-C of the strategies paper, without ``g``)
 
-    (T h)(m, x) = min( t_f(m, x) + h(next(m), x),                          FMP
+    (T h)(m, x) = min( t_f(m, x) + sum_o P_o (c_o + h(L_o, x)),             FMP
                        l(m) + sum_b P_b h(L_b, x),                          stay
                        min_a  l(m) + sum_b P_b H_{L_b}(x + dx_a) )          moves a
 
 with ``H`` the interpolation of :mod:`cellplan.strategies.interpolation` and the branches
-``(L_b, P_b)`` of Section III-B. ``min (T h - h) <= g <= max (T h - h)`` over the live
-states brackets the optimal gain (the span test of relative value iteration), which is
-how every reported gain is certified (:func:`cellplan.strategies.solver.certify`).
+``(L_b, P_b)`` of Section III-B. FMP's outcomes ``(L_o, P_o, c_o)`` are the single
+``(next(m), 1, 0)`` of Section III-B, or success and failure (Section VI-3).
+``min (T h - h) <= g <= max (T h - h)`` over the live states brackets the optimal gain
+(the span test of relative value iteration), which is how every reported gain is
+certified (:func:`cellplan.strategies.solver.certify`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,22 @@ import numpy as np
 from numba import njit
 
 from cellplan.strategies.stencils import EPS_W, decode, table_stencil
+
+
+@njit(cache=True, nogil=True, inline="always")
+def fmp_value(m, c, tf_mc, h, live, lay):  # pragma: no cover - numba
+    """FMP at state ``(m, c)``: ``t_f + sum_o P_o (c_o + h(L_o, c))``; inf if an outcome
+    with positive probability is not a live state."""
+    val = tf_mc
+    for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
+        p = lay.out_prob[o]
+        if p <= 0.0:
+            continue
+        L = lay.out_layer[o]
+        if not live[L, c]:
+            return np.inf
+        val += p * (lay.out_cost[o] + h[L, c])
+    return val
 
 
 @njit(cache=True, nogil=True)
@@ -78,9 +96,11 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
             best = np.inf
             second = np.inf
             arg = -3
-            if nxt >= 0 and tf[m, c] < np.inf and live[nxt, c]:
-                best = tf[m, c] + h[nxt, c]
-                arg = -2
+            if nxt >= 0 and tf[m, c] < np.inf:
+                fval = fmp_value(m, c, tf[m, c], h, live, lay)
+                if fval < np.inf:
+                    best = fval
+                    arg = -2
             sval = cost
             sok = True
             for b in range(b0, b1):

@@ -11,8 +11,9 @@ in the hot loops):
   its variants), with the collision-free actions per cell and the precomputed stencils
   of every move from a cell centre;
 * :class:`Layers`: one layer per assembly mode (Section III-A): the live states, the
-  loss of eq. (7), the FMP successor and its fine-motion time, and the mode-change
-  branches of Section III-B.
+  loss of eq. (7), the FMP successor and its fine-motion time, the mode-change
+  branches of Section III-B, and the FMP's outcomes (one, with probability one, in the
+  Section V model; success and failure with failure modes, Section VI-3).
 
 :meth:`cellplan.strategies.model.LayeredMDP.kernel_args` builds the bundle; no module
 depends on the order of the fields, only on their names.
@@ -58,11 +59,15 @@ class Layers(NamedTuple):
     live: np.ndarray  # (M, N) bool, the states of the MDP
     vcls: np.ndarray  # (M,) int64 move class
     cost: np.ndarray  # (M,) loss per stage, eq. (7): 0 in NR, the stage time otherwise
-    fmp_next: np.ndarray  # (M,) int64 mode after FMP, -1 where none (NR)
+    fmp_next: np.ndarray  # (M,) int64 mode after a successful FMP, -1 where none (NR)
     tf: np.ndarray  # (M, N) fine-motion time, inf where FMP is not allowed
     branch_ptr: np.ndarray  # (M + 1,) int64: branches of m are branch_ptr[m]:branch_ptr[m+1]
     branch_layer: np.ndarray  # (B,) int64 next mode of each branch
     branch_prob: np.ndarray  # (B,) its probability (Section III-B)
+    out_ptr: np.ndarray  # (M + 1,) int64: FMP outcomes of m are out_ptr[m]:out_ptr[m+1]
+    out_layer: np.ndarray  # (G,) int64 mode after FMP in each outcome
+    out_prob: np.ndarray  # (G,) its probability (1 - failure rate, failure rate, ...)
+    out_cost: np.ndarray  # (G,) extra loss of the outcome (rework time), added to t_f
 
 
 class Model(NamedTuple):
@@ -71,3 +76,25 @@ class Model(NamedTuple):
     grid: Grid
     moves: Moves
     layers: Layers
+
+
+class Outcomes(NamedTuple):
+    """The outcomes of each mode's FMP when it is not the Section V one (failure modes).
+
+    FMP in mode ``m`` costs ``t_f(m, x)`` and then, with probability ``prob[g]``, adds
+    ``cost[g]`` and moves to mode ``layer[g]`` at the same configuration, for ``g`` in
+    ``ptr[m]:ptr[m+1]``; the first outcome is the success (``fmp_next[m]``).
+    """
+
+    ptr: np.ndarray  # (M + 1,) int64
+    layer: np.ndarray  # (G,) int64
+    prob: np.ndarray  # (G,) float
+    cost: np.ndarray  # (G,) float
+
+
+def single_outcomes(fmp_next: np.ndarray) -> Outcomes:
+    """The Section V outcomes: FMP leads to ``fmp_next[m]`` with probability one."""
+    has = fmp_next >= 0
+    ptr = np.concatenate([[0], np.cumsum(has)]).astype(np.int64)
+    layer = fmp_next[has].astype(np.int64)
+    return Outcomes(ptr, layer, np.ones(len(layer)), np.zeros(len(layer)))

@@ -21,11 +21,11 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
     """Shrink layer ``m`` of ``live`` (``(M, N)``, in place) once; returns whether it changed.
 
     A layer with an FMP successor keeps the states from which an FMP-capable state
-    (``fmp_ok``) is reachable through actions whose every branch lands on live states (a
-    backward closure); a layer without FMP (NR) keeps the states that have some such
-    action. The result depends only on the rows ``live[m]``, ``fmp_ok[m]``, the
-    successor's and the branch layers' ``live`` rows, and the layer's motion class, and
-    running it again on its own output changes nothing (the caller,
+    (``fmp_ok``, with every FMP outcome live) is reachable through actions whose every
+    branch lands on live states (a backward closure); a layer without FMP (NR) keeps the
+    states that have some such action. The result depends only on the rows ``live[m]``,
+    ``fmp_ok[m]``, the FMP outcome layers' and the branch layers' ``live`` rows, and the
+    layer's motion class, and running it again on its own output changes nothing (the caller,
     :func:`cellplan.strategies.model.compute_live`, relies on both to skip work).
     ``model.layers.live`` is not read (``live`` replaces it).
     """
@@ -45,7 +45,13 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
     na = moves.nact[k]
     if nxt >= 0:
         for c in range(ncell):
-            reach[c] = live[m, c] and fmp_ok[m, c] and live[nxt, c]
+            ok = live[m, c] and fmp_ok[m, c]
+            # Every outcome of the FMP (success, and failure with failure modes) must land
+            # on a live state; a retry in place lands on this very state.
+            for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
+                if ok and lay.out_prob[o] > 0.0:
+                    ok = live[lay.out_layer[o], c]
+            reach[c] = ok
         target = reach
     else:
         target = live[m].copy()

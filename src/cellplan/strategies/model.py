@@ -33,7 +33,7 @@ import numpy as np
 
 from cellplan.errors import Problem, ScenarioError
 from cellplan.strategies.actions import ActionSet, action_set
-from cellplan.strategies.bundles import Grid, Layers, Model, Moves
+from cellplan.strategies.bundles import Grid, Layers, Model, Moves, Outcomes, single_outcomes
 from cellplan.strategies.domain import live_layer
 from cellplan.strategies.motion import valid_moves
 
@@ -88,6 +88,8 @@ class LayeredMDP:
     arrival: float
     request_prob: np.ndarray  # (R,)
     labels: list[tuple[str, ...]] = field(default_factory=list)
+    # FMP outcomes when some FMP can fail (Section VI-3); None: the Section V outcomes.
+    outcomes: Outcomes | None = None
 
     @property
     def n_cells(self) -> int:
@@ -125,6 +127,7 @@ class LayeredMDP:
             cw=self.cw,
             interior=self.interior,
         )
+        out = self.fmp_outcomes()
         layers = Layers(
             live=self.live,
             vcls=self.vcls,
@@ -134,8 +137,32 @@ class LayeredMDP:
             branch_ptr=self.branch_ptr,
             branch_layer=self.branch_layer,
             branch_prob=self.branch_prob,
+            out_ptr=out.ptr,
+            out_layer=out.layer,
+            out_prob=out.prob,
+            out_cost=out.cost,
         )
         return Model(self.grid(), moves, layers)
+
+    def fmp_outcomes(self) -> Outcomes:
+        """The outcomes of every mode's FMP (the Section V ones unless failures are modelled)."""
+        return self.outcomes if self.outcomes is not None else single_outcomes(self.fmp_next)
+
+    def is_simple(self) -> bool:
+        """Whether every FMP has the single certain outcome of Section V.
+
+        The structured solver relies on it (a carrying layer's FMP ends in NR, a waiting
+        layer's in its carrying layer); other models are solved by policy iteration.
+        """
+        if self.outcomes is None:
+            return True
+        out = self.outcomes
+        return bool(
+            np.array_equal(out.ptr, single_outcomes(self.fmp_next).ptr)
+            and np.array_equal(out.layer, self.fmp_next[self.fmp_next >= 0])
+            and (out.prob == 1.0).all()
+            and (out.cost == 0.0).all()
+        )
 
     def has_changes(self) -> bool:
         """Whether destination or source changes couple the W/C layers (Section III-B)."""
@@ -414,6 +441,7 @@ def _live_pass(
     BLAKE2 digest.
     """
     model = mdp.kernel_args()
+    out = mdp.fmp_outcomes()
     row_digest: dict[tuple[int, int], bytes] = {}
 
     def digest(which: int, m: int) -> bytes:
@@ -429,7 +457,9 @@ def _live_pass(
         # The kernel needs every branch supported, so their order does not matter.
         others = tuple(sorted(digest(0, L) for L in branches if L != m))
         nxt = int(mdp.fmp_next[m])
-        fmp = (digest(1, m), digest(0, nxt)) if nxt >= 0 else None
+        lo, hi = out.ptr[m], out.ptr[m + 1]
+        landing = sorted({int(L) for L in out.layer[lo:hi][out.prob[lo:hi] > 0]})
+        fmp = (digest(1, m), tuple((L == m, digest(0, L)) for L in landing)) if nxt >= 0 else None
         return (int(mdp.vcls[m]), digest(0, m), fmp, m in branches, others)
 
     done: dict[tuple[Any, ...], int] = {}

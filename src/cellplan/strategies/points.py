@@ -4,7 +4,7 @@ Section IV-B of the strategies paper: "the optimal action can be obtained from a
 real-valued location x through the use of (9), linear interpolation, and the approximate
 representation of L*". At ``(q, m)`` the value of an action is
 
-    FMP:   t_f(m, q) + H_{next(m)}(q)
+    FMP:   t_f(m, q) + sum_o P_o (c_o + H_{L_o}(q))   (outcomes: Section V, VI-3)
     stay:  l(m) + sum_b P_b H_{L_b}(q)
     move:  l(m) + sum_b P_b H_{L_b}(q + dq_a)     (only if the swept motion is free)
 
@@ -30,6 +30,20 @@ from cellplan.strategies.stencils import (
     stencil,
     wrap,
 )
+
+
+@njit(cache=True)
+def outcomes_at(m, h, live, lay, idx, w, n):  # pragma: no cover - numba
+    """``sum_o P_o (c_o + H_{L_o})`` over the FMP outcomes of mode ``m`` at the stencil
+    ``idx, w`` (NaN when an outcome has no live corner)."""
+    val = 0.0
+    for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
+        p = lay.out_prob[o]
+        if p <= 0.0:
+            continue
+        L = lay.out_layer[o]
+        val += p * (lay.out_cost[o] + interp(h[L], live[L], idx, w, n))
+    return val
 
 
 @njit(cache=True)
@@ -59,7 +73,7 @@ def action_values_at(q, m, h, live, tf_here, fmp_allowed, model, out):  # pragma
     nxt = lay.fmp_next[m]
     if nxt >= 0 and fmp_allowed:
         n = stencil(q, shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, fbuf)
-        v = interp(h[nxt], live[nxt], idx, w, n)
+        v = outcomes_at(m, h, live, lay, idx, w, n)
         if not np.isnan(v):
             out[0] = tf_here + v
     for a in range(-1, na):
@@ -199,7 +213,7 @@ def lookahead(
         c = cell_containing(q, shape, lower, spacing, periodic)
         if tf[m, c] < np.inf:
             n = stencil(q, shape, lower, spacing, periodic, idx, w, ibuf, frac)
-            v = interp(h[nxt], live[nxt], idx, w, n)
+            v = outcomes_at(m, h, live, lay, idx, w, n)
             if not np.isnan(v):
                 best = tf[m, c] - offset + v
                 seq[0] = -2
@@ -244,7 +258,7 @@ def lookahead(
             count += 1
         if fmp_here:
             n = stencil(qd[level + 1], shape, lower, spacing, periodic, idx, w, ibuf, frac)
-            v = interp(h[nxt], live[nxt], idx, w, n)
+            v = outcomes_at(m, h, live, lay, idx, w, n)
             if not np.isnan(v) and acc[level + 1] + tf[m, c] - offset + v < best:
                 best = acc[level + 1] + tf[m, c] - offset + v
                 for i in range(level + 1):
