@@ -1,0 +1,519 @@
+"""Average-cost policy iteration over every live state (Howard; Puterman 1994, Sec. 8.6).
+
+The structured solver (:func:`cellplan.strategies.solver.solve_structured`) needs the
+Section V shape of the model: a carrying layer's FMP ends in NR, a waiting layer's in its
+carrying layer, with certainty. With failure modes (Section VI-3 of the strategies paper)
+an FMP has several outcomes (a retry in place, a rejected part carried elsewhere), and
+relative value iteration (:func:`~cellplan.strategies.solver.solve_general`) needs
+thousands of sweeps because the request cycle mixes slowly. Policy iteration needs a
+handful of iterations, each
+
+1. *evaluation*: the policy's transition matrix ``P`` over the live states (assembled in
+   CSR by the numba kernel :func:`policy_rows`, with the same transition law as
+   :func:`cellplan.strategies.bellman.bellman_rows`: moves land on the live corners of
+   their stencil, renormalised, in every branch; stay keeps the cell in every branch; FMP
+   takes its outcomes) and its cost ``c``; then ``h + g = c + P h`` with ``h(ref) = 0``
+   is solved exactly. With ``B = I - P`` less the row and column of ``ref`` (an NR
+   state), ``u = B^-1 c`` and ``v = B^-1 1`` (the expected cost and number of stages
+   until ``ref``), ``h = u - g v`` and the row of ``ref`` gives
+   ``g = (c_ref + P_ref u) / (1 + P_ref v)``: one sparse LU factorisation (SuperLU), two
+   solves, and no dense column. ``B`` is non-singular exactly when the policy reaches
+   ``ref`` with probability one from every state (a *proper* policy);
+2. *improvement*: one Jacobi Bellman sweep (:func:`cellplan.strategies.solver.bellman`);
+   a state changes its action only where the best action beats the current one by more
+   than a small relative margin, so ties never make the policy cycle.
+
+The first policy is proper by construction: hop distances to ``ref`` through the union of
+every action's successors (Gauss-Seidel sweeps of ``d(s) = 1 + min_a min_{s'} d(s')``
+by :func:`hop_sweep`, layers in the order they read each other), each state taking an
+action with a successor one hop nearer. An improved policy can still leave ``ref``
+unreachable from some states (a closed cycle in a waiting layer, which is never optimal
+but can look best against the last ``h``); those states take their first-policy action
+again, which restores properness (every such state has a successor one hop nearer, by
+induction on the hop distance). If a factorisation fails anyway, or its solution does
+not satisfy its equations, the solve goes on with relative value iteration sweeps from
+the last values. The answer is certified like every solve (:func:`.solver._finish`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from numba import njit
+from scipy.sparse import csgraph
+from scipy.sparse.linalg import splu
+
+from cellplan.strategies.bundles import Model
+from cellplan.strategies.model import LayeredMDP
+from cellplan.strategies.stencils import EPS_W, cell_of_order, decode, move_corners
+from cellplan.strategies.threads import Workers, workers_for
+from cellplan.strategies.solver import (
+    INNER_FACTOR,
+    Certificate,
+    Progress,
+    SolveResult,
+    _finish,
+    bellman,
+    solve_general,
+)
+
+log = logging.getLogger(__name__)
+
+# An action replaces the current one only if it is better by this much (relative to the
+# size of the value): ties and rounding never make the policy cycle.
+IMPROVE_MARGIN = 1e-10
+# Residual of an evaluation above which it is not trusted (relative to max |h| + 1).
+EVAL_RESIDUAL = 1e-7
+# Cap of the Gauss-Seidel sweeps of the hop distances (each at least one more hop).
+MAX_HOP_SWEEPS = 100_000
+# Relative value iteration sweeps per recovery from a failed evaluation.
+RECOVERY_SWEEPS = 200
+
+
+@njit(cache=True, nogil=True)
+def action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p):  # pragma: no cover
+    """Successor states of action ``a`` at live state ``(m, c)`` and their probabilities.
+
+    ``a`` is ``-2`` (FMP), ``-1`` (stay) or a move. Fills ``out_s`` (state indices from
+    ``index``) and ``out_p``; returns ``(n, cost)``, ``n = -1`` where the action is not
+    available (FMP not allowed or an outcome not live; a move not collision-free, or a
+    branch with no live corner). The law is that of
+    :func:`cellplan.strategies.bellman.bellman_rows` (the same weights and renormalisation);
+    a successor may appear twice (the caller's sparse matrix sums them). ``mi`` is the
+    multi-index of ``c``; ``idx`` and ``w`` are scratch of ``2^d``.
+    """
+    lay = model.layers
+    moves = model.moves
+    grid = model.grid
+    live = lay.live
+    n = 0
+    if a == -2:
+        if lay.fmp_next[m] < 0 or not lay.tf[m, c] < np.inf:
+            return -1, 0.0
+        cost = lay.tf[m, c]
+        for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
+            p = lay.out_prob[o]
+            if p <= 0.0:
+                continue
+            L = lay.out_layer[o]
+            if not live[L, c]:
+                return -1, 0.0
+            cost += p * lay.out_cost[o]
+            out_s[n] = index[L, c]
+            out_p[n] = p
+            n += 1
+        return n, cost
+    cost = lay.cost[m]
+    b0 = lay.branch_ptr[m]
+    b1 = lay.branch_ptr[m + 1]
+    if a == -1:
+        for b in range(b0, b1):
+            L = lay.branch_layer[b]
+            if not live[L, c]:
+                return -1, 0.0
+            p = lay.branch_prob[b]
+            if p > 0.0:
+                out_s[n] = index[L, c]
+                out_p[n] = p
+                n += 1
+        return n, cost
+    k = lay.vcls[m]
+    if a >= moves.nact[k] or ((moves.valid[k, c] >> a) & 1) == 0:
+        return -1, 0.0
+    nc = move_corners(
+        k,
+        a,
+        c,
+        mi,
+        moves.interior[k, c],
+        moves.offs,
+        moves.fr,
+        moves.coff,
+        moves.cw,
+        moves.heading_axis,
+        grid.shape,
+        grid.periodic,
+        idx,
+        w,
+    )
+    for b in range(b0, b1):
+        L = lay.branch_layer[b]
+        ssum = 0.0
+        for j in range(nc):
+            if w[j] > EPS_W and live[L, idx[j]]:
+                ssum += w[j]
+        if ssum <= EPS_W:
+            return -1, 0.0
+        p = lay.branch_prob[b]
+        if p <= 0.0:
+            continue
+        for j in range(nc):
+            if w[j] > EPS_W and live[L, idx[j]]:
+                out_s[n] = index[L, idx[j]]
+                out_p[n] = p * w[j] / ssum
+                n += 1
+    return n, cost
+
+
+@njit(cache=True, nogil=True)
+def policy_rows(states, actions, index, indptr, cols, vals, cost, fill, start, stop, model):  # pragma: no cover
+    """Rows ``start:stop`` of the policy's transition matrix (CSR) and cost vector.
+
+    ``states`` are the flat ``m * N + c`` of the live states, ``actions`` their actions.
+    With ``fill`` False, ``indptr[k + 1]`` receives the number of entries of row ``k``
+    (the caller sums them up); with ``fill`` True the entries are written from
+    ``indptr[k]`` on, and ``cost[k]`` the row's loss. Returns the number of rows whose
+    action is not available (0 for a policy chosen by the Bellman operator).
+    """
+    ncell = model.layers.live.shape[1]
+    shape = model.grid.shape
+    d = shape.shape[0]
+    mi = np.empty(d, np.int64)
+    idx = np.empty(1 << d, np.int64)
+    w = np.empty(1 << d)
+    width = (1 << d) * (model.layers.branch_prob.shape[0] + model.layers.out_prob.shape[0] + 1)
+    out_s = np.empty(width, np.int64)
+    out_p = np.empty(width)
+    bad = 0
+    for k in range(start, stop):
+        m = states[k] // ncell
+        c = states[k] % ncell
+        decode(c, shape, mi)
+        n, cst = action_successors(m, c, actions[k], mi, index, model, idx, w, out_s, out_p)
+        if n < 0:
+            bad += 1
+            n = 0
+        if not fill:
+            indptr[k + 1] = n
+            continue
+        cost[k] = cst
+        at = indptr[k]
+        for j in range(n):
+            cols[at + j] = out_s[j]
+            vals[at + j] = out_p[j]
+    return bad
+
+
+@njit(cache=True, nogil=True)
+def hop_sweep(dist, act, fixed, index, order, flips, model):  # pragma: no cover - numba
+    """One Gauss-Seidel sweep of the hop distances ``d(s) = 1 + min_a min_{s'} d(s')``.
+
+    ``dist`` (per state: 0 on the targets, a large number where unknown) and ``act`` are
+    updated in place, except at the ``fixed`` states (the targets), which keep their
+    action (or take the first available one, stay first, where it is ``-3``). The layers
+    are visited in ``order``, the cells of each in the sweep order ``flips``
+    (:func:`~cellplan.strategies.stencils.cell_of_order`). A state takes the action with
+    the successor nearest to the targets. Returns whether any distance fell.
+    """
+    lay = model.layers
+    moves = model.moves
+    live = lay.live
+    shape = model.grid.shape
+    ncell = live.shape[1]
+    d = shape.shape[0]
+    mi = np.empty(d, np.int64)
+    idx = np.empty(1 << d, np.int64)
+    w = np.empty(1 << d)
+    width = (1 << d) * (lay.branch_prob.shape[0] + lay.out_prob.shape[0] + 1)
+    out_s = np.empty(width, np.int64)
+    out_p = np.empty(width)
+    changed = False
+    for m in order:
+        na = moves.nact[lay.vcls[m]]
+        for kk in range(ncell):
+            c = cell_of_order(kk, shape, flips, mi)
+            if not live[m, c]:
+                continue
+            s = index[m, c]
+            if fixed[s]:
+                for a in range(-1, na + 1):
+                    if act[s] == -3:
+                        aa = a if a < na else -2
+                        n, _ = action_successors(m, c, aa, mi, index, model, idx, w, out_s, out_p)
+                        if n >= 0:
+                            act[s] = aa
+                continue
+            best = dist[s]
+            for a in range(-2, na):
+                n, _ = action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p)
+                for j in range(n):
+                    if dist[out_s[j]] + 1 < best:
+                        best = dist[out_s[j]] + 1
+                        act[s] = a
+            if best < dist[s]:
+                dist[s] = best
+                changed = True
+    return changed
+
+
+class _Chain:
+    """The live states of a model as one index ``0..S-1`` (flat ``m * N + c`` order)."""
+
+    def __init__(self, mdp: LayeredMDP) -> None:
+        live = mdp.live
+        self.shape = live.shape
+        self.states = np.flatnonzero(live.ravel()).astype(np.int64)
+        self.size = len(self.states)
+        self.index = np.full(live.shape, -1, np.int64)
+        self.index.ravel()[self.states] = np.arange(self.size)
+
+    def spread(self, x: np.ndarray, fill: float = 0.0) -> np.ndarray:
+        """A per-state vector as an ``(M, N)`` array (``fill`` outside the live states)."""
+        out = np.full(self.shape, fill)
+        out.ravel()[self.states] = x
+        return out
+
+
+def layer_order(mdp: LayeredMDP) -> np.ndarray:
+    """Layers in the order in which hop distances from NR reach them (NR first).
+
+    A layer follows the layers it reads (its branches and FMP outcomes), so one
+    Gauss-Seidel sweep carries the distances round the request cycle
+    (NR <- C <- W <- NR in the Section V model).
+    """
+    out = mdp.fmp_outcomes()
+    M = mdp.n_modes
+    readers: list[set[int]] = [set() for _ in range(M)]
+    for m in range(M):
+        for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
+            readers[int(mdp.branch_layer[b])].add(m)
+        for o in range(out.ptr[m], out.ptr[m + 1]):
+            readers[int(out.layer[o])].add(m)
+    order = [0]
+    seen = {0}
+    for L in order:  # grows while it is walked: a breadth-first order
+        for m in sorted(readers[L] - seen):
+            seen.add(m)
+            order.append(m)
+    order += [m for m in range(M) if m not in seen]
+    return np.array(order, np.int64)
+
+
+def hop_policy(
+    mdp: LayeredMDP, chain: _Chain, targets: np.ndarray, actions: np.ndarray, model: Model
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Actions that reach ``targets`` (bool per state) with probability one.
+
+    Returns ``(actions, hop distances, sweeps)``: every other state takes an action with a
+    successor one hop nearer to the targets (hop distances through the union of every
+    action's successors, Gauss-Seidel sweeps in alternating cell orders, layers in
+    :func:`layer_order`); the targets keep their ``actions`` (or take an available one
+    where it is ``-3``). Distances stay at ``S`` (the number of states) where no target
+    can be reached.
+    """
+    S = chain.size
+    dist = np.where(targets, 0.0, float(S))
+    act = np.where(targets, actions, -3).astype(np.int64)
+    order = layer_order(mdp)
+    d = len(mdp.shape)
+    sweeps = 0
+    while sweeps < MAX_HOP_SWEEPS:
+        changed = hop_sweep(dist, act, targets, chain.index, order, sweeps % (1 << d), model)
+        sweeps += 1
+        if not changed:
+            break
+    return act, dist, sweeps
+
+
+def assemble(
+    chain: _Chain, actions: np.ndarray, model: Model, workers: Workers
+) -> tuple[sp.csr_matrix, np.ndarray, int]:
+    """The policy's transition matrix over the live states (CSR), its cost vector, and the
+    number of states whose action is not available (their rows are empty)."""
+    S = chain.size
+    indptr = np.zeros(S + 1, np.int64)
+    cost = np.zeros(S)
+    empty_i = np.zeros(0, np.int64)
+    empty_f = np.zeros(0)
+
+    def count(r: tuple[int, int]) -> int:
+        return int(
+            policy_rows(
+                chain.states, actions, chain.index, indptr, empty_i, empty_f, cost, False,
+                r[0], r[1], model,
+            )  # fmt: skip
+        )
+
+    ranges = workers.ranges(S)
+    bad = sum(workers.map(count, ranges))
+    np.cumsum(indptr, out=indptr)
+    nnz = int(indptr[-1])
+    cols = np.empty(nnz, np.int64)
+    vals = np.empty(nnz)
+
+    def fill(r: tuple[int, int]) -> int:
+        return int(
+            policy_rows(
+                chain.states, actions, chain.index, indptr, cols, vals, cost, True,
+                r[0], r[1], model,
+            )  # fmt: skip
+        )
+
+    workers.map(fill, ranges)
+    P = sp.csr_matrix((vals, cols.astype(np.int32), indptr.astype(np.int32)), shape=(S, S))
+    P.sum_duplicates()
+    return P, cost, bad
+
+
+def evaluate(P: sp.csr_matrix, cost: np.ndarray, ref: int) -> tuple[float, np.ndarray, int]:
+    """``(g, h, nnz of the LU factors)`` of the policy: ``h + g = c + P h``, ``h[ref] = 0``.
+
+    With ``B = I - P`` less the row and column of ``ref``, ``u = B^-1 c`` and
+    ``v = B^-1 1`` are the expected cost and stages until ``ref``; then ``h = u - g v``,
+    and the row of ``ref`` gives ``g = (c_ref + P_ref u) / (1 + P_ref v)``. Raises
+    ``RuntimeError`` (SuperLU) when ``B`` is singular (the policy is not proper).
+    """
+    S = P.shape[0]
+    keep = np.ones(S, np.bool_)
+    keep[ref] = False
+    sub = P[keep][:, keep]
+    B = (sp.identity(S - 1, format="csc") - sub).tocsc()
+    lu = splu(B)
+    rhs = np.column_stack([cost[keep], np.ones(S - 1)])
+    sol = lu.solve(rhs)
+    u, v = sol[:, 0], sol[:, 1]
+    row = P.getrow(ref).toarray().ravel()[keep]
+    g = float((cost[ref] + row @ u) / (1.0 + row @ v))
+    h = np.zeros(S)
+    h[keep] = u - g * v
+    return g, h, int(lu.L.nnz + lu.U.nnz)
+
+
+def unichain(
+    mdp: LayeredMDP, chain: _Chain, P: sp.csr_matrix, actions: np.ndarray, model: Model
+) -> tuple[np.ndarray, int, int]:
+    """Make the policy unichain; returns ``(actions, ref, states changed)``.
+
+    The recurrent classes of the policy are the closed strongly connected components of
+    its chain. With one, ``ref`` is its first state (an NR state where it has one) and
+    every state reaches it with probability one, which is what the evaluation needs. With
+    several, the states that do not reach the first class take actions one hop nearer to
+    it (:func:`hop_policy`; the class keeps its actions), so the others still reach it
+    and these now do too.
+    """
+    _, labels = csgraph.connected_components(P, directed=True, connection="strong")
+    coo = P.tocoo()
+    cross = labels[coo.row] != labels[coo.col]
+    leaves = np.zeros(int(labels.max()) + 1, np.bool_)
+    leaves[labels[coo.row[cross]]] = True
+    closed = labels[np.flatnonzero(~leaves[labels])]
+    ref = int(np.flatnonzero(labels == closed[0])[0])
+    if len(np.unique(closed)) == 1:
+        return actions, ref, 0
+    reach = csgraph.breadth_first_order(P.T, ref, directed=True, return_predecessors=False)
+    ok = np.zeros(chain.size, np.bool_)
+    ok[reach] = True
+    target = labels == labels[ref]
+    hop, _, _ = hop_policy(mdp, chain, target, actions, model)
+    return np.where(ok, actions, hop), ref, int(np.count_nonzero(~ok))
+
+
+def solve_policy_iteration(
+    mdp: LayeredMDP,
+    tol: float = 1e-6,
+    max_iterations: int = 500,
+    progress: Progress | None = None,
+    threads: int | None = None,
+) -> SolveResult:
+    """Average-cost policy iteration over every live state (module docstring).
+
+    Stops when an improvement changes no action, or when the Bellman bracket of the
+    evaluated policy is already narrower than ``tol / 100``; gives up (``NOT_CONVERGED``)
+    after ``max_iterations`` iterations. The result is certified by
+    :func:`cellplan.strategies.solver._finish` (``SOLVED`` only when the span test
+    passes). ``sweeps`` and ``full_sweeps`` count the Jacobi Bellman sweeps over every
+    state (one per iteration, plus any recovery sweeps and the two of the certificate),
+    ``eval_sweeps`` the exact evaluations (sparse LU solves), ``outer_iterations`` the
+    iterations.
+    """
+    t0 = time.perf_counter()
+    live = mdp.live
+    chain = _Chain(mdp)
+    model = mdp.kernel_args()
+    ref_cell = int(np.flatnonzero(live[0])[0])
+    ref = int(chain.index[0, ref_cell])
+    target = np.zeros(chain.size, np.bool_)
+    target[ref] = True
+    actions, dist, hops = hop_policy(mdp, chain, target, np.full(chain.size, -3), model)
+    unreachable = int(np.count_nonzero(dist >= chain.size))
+    log.debug("first policy: %d hop sweeps, %d states unreachable", hops, unreachable)
+    if unreachable:
+        log.warning(
+            "policy iteration: %d live states cannot reach the reference NR state; "
+            "solving by relative value iteration",
+            unreachable,
+        )
+        return solve_general(mdp, tol, progress=progress, threads=threads)
+    h = np.zeros(chain.size)
+    g = 0.0
+    sweeps = 0
+    evaluations = 0
+    it = 0
+    cert: Certificate | None = None
+    with workers_for(chain.size, threads) as workers:
+        for it in range(1, max_iterations + 1):
+            P, cost, bad = assemble(chain, actions, model, workers)
+            if bad:
+                raise RuntimeError(f"policy iteration: {bad} states have an unavailable action (a bug)")
+            actions, ref, fixed = unichain(mdp, chain, P, actions, model)
+            if fixed:
+                log.debug("iteration %d: %d states did not reach the recurrent class", it, fixed)
+                P, cost, _ = assemble(chain, actions, model, workers)
+                actions, ref, _ = unichain(mdp, chain, P, actions, model)
+            try:
+                g, h_new, fill = evaluate(P, cost, ref)
+                evaluations += 1
+                res = cost - g + P @ h_new - h_new
+                trusted = bool(
+                    np.all(np.isfinite(h_new))
+                    and np.max(np.abs(res)) <= EVAL_RESIDUAL * (1.0 + np.max(np.abs(h_new)))
+                )
+            except RuntimeError as err:  # a singular factor
+                log.debug("iteration %d: evaluation failed (%s)", it, err)
+                trusted = False
+            hfull = chain.spread(h)
+            if trusted:
+                h = h_new
+                hfull = chain.spread(h)
+            else:
+                hfull, n = _recover(mdp, hfull, ref_cell, workers)
+                sweeps += n
+                h = hfull.ravel()[chain.states]
+            th, pol, gap = bellman(mdp, hfull, workers=workers)
+            sweeps += 1
+            diff = (th - hfull)[live]
+            lo, hi = float(diff.min()), float(diff.max())
+            cert = (lo, hi, th, pol, gap)
+            if progress is not None:
+                progress(it, hi - lo, 0.5 * (lo + hi))
+            q = cost + P @ h
+            thv = th.ravel()[chain.states]
+            better = thv < q - IMPROVE_MARGIN * np.maximum(1.0, np.abs(q))
+            changes = int(np.count_nonzero(better))
+            log.debug(
+                "iteration %d: g %.10f bracket [%.10f, %.10f] changes %d", it, g, lo, hi, changes
+            )
+            if changes == 0 or hi - lo < tol * INNER_FACTOR:
+                break
+            actions = np.where(better, pol.ravel()[chain.states], actions)
+            cert = None
+        result = _finish(
+            mdp, chain.spread(h), g, tol, sweeps, sweeps, it, "policy", t0, ref_cell, cert, workers
+        )
+    result.eval_sweeps = evaluations
+    return result
+
+
+def _recover(
+    mdp: LayeredMDP, h: np.ndarray, ref_cell: int, workers: Workers
+) -> tuple[np.ndarray, int]:
+    """Relative value iteration sweeps from ``h`` (after an evaluation that failed)."""
+    live = mdp.live
+    for _ in range(RECOVERY_SWEEPS):
+        th, _, _ = bellman(mdp, h, workers=workers)
+        h = np.where(live, th, 0.0)
+        h -= h[0, ref_cell]
+    return h, RECOVERY_SWEEPS
