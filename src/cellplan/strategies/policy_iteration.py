@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import logging
 import time
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -71,6 +72,9 @@ EVAL_RESIDUAL = 1e-7
 MAX_HOP_SWEEPS = 100_000
 # Relative value iteration sweeps per recovery from a failed evaluation.
 RECOVERY_SWEEPS = 200
+# Strongly connected components larger than this are evaluated by sparse LU, smaller ones
+# by Gauss-Seidel on the component.
+DIRECT_ABOVE = 64
 
 
 @njit(cache=True, nogil=True)
@@ -237,16 +241,99 @@ def hop_sweep(dist, act, fixed, index, order, flips, model):  # pragma: no cover
                             act[s] = aa
                 continue
             best = dist[s]
-            for a in range(-2, na):
-                n, _ = action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p)
-                for j in range(n):
-                    if dist[out_s[j]] + 1 < best:
-                        best = dist[out_s[j]] + 1
-                        act[s] = a
+            arg = act[s]
+            # FMP and stay: their successors keep the cell.
+            if lay.fmp_next[m] >= 0 and lay.tf[m, c] < np.inf:
+                near = np.inf
+                for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
+                    if lay.out_prob[o] > 0.0:
+                        L = lay.out_layer[o]
+                        near = min(near, dist[index[L, c]]) if live[L, c] else -np.inf
+                if near > -np.inf and near + 1 < best:
+                    best = near + 1
+                    arg = -2
+            near = np.inf
+            for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+                L = lay.branch_layer[b]
+                if not live[L, c]:
+                    near = np.inf
+                    break
+                if lay.branch_prob[b] > 0.0:
+                    near = min(near, dist[index[L, c]])
+            if near + 1 < best:
+                best = near + 1
+                arg = -1
+            # Moves, written out (a helper call per move costs ten times the work here).
+            k = lay.vcls[m]
+            b0 = lay.branch_ptr[m]
+            b1 = lay.branch_ptr[m + 1]
+            vb = moves.valid[k, c]
+            for a in range(na):
+                if ((vb >> a) & 1) == 0:
+                    continue
+                nc = move_corners(
+                    k, a, c, mi, moves.interior[k, c], moves.offs, moves.fr, moves.coff,
+                    moves.cw, moves.heading_axis, shape, model.grid.periodic, idx, w,
+                )  # fmt: skip
+                near = np.inf
+                ok = True
+                for b in range(b0, b1):
+                    L = lay.branch_layer[b]
+                    sup = False
+                    for j in range(nc):
+                        if w[j] > EPS_W and live[L, idx[j]]:
+                            sup = True
+                            if lay.branch_prob[b] > 0.0:
+                                near = min(near, dist[index[L, idx[j]]])
+                    if not sup:
+                        ok = False
+                        break
+                if ok and near + 1 < best:
+                    best = near + 1
+                    arg = a
+            act[s] = arg
             if best < dist[s]:
                 dist[s] = best
                 changed = True
     return changed
+
+
+@njit(cache=True, nogil=True)
+def back_substitute(indptr, indices, data, cost, g, h, order, starts, first, last):  # pragma: no cover
+    """``h = c - g + P h`` on the strongly connected components ``first:last`` of the chain.
+
+    The components are numbered sinks first (every edge leaves a component for one with a
+    smaller number), their states are ``order[starts[k]:starts[k + 1]]``, and ``h`` is
+    known on every state they lead to. A single state is solved directly (its self-loop
+    divided out); a small component (interpolation cycles) by Gauss-Seidel on itself
+    alone, which converges since it is transient. Returns the largest number of
+    Gauss-Seidel passes one component needed.
+    """
+    most = 0
+    for k in range(first, last):
+        a = starts[k]
+        b = starts[k + 1]
+        passes = 0
+        while True:
+            change = 0.0
+            for q in range(a, b):
+                s = order[q]
+                acc = cost[s] - g
+                diag = 1.0
+                for e in range(indptr[s], indptr[s + 1]):
+                    j = indices[e]
+                    if j == s:
+                        diag -= data[e]
+                    else:
+                        acc += data[e] * h[j]
+                new = acc / diag
+                change = max(change, abs(new - h[s]) / (1.0 + abs(new)))
+                h[s] = new
+            passes += 1
+            if b - a == 1 or change <= 1e-15 or passes >= 100_000:
+                break
+        most = max(most, passes)
+    return most
 
 
 class _Chain:
@@ -358,57 +445,97 @@ def assemble(
     return P, cost, bad
 
 
-def evaluate(P: sp.csr_matrix, cost: np.ndarray, ref: int) -> tuple[float, np.ndarray, int]:
-    """``(g, h, nnz of the LU factors)`` of the policy: ``h + g = c + P h``, ``h[ref] = 0``.
+def evaluate(
+    P: sp.csr_matrix,
+    cost: np.ndarray,
+    labels: np.ndarray,
+    actions: np.ndarray,
+    memo: dict[str, Any],
+) -> tuple[float, np.ndarray, int]:
+    """``(g, h, nnz of the LU factors)`` of a unichain policy: ``h + g = c + P h``.
 
-    With ``B = I - P`` less the row and column of ``ref``, ``u = B^-1 c`` and
-    ``v = B^-1 1`` are the expected cost and stages until ``ref``; then ``h = u - g v``,
-    and the row of ``ref`` gives ``g = (c_ref + P_ref u) / (1 + P_ref v)``. Raises
-    ``RuntimeError`` (SuperLU) when ``B`` is singular (the policy is not proper).
+    ``labels`` are the strongly connected components of the chain, sinks first (as
+    :func:`scipy.sparse.csgraph.connected_components` numbers them); the first closed one
+    is the recurrent class. Its equations, with ``h = 0`` at its first state, give ``g``:
+    ``(I - P)`` on the class with that state's column replaced by ones (its unknown is
+    ``g``), one sparse LU (SuperLU). The transient states follow in the components'
+    order, each known once the components it leads to are (:func:`back_substitute`);
+    components larger than :data:`DIRECT_ABOVE` states are solved by LU too. ``memo``
+    keeps the recurrent class's solution: while the class and its ``actions`` stay the
+    same (the late iterations improve transient states only), it is not factorised
+    again. Raises
+    ``RuntimeError`` (SuperLU) when a system is singular.
     """
     S = P.shape[0]
-    keep = np.ones(S, np.bool_)
-    keep[ref] = False
-    sub = P[keep][:, keep]
-    B = (sp.identity(S - 1, format="csc") - sub).tocsc()
-    lu = splu(B)
-    rhs = np.column_stack([cost[keep], np.ones(S - 1)])
-    sol = lu.solve(rhs)
-    u, v = sol[:, 0], sol[:, 1]
-    row = P.getrow(ref).toarray().ravel()[keep]
-    g = float((cost[ref] + row @ u) / (1.0 + row @ v))
+    order = np.argsort(labels, kind="stable")
+    n = int(labels.max()) + 1
+    starts = np.searchsorted(labels[order], np.arange(n + 1)).astype(np.int64)
+    sizes = np.diff(starts)
     h = np.zeros(S)
-    h[keep] = u - g * v
-    return g, h, int(lu.L.nnz + lu.U.nnz)
+    # Component 0 is closed (a sink is numbered before whatever leads to it); in a
+    # unichain policy it is the recurrent class.
+    members = order[starts[0] : starts[1]]
+    key = (members.tobytes(), actions[members].tobytes())
+    if memo.get("key") != key:
+        # The recurrent class changed (or its actions did): factorise its system again.
+        sub = P[members][:, members].tocoo()
+        off = sub.col != 0
+        size = len(members)
+        rows = np.concatenate([sub.row[off], np.arange(1, size), np.arange(size)])
+        cols = np.concatenate([sub.col[off], np.arange(1, size), np.zeros(size, np.int64)])
+        vals = np.concatenate([-sub.data[off], np.ones(size - 1), np.ones(size)])
+        lu = splu(sp.csc_matrix((vals, (rows, cols)), shape=(size, size)))
+        x = lu.solve(cost[members])
+        memo.update(key=key, x=x, fill=int(lu.L.nnz + lu.U.nnz))
+    x = memo["x"].copy()
+    g = float(x[0])
+    x[0] = 0.0
+    h[members] = x
+    fill = int(memo["fill"])
+    first = 1
+    for k in [*(int(k) for k in np.flatnonzero(sizes > DIRECT_ABOVE) if k > 0), n]:
+        back_substitute(P.indptr, P.indices, P.data, cost, g, h, order, starts, first, k)
+        if k == n:
+            break
+        idx = order[starts[k] : starts[k + 1]]
+        rest = cost[idx] - g + P[idx] @ h  # h is still 0 on the component itself
+        lub = splu((sp.identity(len(idx), format="csc") - P[idx][:, idx]).tocsc())
+        h[idx] = lub.solve(rest)
+        fill = max(fill, int(lub.L.nnz + lub.U.nnz))
+        first = k + 1
+    return g, h, fill
 
 
 def unichain(
     mdp: LayeredMDP, chain: _Chain, P: sp.csr_matrix, actions: np.ndarray, model: Model
-) -> tuple[np.ndarray, int, int]:
-    """Make the policy unichain; returns ``(actions, ref, states changed)``.
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Make the policy unichain; returns ``(actions, component labels, states changed)``.
 
     The recurrent classes of the policy are the closed strongly connected components of
-    its chain. With one, ``ref`` is its first state (an NR state where it has one) and
-    every state reaches it with probability one, which is what the evaluation needs. With
-    several, the states that do not reach the first class take actions one hop nearer to
-    it (:func:`hop_policy`; the class keeps its actions), so the others still reach it
-    and these now do too.
+    its chain (:func:`scipy.sparse.csgraph.connected_components` numbers them sinks
+    first, so component 0 is closed). With several, the states that do not reach
+    component 0 take actions one hop nearer to it (:func:`hop_policy`; the class keeps
+    its actions): the others still reach it, and these now do too. The labels returned
+    are those of the policy returned (recomputed after a repair).
     """
-    _, labels = csgraph.connected_components(P, directed=True, connection="strong")
-    coo = P.tocoo()
-    cross = labels[coo.row] != labels[coo.col]
-    leaves = np.zeros(int(labels.max()) + 1, np.bool_)
-    leaves[labels[coo.row[cross]]] = True
-    closed = labels[np.flatnonzero(~leaves[labels])]
-    ref = int(np.flatnonzero(labels == closed[0])[0])
-    if len(np.unique(closed)) == 1:
-        return actions, ref, 0
-    reach = csgraph.breadth_first_order(P.T, ref, directed=True, return_predecessors=False)
-    ok = np.zeros(chain.size, np.bool_)
-    ok[reach] = True
-    target = labels == labels[ref]
-    hop, _, _ = hop_policy(mdp, chain, target, actions, model)
-    return np.where(ok, actions, hop), ref, int(np.count_nonzero(~ok))
+    changed = 0
+    for _ in range(2):
+        _, labels = csgraph.connected_components(P, directed=True, connection="strong")
+        rows = np.repeat(np.arange(chain.size), np.diff(P.indptr))
+        cross = labels[rows] != labels[P.indices]
+        leaves = np.zeros(int(labels.max()) + 1, np.bool_)
+        leaves[labels[rows[cross]]] = True
+        if np.count_nonzero(~leaves) == 1:
+            return actions, labels, changed
+        start = int(np.flatnonzero(labels == 0)[0])
+        reach = csgraph.breadth_first_order(P.T, start, directed=True, return_predecessors=False)
+        ok = np.zeros(chain.size, np.bool_)
+        ok[reach] = True
+        hop, _, _ = hop_policy(mdp, chain, labels == 0, actions, model)
+        actions = np.where(ok, actions, hop)
+        changed += int(np.count_nonzero(~ok))
+        P, _, _ = assemble(chain, actions, model, Workers(1))
+    raise RuntimeError("policy iteration: the repaired policy is not unichain (a bug)")
 
 
 def solve_policy_iteration(
@@ -453,18 +580,19 @@ def solve_policy_iteration(
     evaluations = 0
     it = 0
     cert: Certificate | None = None
+    memo: dict[str, Any] = {}
     with workers_for(chain.size, threads) as workers:
         for it in range(1, max_iterations + 1):
             P, cost, bad = assemble(chain, actions, model, workers)
             if bad:
                 raise RuntimeError(f"policy iteration: {bad} states have an unavailable action (a bug)")
-            actions, ref, fixed = unichain(mdp, chain, P, actions, model)
+            repaired, labels, fixed = unichain(mdp, chain, P, actions, model)
             if fixed:
                 log.debug("iteration %d: %d states did not reach the recurrent class", it, fixed)
+                actions = repaired
                 P, cost, _ = assemble(chain, actions, model, workers)
-                actions, ref, _ = unichain(mdp, chain, P, actions, model)
             try:
-                g, h_new, fill = evaluate(P, cost, ref)
+                g, h_new, fill = evaluate(P, cost, labels, actions, memo)
                 evaluations += 1
                 res = cost - g + P @ h_new - h_new
                 trusted = bool(
