@@ -91,7 +91,7 @@ def solve_command(
     ] = None,
     method: Annotated[
         str | None,
-        typer.Option(help="auto, structured or general (default: strategy.solver.method)"),
+        typer.Option(help="auto, structured, policy or general (default: strategy.solver.method)"),
     ] = None,
     snap: Annotated[
         bool | None,

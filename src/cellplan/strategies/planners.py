@@ -16,18 +16,19 @@ only inside :func:`run_strategies`.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated
 
 from pydantic import Field
 
 from cellplan.core import Options, Progress, Result, Status
 from cellplan.errors import ArgumentError, Problem
 from cellplan.schema import Cells
+from cellplan.strategies.section import SolverMethod
 
 if TYPE_CHECKING:
     from cellplan.setup import Setup
 
-Method = Literal["auto", "structured", "general"]
+Method = SolverMethod
 
 #: ``cellplan simulate``'s run length and seed when not given (``cellplan.simulate`` takes
 #: both explicitly), and the longest run it accepts.
@@ -41,8 +42,9 @@ class StrategiesOptions(Options):
 
     method: Method | None = Field(
         None,
-        description="solver: auto, structured (layered, Sec. IV) or general (relative value "
-        "iteration); None: the scenario's strategy.solver.method",
+        description="solver: auto, structured (layered, Sec. IV; Section V models only), "
+        "policy (policy iteration) or general (relative value iteration); None: the "
+        "scenario's strategy.solver.method",
     )
     cells: tuple[Cells, ...] | None = Field(
         None,

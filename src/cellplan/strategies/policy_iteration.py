@@ -49,8 +49,6 @@ from scipy.sparse.linalg import splu
 
 from cellplan.strategies.bundles import Model
 from cellplan.strategies.model import LayeredMDP
-from cellplan.strategies.stencils import EPS_W, cell_of_order, decode, move_corners
-from cellplan.strategies.threads import Workers, workers_for
 from cellplan.strategies.solver import (
     INNER_FACTOR,
     Certificate,
@@ -60,6 +58,8 @@ from cellplan.strategies.solver import (
     bellman,
     solve_general,
 )
+from cellplan.strategies.stencils import EPS_W, cell_of_order, decode, move_corners
+from cellplan.strategies.threads import Workers, workers_for
 
 log = logging.getLogger(__name__)
 
@@ -163,7 +163,9 @@ def action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p):  # pragm
 
 
 @njit(cache=True, nogil=True)
-def policy_rows(states, actions, index, indptr, cols, vals, cost, fill, start, stop, model):  # pragma: no cover
+def policy_rows(
+    states, actions, index, indptr, cols, vals, cost, fill, start, stop, model
+):  # pragma: no cover
     """Rows ``start:stop`` of the policy's transition matrix (CSR) and cost vector.
 
     ``states`` are the flat ``m * N + c`` of the live states, ``actions`` their actions.
@@ -299,7 +301,9 @@ def hop_sweep(dist, act, fixed, index, order, flips, model):  # pragma: no cover
 
 
 @njit(cache=True, nogil=True)
-def back_substitute(indptr, indices, data, cost, g, h, order, starts, first, last):  # pragma: no cover
+def back_substitute(
+    indptr, indices, data, cost, g, h, order, starts, first, last
+):  # pragma: no cover
     """``h = c - g + P h`` on the strongly connected components ``first:last`` of the chain.
 
     The components are numbered sinks first (every edge leaves a component for one with a
@@ -416,13 +420,25 @@ def assemble(
     empty_i = np.zeros(0, np.int64)
     empty_f = np.zeros(0)
 
-    def count(r: tuple[int, int]) -> int:
+    def rows(r: tuple[int, int], cols: np.ndarray, vals: np.ndarray, fill: bool) -> int:
         return int(
             policy_rows(
-                chain.states, actions, chain.index, indptr, empty_i, empty_f, cost, False,
-                r[0], r[1], model,
-            )  # fmt: skip
+                chain.states,
+                actions,
+                chain.index,
+                indptr,
+                cols,
+                vals,
+                cost,
+                fill,
+                r[0],
+                r[1],
+                model,
+            )
         )
+
+    def count(r: tuple[int, int]) -> int:
+        return rows(r, empty_i, empty_f, False)
 
     ranges = workers.ranges(S)
     bad = sum(workers.map(count, ranges))
@@ -432,12 +448,7 @@ def assemble(
     vals = np.empty(nnz)
 
     def fill(r: tuple[int, int]) -> int:
-        return int(
-            policy_rows(
-                chain.states, actions, chain.index, indptr, cols, vals, cost, True,
-                r[0], r[1], model,
-            )  # fmt: skip
-        )
+        return rows(r, cols, vals, True)
 
     workers.map(fill, ranges)
     P = sp.csr_matrix((vals, cols.astype(np.int32), indptr.astype(np.int32)), shape=(S, S))
@@ -585,14 +596,16 @@ def solve_policy_iteration(
         for it in range(1, max_iterations + 1):
             P, cost, bad = assemble(chain, actions, model, workers)
             if bad:
-                raise RuntimeError(f"policy iteration: {bad} states have an unavailable action (a bug)")
+                raise RuntimeError(
+                    f"policy iteration: {bad} states have an unavailable action (a bug)"
+                )
             repaired, labels, fixed = unichain(mdp, chain, P, actions, model)
             if fixed:
                 log.debug("iteration %d: %d states did not reach the recurrent class", it, fixed)
                 actions = repaired
                 P, cost, _ = assemble(chain, actions, model, workers)
             try:
-                g, h_new, fill = evaluate(P, cost, labels, actions, memo)
+                g, h_new, _ = evaluate(P, cost, labels, actions, memo)
                 evaluations += 1
                 res = cost - g + P @ h_new - h_new
                 trusted = bool(

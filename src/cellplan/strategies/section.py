@@ -112,13 +112,18 @@ class ActionSpec(StrictModel):
     )
 
 
+#: The solver methods (:func:`cellplan.strategies.solver.solve`); the one list of them.
+SolverMethod = Literal["auto", "structured", "general", "policy"]
+
+
 class SolverSpec(StrictModel):
     """Stopping rule and method of the average-cost solver (Section IV)."""
 
-    method: Literal["auto", "structured", "general"] = Field(
+    method: SolverMethod = Field(
         default="auto",
-        description="structured (layered shortest paths + NR fixed point), general (relative "
-        "value iteration), or auto",
+        description="structured (layered shortest paths + NR fixed point; Section V models "
+        "only), policy (policy iteration, any model), general (relative value iteration), or "
+        "auto (structured where the model allows it, else policy)",
     )
     tolerance: PositiveFloat = Field(
         default=1e-6,

@@ -41,6 +41,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -51,9 +52,12 @@ from cellplan.strategies import bellman as bellman_kernels
 from cellplan.strategies import sweeps
 from cellplan.strategies.bundles import Model
 from cellplan.strategies.model import LayeredMDP
+from cellplan.strategies.section import SolverMethod
 from cellplan.strategies.threads import Workers, workers_for
 
 log = logging.getLogger(__name__)
+# The solver methods (their one list is the scenario schema's).
+METHODS: tuple[str, ...] = typing.get_args(SolverMethod)
 # Inner solves need only be accurate relative to the outer progress (drift, NR shape change).
 ACCURACY_FACTOR = 0.05
 # Inner accuracy of the first passes (cold start, g still far from the gain).
@@ -672,6 +676,18 @@ def solve_structured(
     return result
 
 
+def method_problem(mdp: LayeredMDP, method: str) -> str | None:
+    """Why ``method`` cannot solve ``mdp`` (one line), or None when it can."""
+    if method not in METHODS:
+        return f"unknown solver method {method!r} (one of {', '.join(METHODS)})"
+    if method == "structured" and not mdp.is_simple():
+        return (
+            "the structured solver needs every fine motion to succeed with certainty "
+            "(Section V); this model has FMP outcomes (failure modes): use auto or policy"
+        )
+    return None
+
+
 def solve(
     mdp: LayeredMDP,
     method: str = "auto",
@@ -681,13 +697,24 @@ def solve(
     progress: Progress | None = None,
     threads: int | None = None,
 ) -> SolveResult:
-    """Solve with the structured method when the model allows it, else the general one.
+    """Solve with the structured method when the model allows it, else by policy iteration.
 
+    ``method``: ``auto`` (structured when :meth:`LayeredMDP.is_simple`, else policy),
+    ``structured`` (:func:`solve_structured`, Section V models only: a ``ValueError``
+    otherwise), ``policy`` (:func:`cellplan.strategies.policy_iteration.solve_policy_iteration`,
+    at most ``max_sweeps`` iterations) or ``general`` (:func:`solve_general`).
     ``threads``: worker threads (default :func:`cellplan.strategies.threads.default_threads`;
     problems below :data:`~cellplan.strategies.threads.SERIAL_BELOW` states run serially).
     """
+    problem = method_problem(mdp, method)
+    if problem is not None:
+        raise ValueError(problem)
     if method == "auto":
-        method = "structured"
+        method = "structured" if mdp.is_simple() else "policy"
     if method == "structured":
         return solve_structured(mdp, tol, max_sweeps, progress, threads=threads)
+    if method == "policy":
+        from cellplan.strategies.policy_iteration import solve_policy_iteration
+
+        return solve_policy_iteration(mdp, tol, max_sweeps, progress, threads)
     return solve_general(mdp, tol, max_sweeps, damping, progress, threads)

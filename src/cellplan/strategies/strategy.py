@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from cellplan import units
-from cellplan.errors import PersistenceError, Problem
+from cellplan.errors import ArgumentError, PersistenceError, Problem, ScenarioError
 from cellplan.fileio import atomic_path
 from cellplan.strategies.bundles import Model
 from cellplan.strategies.fileformat import FORMAT, VERSION
@@ -340,13 +340,18 @@ def solve_scenario(
     (:func:`~cellplan.strategies.model.start_problems`).
     """
     from cellplan.strategies.model import build_model
-    from cellplan.strategies.solver import solve
+    from cellplan.strategies.solver import method_problem, solve
     from cellplan.strategies.transitions import forbid_snapping
 
     sec = scenario.strategy
     mdp = build_model(scenario, cell, cells, start=start)
     if not snap:
         mdp = forbid_snapping(mdp)
+    problem = method_problem(mdp, method or sec.solver.method)
+    if problem is not None:
+        if method is not None:
+            raise ArgumentError([Problem("method", problem)])
+        raise ScenarioError([Problem("strategy.solver.method", problem)])
     result = solve(
         mdp,
         method or sec.solver.method,
