@@ -1,0 +1,271 @@
+"""Policy iteration against the structured solver (Section V models) and against a plain
+sparse relative value iteration written here (models with FMP outcomes, Section VI-3)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from strategies_helpers import TINY, tiny
+from test_strategies_solver import _stencil
+
+import cellplan
+from cellplan.core import Status
+from cellplan.errors import ScenarioError
+from cellplan.scenario import loads_scenario
+from cellplan.strategies.bundles import Outcomes
+from cellplan.strategies.model import LayeredMDP, build_model, compute_live
+from cellplan.strategies.policy_iteration import solve_policy_iteration
+from cellplan.strategies.solver import solve, solve_structured
+
+
+def sparse_rvi_outcomes(mdp, tol=1e-11, max_iter=400000):
+    """Relative value iteration from the definition, one scipy.sparse matrix per action.
+
+    FMP in mode m costs t_f(m, x) and then, with probability p_o, adds c_o and moves to
+    mode L_o at the same cell (every outcome must be a live state); stay keeps the cell
+    in every branch; a move lands on its stencil's live corners, renormalised per branch.
+    """
+    live = mdp.live
+    out = mdp.fmp_outcomes()
+    states = np.argwhere(live)
+    index = -np.ones(live.shape, np.int64)
+    index[live] = np.arange(len(states))
+    S = len(states)
+    A = int(mdp.nact.max())
+    rows = {a: ([], [], []) for a in range(-2, A)}
+    cost = {a: np.full(S, np.inf) for a in range(-2, A)}
+    for s, (m, c) in enumerate(states):
+        centre = mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
+        outs = [
+            (int(out.layer[o]), float(out.prob[o]), float(out.cost[o]))
+            for o in range(out.ptr[m], out.ptr[m + 1])
+            if out.prob[o] > 0
+        ]
+        if (
+            mdp.fmp_next[m] >= 0
+            and np.isfinite(mdp.tf[m, c])
+            and all(live[L, c] for L, _, _ in outs)
+        ):
+            for L, p, _ in outs:
+                rows[-2][0].append(s)
+                rows[-2][1].append(index[L, c])
+                rows[-2][2].append(p)
+            cost[-2][s] = mdp.tf[m, c] + sum(p * co for _, p, co in outs)
+        k = mdp.vcls[m]
+        for a in range(-1, int(mdp.nact[k])):
+            if a >= 0 and not (int(mdp.valid[k, c]) >> a) & 1:
+                continue
+            q = centre + (mdp.disp[k, a] if a >= 0 else 0.0)
+            st_ = {c: 1.0} if a < 0 else _stencil(q, mdp)
+            entries = []
+            ok = True
+            for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
+                L = mdp.branch_layer[b]
+                wl = {i: w for i, w in st_.items() if w > 1e-12 and live[L, i]}
+                tot = sum(wl.values())
+                if tot <= 1e-12:
+                    ok = False
+                    break
+                entries += [(index[L, i], mdp.branch_prob[b] * w / tot) for i, w in wl.items()]
+            if not ok:
+                continue
+            for j, p in entries:
+                rows[a][0].append(s)
+                rows[a][1].append(j)
+                rows[a][2].append(p)
+            cost[a][s] = mdp.cost[m]
+    mats = {a: sp.csr_matrix((r[2], (r[0], r[1])), shape=(S, S)) for a, r in rows.items()}
+    h = np.zeros(S)
+    for _ in range(max_iter):
+        th = np.min(np.stack([cost[a] + mats[a] @ h for a in mats]), axis=0)
+        diff = th - h
+        if diff.max() - diff.min() < tol:
+            break
+        # Damped (aperiodic) iteration: the retry self-loops make no periodic chain, but
+        # the damping costs nothing and keeps the oracle independent of that.
+        h = 0.5 * (h + th) - 0.5 * (h + th)[0]
+    return 0.5 * (diff.max() + diff.min())
+
+
+def with_outcomes(mdp: LayeredMDP, f: float, rework: float, into: str = "self") -> LayeredMDP:
+    """The model with every carrying layer's FMP failing with probability ``f``.
+
+    ``into="self"``: the part is retried in place (the carrying layer again, plus the
+    ``rework`` time); ``into="wait"``: the part is lost and the request starts again (the
+    request's waiting layer at the destination, plus ``rework``).
+    """
+    R = mdp.n_requests
+    ptr, layer, prob, cost = [0], [], [], []
+    for m in range(mdp.n_modes):
+        nxt = int(mdp.fmp_next[m])
+        if nxt >= 0:
+            layer.append(nxt)
+            prob.append(1.0)
+            cost.append(0.0)
+            if m > R and f > 0:  # a carrying layer
+                prob[-1] = 1.0 - f
+                layer.append(m if into == "self" else m - R)
+                prob.append(f)
+                cost.append(rework)
+        ptr.append(len(layer))
+    out = Outcomes(
+        np.array(ptr, np.int64), np.array(layer, np.int64), np.array(prob), np.array(cost)
+    )
+    new = dataclasses.replace(mdp, outcomes=out, live=mdp.live.copy())
+    compute_live(new)
+    return new
+
+
+@pytest.fixture(scope="module")
+def tiny_model():
+    sc, cell = tiny(cells=12)
+    return build_model(sc, cell)
+
+
+@pytest.fixture(scope="module")
+def p1_coarse():
+    setup = cellplan.load("strategies_p1")
+    return build_model(setup.scenario, setup.workcell, [34, 34])
+
+
+def _agree(a, b, mdp):
+    """The gains' brackets overlap (each certifies the optimal gain, so both hold it) and
+    the policies agree wherever the action is no tie."""
+    assert a.status is Status.SOLVED and b.status is Status.SOLVED
+    assert max(a.gain_lower, b.gain_lower) <= min(a.gain_upper, b.gain_upper) + 1e-12
+    assert abs(a.gain - b.gain) <= a.span + b.span
+    # Both policies are the certificate's minimisers of nearly the same h; an action can
+    # differ only where the second-best action is within the value difference.
+    _, _, gap = _bellman_gap(mdp, a)
+    clear = mdp.live & (gap > 1e-5)
+    assert np.count_nonzero(clear) > 0.5 * np.count_nonzero(mdp.live)
+    assert np.array_equal(a.policy[clear], b.policy[clear])
+
+
+def _bellman_gap(mdp, res):
+    from cellplan.strategies.solver import bellman
+
+    h = np.where(mdp.live, res.values, 0.0)
+    return bellman(mdp, h)
+
+
+def test_policy_iteration_matches_structured_on_the_tiny_cell(tiny_model):
+    s = solve_structured(tiny_model, tol=1e-9)
+    p = solve_policy_iteration(tiny_model, tol=1e-9)
+    assert p.method == "policy"
+    _agree(p, s, tiny_model)
+
+
+def test_policy_iteration_matches_structured_on_p1(p1_coarse):
+    s = solve_structured(p1_coarse, tol=1e-8)
+    p = solve_policy_iteration(p1_coarse, tol=1e-8)
+    _agree(p, s, p1_coarse)
+    # A Section V model: auto keeps the structured solver.
+    assert solve(p1_coarse, "auto", tol=1e-8).method == "structured"
+
+
+@pytest.mark.parametrize("into", ["self", "wait"])
+def test_failure_models_match_plain_sparse_rvi(tiny_model, into):
+    mdp = with_outcomes(tiny_model, 0.3, 2.0, into)
+    assert not mdp.is_simple()
+    res = solve(mdp, "auto", tol=1e-9)
+    assert res.method == "policy"
+    assert res.status is Status.SOLVED
+    assert res.gain_lower <= res.gain <= res.gain_upper
+    assert abs(res.gain - sparse_rvi_outcomes(mdp)) < 1e-6
+
+
+def test_gain_grows_with_the_failure_rate(tiny_model):
+    gains = [
+        solve_policy_iteration(with_outcomes(tiny_model, f, 2.0), tol=1e-9).gain
+        for f in (0.0, 0.2, 0.5)
+    ]
+    assert gains[0] < gains[1] < gains[2]
+    # f = 0 is the Section V model.
+    assert abs(gains[0] - solve_structured(tiny_model, tol=1e-9).gain) < 1e-7
+
+
+def test_structured_refuses_a_model_with_outcomes(tiny_model):
+    mdp = with_outcomes(tiny_model, 0.3, 2.0)
+    with pytest.raises(ValueError, match="structured solver needs"):
+        solve(mdp, "structured")
+    with pytest.raises(ValueError, match="unknown solver method"):
+        solve(tiny_model, "newton")
+
+
+def test_solve_scenario_names_the_field_of_a_refused_method(monkeypatch):
+    import cellplan.strategies.model as model_mod
+    from cellplan.errors import ArgumentError
+    from cellplan.strategies.strategy import solve_scenario
+
+    sc, cell = tiny(cells=8, extra="")
+    build = model_mod.build_model
+
+    def failing(*a, **k):
+        return with_outcomes(build(*a, **k), 0.2, 1.0)
+
+    monkeypatch.setattr(model_mod, "build_model", failing)
+    with pytest.raises(ArgumentError) as err:
+        solve_scenario(sc, cell, method="structured")
+    assert err.value.problems[0].field == "method"
+    sc2 = loads_scenario(
+        TINY.replace("CELLS", "8").replace(
+            "strategy:\n", "strategy:\n  solver: {method: structured}\n"
+        )
+    )
+    with pytest.raises(ScenarioError) as err2:
+        solve_scenario(sc2, cell)
+    assert err2.value.problems[0].field == "strategy.solver.method"
+    _, res = solve_scenario(sc, cell)
+    assert res.method == "policy" and res.status is Status.SOLVED
+
+
+@settings(
+    max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    data=st.lists(
+        st.tuples(st.floats(0.0, 0.7), st.floats(0.0, 4.0), st.sampled_from(["self", "wait"])),
+        min_size=4,
+        max_size=4,
+    )
+)
+def test_random_outcomes_match_plain_sparse_rvi(tiny8, data):
+    """Random failure rate, rework and failure target per carrying layer."""
+    mdp = tiny8
+    R = mdp.n_requests
+    ptr, layer, prob, cost = [0], [], [], []
+    for m in range(mdp.n_modes):
+        nxt = int(mdp.fmp_next[m])
+        if nxt >= 0:
+            f, rework, into = data[(m - 1) % len(data)]
+            layer.append(nxt)
+            prob.append(1.0 - f)
+            cost.append(0.0)
+            if m > R:
+                layer.append(m if into == "self" else m - R)
+                prob.append(f)
+                cost.append(rework)
+            else:
+                prob[-1] = 1.0
+        ptr.append(len(layer))
+    out = Outcomes(
+        np.array(ptr, np.int64), np.array(layer, np.int64), np.array(prob), np.array(cost)
+    )
+    assert np.allclose(np.add.reduceat(out.prob, out.ptr[:-1][np.diff(out.ptr) > 0]), 1.0)
+    model = dataclasses.replace(mdp, outcomes=out, live=mdp.live.copy())
+    compute_live(model)
+    res = solve_policy_iteration(model, tol=1e-9)
+    assert res.status is Status.SOLVED
+    assert abs(res.gain - sparse_rvi_outcomes(model)) < 1e-6
+
+
+@pytest.fixture(scope="module")
+def tiny8():
+    sc, cell = tiny(cells=8)
+    return build_model(sc, cell)
