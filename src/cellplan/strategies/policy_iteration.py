@@ -72,6 +72,8 @@ EVAL_RESIDUAL = 1e-7
 MAX_HOP_SWEEPS = 100_000
 # Relative value iteration sweeps per recovery from a failed evaluation.
 RECOVERY_SWEEPS = 200
+# Value iteration sweeps between an evaluation and the next improvement.
+LOOKAHEAD_SWEEPS = 4
 # Strongly connected components larger than this are evaluated by sparse LU, smaller ones
 # by Gauss-Seidel on the component.
 DIRECT_ABOVE = 64
@@ -164,15 +166,15 @@ def action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p):  # pragm
 
 @njit(cache=True, nogil=True)
 def policy_rows(
-    states, actions, index, indptr, cols, vals, cost, fill, start, stop, model
-):  # pragma: no cover
-    """Rows ``start:stop`` of the policy's transition matrix (CSR) and cost vector.
+    states, actions, index, starts, cols, vals, counts, cost, start, stop, model
+):  # pragma: no cover - numba
+    """Rows ``start:stop`` of the policy's transition matrix and its cost vector.
 
     ``states`` are the flat ``m * N + c`` of the live states, ``actions`` their actions.
-    With ``fill`` False, ``indptr[k + 1]`` receives the number of entries of row ``k``
-    (the caller sums them up); with ``fill`` True the entries are written from
-    ``indptr[k]`` on, and ``cost[k]`` the row's loss. Returns the number of rows whose
-    action is not available (0 for a policy chosen by the Bellman operator).
+    Row ``k``'s successors and probabilities are written from ``starts[k]`` on (room for
+    the most its mode can have), their number to ``counts[k]``, its loss to ``cost[k]``.
+    Returns the number of rows whose action is not available (0 for a policy chosen by
+    the Bellman operator; such a row is left empty).
     """
     ncell = model.layers.live.shape[1]
     shape = model.grid.shape
@@ -180,26 +182,21 @@ def policy_rows(
     mi = np.empty(d, np.int64)
     idx = np.empty(1 << d, np.int64)
     w = np.empty(1 << d)
-    width = (1 << d) * (model.layers.branch_prob.shape[0] + model.layers.out_prob.shape[0] + 1)
-    out_s = np.empty(width, np.int64)
-    out_p = np.empty(width)
     bad = 0
     for k in range(start, stop):
         m = states[k] // ncell
         c = states[k] % ncell
         decode(c, shape, mi)
-        n, cst = action_successors(m, c, actions[k], mi, index, model, idx, w, out_s, out_p)
+        at = starts[k]
+        room = starts[k + 1] - at
+        n, cst = action_successors(
+            m, c, actions[k], mi, index, model, idx, w, cols[at : at + room], vals[at : at + room]
+        )
         if n < 0:
             bad += 1
             n = 0
-        if not fill:
-            indptr[k + 1] = n
-            continue
+        counts[k] = n
         cost[k] = cst
-        at = indptr[k]
-        for j in range(n):
-            cols[at + j] = out_s[j]
-            vals[at + j] = out_p[j]
     return bad
 
 
@@ -350,6 +347,13 @@ class _Chain:
         self.size = len(self.states)
         self.index = np.full(live.shape, -1, np.int64)
         self.index.ravel()[self.states] = np.arange(self.size)
+        # Room for each state's row of a policy's matrix (:func:`assemble`): from
+        # ``starts[k]``; ``slot`` is each place's position in its row, ``slot_row`` its row.
+        room = row_room(mdp)[self.states // live.shape[1]]
+        self.starts = np.zeros(self.size + 1, np.int64)
+        np.cumsum(room, out=self.starts[1:])
+        self.slot_row = np.repeat(np.arange(self.size), room)
+        self.slot = np.arange(int(self.starts[-1])) - self.starts[self.slot_row]
 
     def spread(self, x: np.ndarray, fill: float = 0.0) -> np.ndarray:
         """A per-state vector as an ``(M, N)`` array (``fill`` outside the live states)."""
@@ -409,49 +413,54 @@ def hop_policy(
     return act, dist, sweeps
 
 
+def row_room(mdp: LayeredMDP) -> np.ndarray:
+    """The most successors a state of each mode can have under one action (per mode)."""
+    out = mdp.fmp_outcomes()
+    corners = 1 << len(mdp.shape)
+    branches = np.diff(mdp.branch_ptr)
+    return np.maximum(branches * corners, np.diff(out.ptr)).astype(np.int64)
+
+
 def assemble(
     chain: _Chain, actions: np.ndarray, model: Model, workers: Workers
 ) -> tuple[sp.csr_matrix, np.ndarray, int]:
     """The policy's transition matrix over the live states (CSR), its cost vector, and the
-    number of states whose action is not available (their rows are empty)."""
-    S = chain.size
-    indptr = np.zeros(S + 1, np.int64)
-    cost = np.zeros(S)
-    empty_i = np.zeros(0, np.int64)
-    empty_f = np.zeros(0)
+    number of states whose action is not available (their rows are empty).
 
-    def rows(r: tuple[int, int], cols: np.ndarray, vals: np.ndarray, fill: bool) -> int:
+    One pass of :func:`policy_rows` writes each row into the room its mode may need
+    (:func:`row_room`); the rows are then packed.
+    """
+    S = chain.size
+    starts = chain.starts
+    cols = np.empty(int(starts[-1]), np.int64)
+    vals = np.empty(int(starts[-1]))
+    counts = np.zeros(S, np.int64)
+    cost = np.zeros(S)
+
+    def rows(r: tuple[int, int]) -> int:
         return int(
             policy_rows(
                 chain.states,
                 actions,
                 chain.index,
-                indptr,
+                starts,
                 cols,
                 vals,
+                counts,
                 cost,
-                fill,
                 r[0],
                 r[1],
                 model,
             )
         )
 
-    def count(r: tuple[int, int]) -> int:
-        return rows(r, empty_i, empty_f, False)
-
-    ranges = workers.ranges(S)
-    bad = sum(workers.map(count, ranges))
-    np.cumsum(indptr, out=indptr)
-    nnz = int(indptr[-1])
-    cols = np.empty(nnz, np.int64)
-    vals = np.empty(nnz)
-
-    def fill(r: tuple[int, int]) -> int:
-        return rows(r, cols, vals, True)
-
-    workers.map(fill, ranges)
-    P = sp.csr_matrix((vals, cols.astype(np.int32), indptr.astype(np.int32)), shape=(S, S))
+    bad = sum(workers.map(rows, workers.ranges(S)))
+    keep = chain.slot < counts[chain.slot_row]
+    indptr = np.zeros(S + 1, np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    P = sp.csr_matrix(
+        (vals[keep], cols[keep].astype(np.int32), indptr.astype(np.int32)), shape=(S, S)
+    )
     P.sum_duplicates()
     return P, cost, bad
 
@@ -572,16 +581,15 @@ def solve_policy_iteration(
     chain = _Chain(mdp)
     model = mdp.kernel_args()
     ref_cell = int(np.flatnonzero(live[0])[0])
-    ref = int(chain.index[0, ref_cell])
-    target = np.zeros(chain.size, np.bool_)
-    target[ref] = True
-    actions, dist, hops = hop_policy(mdp, chain, target, np.full(chain.size, -3), model)
+    # The first policy: NR waits where it is (stay, the reactive robot), every other state
+    # heads for NR by the fewest stages (hop distances to the NR states).
+    nr = chain.states < live.shape[1]
+    actions, dist, hops = hop_policy(mdp, chain, nr, np.full(chain.size, -3), model)
     unreachable = int(np.count_nonzero(dist >= chain.size))
     log.debug("first policy: %d hop sweeps, %d states unreachable", hops, unreachable)
     if unreachable:
         log.warning(
-            "policy iteration: %d live states cannot reach the reference NR state; "
-            "solving by relative value iteration",
+            "policy iteration: %d live states cannot reach NR; solving by relative value iteration",
             unreachable,
         )
         return solve_general(mdp, tol, progress=progress, threads=threads)
@@ -628,6 +636,7 @@ def solve_policy_iteration(
             diff = (th - hfull)[live]
             lo, hi = float(diff.min()), float(diff.max())
             cert = (lo, hi, th, pol, gap)
+            cert_pol = pol
             if progress is not None:
                 progress(it, hi - lo, 0.5 * (lo + hi))
             q = cost + P @ h
@@ -639,8 +648,24 @@ def solve_policy_iteration(
             )
             if changes == 0 or hi - lo < tol * INNER_FACTOR:
                 break
-            actions = np.where(better, pol.ravel()[chain.states], actions)
             cert = None
+            # Modified policy iteration: a few value iteration sweeps from the policy's
+            # values carry an improvement several states further up the paths before
+            # the next (greedy) policy is taken; late iterations otherwise move it by
+            # one state each, along every path whose better route is found at its end.
+            h2 = hfull
+            for _ in range(LOOKAHEAD_SWEEPS):
+                h2 = np.where(live, th - g, 0.0)
+                th, pol, _ = bellman(mdp, h2, workers=workers)
+                sweeps += 1
+            q2 = cost + P @ h2.ravel()[chain.states]
+            thv = th.ravel()[chain.states]
+            better2 = thv < q2 - IMPROVE_MARGIN * np.maximum(1.0, np.abs(q2))
+            if np.any(better2):
+                better = better2
+            else:
+                pol = cert_pol
+            actions = np.where(better, pol.ravel()[chain.states], actions)
         result = _finish(
             mdp, chain.spread(h), g, tol, sweeps, sweeps, it, "policy", t0, ref_cell, cert, workers
         )
