@@ -269,3 +269,27 @@ def test_random_outcomes_match_plain_sparse_rvi(tiny8, data):
 def tiny8():
     sc, cell = tiny(cells=8)
     return build_model(sc, cell)
+
+
+def test_memory_estimate_bounds_policy_iterations_allocations():
+    import gc
+    import tracemalloc
+
+    from cellplan.strategies.model import estimate_memory
+
+    sc, cell = tiny(cells=48)
+    mdp = build_model(sc, cell)
+    solve_policy_iteration(mdp)  # compile and warm caches first
+    gc.collect()
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        solve_policy_iteration(mdp)
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    est = estimate_memory(sc, cell, method="policy")
+    assert est.method == "policy" and estimate_memory(sc, cell).method == "structured"
+    # An upper bound (every cell counted live, every row at its mode's room), not a loose one.
+    assert 1.0 <= est.terms["policy"] / peak <= 3.0, (peak, dict(est.terms))
+    assert est.total >= est.terms["model"] + est.terms["policy"]

@@ -75,7 +75,7 @@ def check_cells(cells: Sequence[int] | None, dim: int, field: str = "cells") -> 
         )
 
 
-def check_memory(setup: Setup, cells: Sequence[int] | None) -> None:
+def check_memory(setup: Setup, cells: Sequence[int] | None, method: str | None = None) -> None:
     """Refuse a grid whose model and solve cannot fit in memory, before allocating it.
 
     The estimate is :func:`~cellplan.strategies.model.estimate_memory` (the arrays the
@@ -87,7 +87,7 @@ def check_memory(setup: Setup, cells: Sequence[int] | None) -> None:
 
     scenario, cell = setup.scenario, setup.workcell
     shape = grid_shape(scenario, cell, cells)
-    est = estimate_memory(scenario, cell, cells)
+    est = estimate_memory(scenario, cell, cells, method)
     where = "cells" if cells is not None else "strategy.cells"
     error = ArgumentError if cells is not None else ScenarioError
     budget.require(
@@ -117,7 +117,7 @@ def run_strategies(
     section = setup.section("strategy")
     cell = setup.workcell
     check_cells(options.cells, cell.robot.dim)
-    check_memory(setup, options.cells)
+    check_memory(setup, options.cells, options.method)
 
     def report(sweep: int, residual: float, gain: float) -> None:
         assert progress is not None
