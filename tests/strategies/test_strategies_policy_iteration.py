@@ -293,3 +293,29 @@ def test_memory_estimate_bounds_policy_iterations_allocations():
     # An upper bound (every cell counted live, every row at its mode's room), not a loose one.
     assert 1.0 <= est.terms["policy"] / peak <= 3.0, (peak, dict(est.terms))
     assert est.total >= est.terms["model"] + est.terms["policy"]
+
+
+def test_cli_solves_by_policy_iteration_and_refuses_structured_on_failures(
+    cellplan, tmp_path, monkeypatch
+):
+    import json
+
+    import cellplan.strategies.model as model_mod
+
+    path = tmp_path / "tiny.yaml"
+    path.write_text(TINY.replace("CELLS", "10"))
+    npz = tmp_path / "s.npz"
+    r = cellplan("solve", str(path), "-o", str(npz), "--method", "policy", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["status"] == "solved" and npz.exists()
+
+    build = model_mod.build_model
+    monkeypatch.setattr(
+        model_mod, "build_model", lambda *a, **k: with_outcomes(build(*a, **k), 0.2, 1.0)
+    )
+    out = tmp_path / "f.npz"
+    r = cellplan("solve", str(path), "-o", str(out), "--method", "structured")
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "method" in lines[0] and "structured solver needs" in lines[0]
+    assert not out.exists()
