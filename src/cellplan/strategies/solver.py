@@ -687,7 +687,7 @@ def solve(
     problems below :data:`~cellplan.strategies.threads.SERIAL_BELOW` states run serially).
     """
     if method == "auto":
-        method = "structured"
+        method = "structured" if mdp.is_simple() else "general"
     if method == "structured":
         return solve_structured(mdp, tol, max_sweeps, progress, threads=threads)
     return solve_general(mdp, tol, max_sweeps, damping, progress, threads)
