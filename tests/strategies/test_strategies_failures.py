@@ -126,7 +126,8 @@ def test_reject_modes_and_outcomes_follow_the_scenario():
 
     def outcomes(m):
         sl = slice(out.ptr[m], out.ptr[m + 1])
-        return list(zip(out.layer[sl].tolist(), out.prob[sl].tolist(), out.cost[sl].tolist()))
+        cols = (out.layer[sl].tolist(), out.prob[sl].tolist(), out.cost[sl].tolist())
+        return list(zip(*cols, strict=True))
 
     assert outcomes(0) == []
     assert outcomes(1) == [(3, 1.0, 0.0)]  # picks never fail here
@@ -255,7 +256,7 @@ def test_a_version_1_file_is_refused_with_a_line_that_says_so(failure_base, tmp_
     setup, _, arrays, meta = failure_base
     meta = dict(meta, version=1)
     path = _write(tmp_path / "old.npz", arrays, meta, True)
-    with pytest.raises(PersistenceError, match="version 1 .an older cellplan.; solve"):
+    with pytest.raises(PersistenceError, match=r"version 1 \(an older cellplan\); solve"):
         Strategy.load(path, setup.scenario)
 
 
