@@ -275,3 +275,29 @@ def test_the_untouched_failure_file_loads_and_simulates(failure_base):
 def test_crafted_failure_files_are_refused_cleanly_or_usable(data, failure_base, tmp_path):
     _, path = craft(data, failure_base, tmp_path)
     check_load(path, failure_base[0])
+
+
+def test_quick_failure_experiment_reports_three_claims(tmp_path):
+    from cellplan.strategies.experiments import EXPERIMENTS
+    from cellplan.strategies.failure_experiment import SCALES
+
+    exp = next(e for e in EXPERIMENTS if e.name == "strategies.failures")
+    specs = exp.make_runs(2, True)
+    assert len(specs) == 2 * len(SCALES)
+    for s in specs:  # shorter runs: this checks the plumbing, not the verdicts
+        s.params["stages"] = 400
+    rows = [exp.run(s) for s in specs]
+    assert rows[0] == exp.run(specs[0])  # a pure function of its spec
+    gains = sorted({(float(r["scale"]), float(r["gain"])) for r in rows})
+    assert [s for s, _ in gains] == list(SCALES)
+    assert np.all(np.diff([g for _, g in gains]) > 0)
+    piece = exp.report(rows, tmp_path)
+    assert piece.figures and all(p.exists() for p in piece.figures)
+    assert [c.claim.split(": ", 1)[1] for c in piece.claims] == [
+        "the simulated loss per stage agrees with the solved gain",
+        "under failures the optimal strategy makes parts wait less than the reactive one",
+        "the waiting per stage grows with the failure rate",
+    ]
+    # Two seeds are too few to decide the interval claims.
+    assert piece.claims[0].reproduced is None and piece.claims[1].reproduced is None
+    assert all(c.explanation.endswith("#failure-modes-section-vi-3") for c in piece.claims)
