@@ -39,6 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from cellplan.arrayfile import ArraySpec, read_arrays
 from cellplan.errors import PersistenceError, Problem
 from cellplan.schema import CELLS_RANGE
+from cellplan.strategies.section import MAX_NOISE_OUTCOMES
 from cellplan.strategies.stencils import MAX_DIM
 
 FORMAT = "cellplan-strategy"
@@ -135,6 +136,7 @@ ARRAYS: dict[str, ArraySpec] = {
     "out_ptr": ArraySpec("int64", ("M + 1",), "0", "G", doc="FMP outcomes of each mode"),
     "out_prob": ArraySpec("float64", ("G",), "0", "1", doc="probability of each FMP outcome"),
     "out_cost": ArraySpec("float64", ("G",), "0", doc="extra loss of each outcome (rework)"),
+    "noise_prob": ArraySpec("float64", ("J",), "0", "1", doc="noisy landings of a move"),
     "values": ArraySpec("float64", ("M", "N"), nan=True, doc="cost-to-go (NaN off live)"),
 }
 
@@ -144,6 +146,7 @@ SIZE_LIMITS: dict[str, tuple[int | str, int | str]] = {
     "A": (1, MAX_ACTIONS),
     "B": ("M", "M * M"),
     "G": ("M - 1", "M * M"),
+    "J": (1, MAX_NOISE_OUTCOMES),
 }
 
 
@@ -254,7 +257,7 @@ def _parse_meta(text: str, fail: Any) -> StrategyMeta:
 
 
 def _check_consistency(meta: StrategyMeta, a: dict, sizes: dict[str, int], fail: Any) -> None:
-    from cellplan.strategies.model import corner_tables, stencil_tables
+    from cellplan.strategies.model import corner_tables, stencil_tables, table_rows
 
     grid = meta.grid
     M, K, B, N = sizes["M"], sizes["K"], sizes["B"], sizes["N"]
@@ -287,9 +290,15 @@ def _check_consistency(meta: StrategyMeta, a: dict, sizes: dict[str, int], fail:
     nact = a["nact"]
     if ((a["valid"] >> nact[:, None]) != 0).any():
         raise fail("valid: marks an action beyond the class's action count")
+    noise = a["noise_prob"]
+    if not np.isclose(noise.sum(), 1.0, atol=1e-9):
+        raise fail("noise_prob: the landings of a move do not sum to 1")
+    rows = table_rows(nact, len(noise))
+    if (rows > a["disp"].shape[1]).any():
+        raise fail("nact: more moves (with their noisy landings) than rows of disp")
     heading = meta.heading_axis
     offs, fr = stencil_tables(a["disp"], heading, a["shape"], a["lower"], a["spacing"])
-    coff, cw, interior = corner_tables(offs, fr, nact, a["shape"])
+    coff, cw, interior = corner_tables(offs, fr, rows, a["shape"])
     for name, mine, exact in (
         ("offs", offs, True),
         ("fr", fr, False),

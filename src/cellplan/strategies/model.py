@@ -31,8 +31,9 @@ from typing import Any
 
 import numpy as np
 
+from cellplan import units
 from cellplan.errors import Problem, ScenarioError
-from cellplan.strategies.actions import ActionSet, action_set
+from cellplan.strategies.actions import ActionSet, action_set, with_noise
 from cellplan.strategies.bundles import Grid, Layers, Model, Moves, Outcomes, single_outcomes
 from cellplan.strategies.domain import live_layer
 from cellplan.strategies.motion import valid_moves
@@ -119,6 +120,8 @@ class LayeredMDP:
     labels: list[tuple[str, ...]] = field(default_factory=list)
     # FMP outcomes when some FMP can fail (Section VI-3); None: the Section V outcomes.
     outcomes: Outcomes | None = None
+    # (J,) probabilities of the noisy outcomes of every move (Section VI-4); [1]: exact.
+    noise_prob: np.ndarray = field(default_factory=lambda: np.ones(1))
 
     @property
     def n_cells(self) -> int:
@@ -155,6 +158,7 @@ class LayeredMDP:
             coff=self.coff,
             cw=self.cw,
             interior=self.interior,
+            noise_prob=self.noise_prob,
         )
         out = self.fmp_outcomes()
         layers = Layers(
@@ -180,9 +184,13 @@ class LayeredMDP:
     def is_simple(self) -> bool:
         """Whether every FMP has the single certain outcome of Section V.
 
-        The structured solver relies on it (a carrying layer's FMP ends in NR, a waiting
-        layer's in its carrying layer); other models are solved by policy iteration.
+        and every move lands where it is commanded (no noise, Section VI-4). The structured
+        solver relies on it (a carrying layer's FMP ends in NR, a waiting layer's in its
+        carrying layer, a move's landing stencil is one table row); other models are solved
+        by policy iteration.
         """
+        if len(self.noise_prob) > 1:
+            return False
         if self.outcomes is None:
             return True
         out = self.outcomes
@@ -351,15 +359,27 @@ def assemble(
     nact = np.zeros(K, np.int64)
     for k, acts in enumerate(cls_actions):
         disp[k, : acts.disp.shape[0]] = acts.disp
-        nact[k] = acts.disp.shape[0]
+        nact[k] = acts.commanded
+    noise_prob = actions_empty.noise_prob
+    J = len(noise_prob)
     heading_axis = actions_empty.heading_axis
     free = np.stack(cls_free).astype(np.bool_)
     valid = np.zeros((K, ncell), np.int64)
     grid = Grid(shape_a, lower_a, upper_a, spacing, periodic_a)
     for k in range(K):
-        valid[k] = valid_moves(free[k], disp[k, : nact[k]], heading_axis, grid)
+        na = int(nact[k])
+        if J == 1:
+            valid[k] = valid_moves(free[k], disp[k, :na], heading_axis, grid)
+            continue
+        # A noisy move is allowed where every outcome's swept motion is free (Section VI-4).
+        valid[k] = (1 << na) - 1
+        for j in range(J):
+            rows = na + np.arange(na) * J + j
+            valid[k] &= valid_moves(
+                free[k], np.ascontiguousarray(disp[k, rows]), heading_axis, grid
+            )
     offs, fr = stencil_tables(disp, heading_axis, shape_a, lower_a, spacing)
-    coff, cw, interior = corner_tables(offs, fr, nact, shape_a)
+    coff, cw, interior = corner_tables(offs, fr, table_rows(nact, J), shape_a)
     live = np.zeros((M, ncell), np.bool_)
     for m in range(M):
         live[m] = free[vcls[m]]
@@ -398,6 +418,7 @@ def assemble(
         request_prob=probs,
         labels=[a.labels for a in cls_actions],
         outcomes=outcomes,
+        noise_prob=np.asarray(noise_prob, float),
     )
     compute_live(mdp)
     return mdp
@@ -490,8 +511,14 @@ def stencil_tables(
     return offs.astype(np.int64), np.ascontiguousarray(fr)
 
 
+def table_rows(nact: np.ndarray, outcomes: int) -> np.ndarray:
+    """Rows of the move tables each class uses: its ``A`` commanded moves, and with noise
+    (``outcomes = J > 1``, Section VI-4) the ``A J`` noisy landings after them."""
+    return nact if outcomes == 1 else nact * (1 + outcomes)
+
+
 def corner_tables(
-    offs: np.ndarray, fr: np.ndarray, nact: np.ndarray, shape: np.ndarray
+    offs: np.ndarray, fr: np.ndarray, rows: np.ndarray, shape: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Flat corner offsets and weights of every move stencil, and the cells where they apply.
 
@@ -518,7 +545,7 @@ def corner_tables(
     idx = np.indices(tuple(int(n) for n in shape)).reshape(dim, ncell)
     interior = np.zeros((K, ncell), np.bool_)
     for k in range(K):
-        used = offs[k, : nact[k]]
+        used = offs[k, : rows[k]]
         lo = used.min(axis=(0, 1))
         hi = used.max(axis=(0, 1)) + 1
         ok = np.ones(ncell, bool)
@@ -878,6 +905,14 @@ def action_sets(
         p: action_set(kind, robot.dim, factor=sec.carry_speed_factor.get(p, 1.0), **common)
         for p in parts
     }
+    if sec.noise is not None:
+        noise = sec.noise
+        prob = np.array([o.probability for o in noise.outcomes], float)
+        offsets = np.array([o.offset for o in noise.outcomes], float)
+        if noise.frame == "world":
+            offsets = units.config_from_file(robot.axis_names, offsets)
+        empty = with_noise(empty, offsets, prob, noise.frame)
+        carrying = {p: with_noise(a, offsets, prob, noise.frame) for p, a in carrying.items()}
     return empty, carrying
 
 

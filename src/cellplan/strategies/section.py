@@ -147,6 +147,33 @@ class FailureSpec(StrictModel):
         return self.region == region and self.part in (None, part)
 
 
+class NoiseOutcome(StrictModel):
+    """One place a move can land, relative to the commanded one (Section VI-4)."""
+
+    offset: list[float] = Field(
+        description="displacement from the commanded landing point: [along, across] the move "
+        "(frame: motion), or one value per C-space axis, angles in degrees (frame: world)",
+        examples=[[0, 1.5]],
+    )
+    probability: Probability = Field(description="probability of this outcome")
+
+
+MAX_NOISE_OUTCOMES = 16
+"""Most outcomes of the noise model (each is a stencil per move in the model's tables)."""
+
+
+class NoiseSpec(StrictModel):
+    """Noisy motion, the first step of Section VI-4: each move lands at one of several
+    displacements around the commanded one with given probabilities."""
+
+    outcomes: Annotated[list[NoiseOutcome], Field(min_length=1, max_length=MAX_NOISE_OUTCOMES)]
+    frame: Literal["motion", "world"] = Field(
+        default="motion",
+        description="offsets along and across each move (translating robots), or along the "
+        "C-space axes (any robot)",
+    )
+
+
 class SolverSpec(StrictModel):
     """Stopping rule and method of the average-cost solver (Section IV)."""
 
@@ -219,6 +246,9 @@ class StrategySection(StrictModel):
     )
     failures: Annotated[list[FailureSpec], Field(max_length=MAX_REQUESTS)] = Field(
         default_factory=list, description="fine motions that can fail (Section VI-3)"
+    )
+    noise: NoiseSpec | None = Field(
+        default=None, description="where moves land: a discrete distribution (Section VI-4)"
     )
 
     def reject_regions(self) -> set[str]:
@@ -312,6 +342,7 @@ class StrategySection(StrictModel):
                 )
             )
         problems.extend(self._check_failures(scenario))
+        problems.extend(self._check_noise(scenario))
         if self.destination_change is not None and not problems:
             problems.extend(self._check_changes(scenario, "destination"))
         if self.source_change is not None and not problems:
@@ -462,6 +493,41 @@ class StrategySection(StrictModel):
                     problems.append(
                         Problem(f"{where}.reject_region", "is the region whose FMP fails")
                     )
+        return problems
+
+    def _check_noise(self, scenario: Scenario) -> list[Problem]:
+        """One line per mistake in ``strategy.noise`` (Section VI-4)."""
+        noise = self.noise
+        robot = scenario.robot
+        if noise is None or robot is None:
+            return []
+        problems: list[Problem] = []
+        total = sum(o.probability for o in noise.outcomes)
+        if abs(total - 1.0) > _SUM_TOL:
+            problems.append(
+                Problem("strategy.noise.outcomes", f"probabilities sum to {total:g}, not 1")
+            )
+        dim = _dimension(robot)
+        translating = robot.type in ("point", "translating")
+        if noise.frame == "motion" and not translating:
+            problems.append(
+                Problem(
+                    "strategy.noise.frame",
+                    f"'motion' (along, across a move) is for translating robots, not "
+                    f"{robot.type!r}; use 'world'",
+                )
+            )
+        want = 2 if noise.frame == "motion" else dim
+        b = scenario.workcell.bounds
+        reach = math.hypot(b.xmax - b.xmin, b.ymax - b.ymin)
+        for i, o in enumerate(noise.outcomes):
+            where = f"strategy.noise.outcomes[{i}].offset"
+            if len(o.offset) != want:
+                problems.append(Problem(where, f"has {len(o.offset)} values; expected {want}"))
+            elif not all(math.isfinite(v) and abs(v) <= reach for v in o.offset):
+                problems.append(
+                    Problem(where, f"values must be finite and at most {reach:.4g} in size")
+                )
         return problems
 
     def _check_changes(self, scenario: Scenario, kind: str) -> list[Problem]:

@@ -337,7 +337,13 @@ def simulate(
                 current = None
         else:
             if u != STAY:
-                q = strategy.next_configuration(q, m, u)
+                landing = None
+                if len(mdp.noise_prob) > 1:  # Section VI-4: draw where the move lands
+                    cum = np.cumsum(mdp.noise_prob)
+                    landing = min(
+                        int(np.searchsorted(cum, rng.random() * cum[-1], "right")), len(cum) - 1
+                    )
+                q = strategy.next_configuration(q, m, u, landing)
             b0, b1 = mdp.branch_ptr[m], mdp.branch_ptr[m + 1]
             probs = mdp.branch_prob[b0:b1]
             pick = int(np.searchsorted(np.cumsum(probs), rng.random() * probs.sum(), side="right"))

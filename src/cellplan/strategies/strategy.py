@@ -249,14 +249,24 @@ class Strategy:
         idx = np.array(np.unravel_index(self.cell_of(q), tuple(mdp.shape)))
         return np.asarray(mdp.lower + (idx + 0.5) * mdp.spacing)
 
-    def next_configuration(self, q: np.ndarray, mode: int, action: int) -> np.ndarray:
-        """Where a move (or stay/FMP) takes the robot, equation (5) and its variants."""
+    def next_configuration(
+        self, q: np.ndarray, mode: int, action: int, landing: int | None = None
+    ) -> np.ndarray:
+        """Where a move (or stay/FMP) takes the robot, equation (5) and its variants.
+
+        With noisy motion (Section VI-4), ``landing`` ``j`` gives the move's ``j``-th
+        outcome (:mod:`.noisy`); None gives the commanded move.
+        """
         q = np.asarray(q, float).copy()
         if action < 0:
             return q
         mdp = self.mdp
+        k = mdp.vcls[mode]
+        row = action
+        if landing is not None and len(mdp.noise_prob) > 1:
+            row = int(mdp.nact[k]) + action * len(mdp.noise_prob) + int(landing)
         dq = np.empty(len(q))
-        displacement(q, mdp.disp[mdp.vcls[mode], action], mdp.heading_axis, dq)
+        displacement(q, mdp.disp[k, row], mdp.heading_axis, dq)
         q = q + dq
         wrap(q, mdp.lower, mdp.upper, mdp.periodic)
         return q
