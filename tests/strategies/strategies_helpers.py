@@ -46,3 +46,28 @@ strategy:
 def empty() -> tuple:
     sc = loads_scenario(EMPTY)
     return sc, Workcell.from_scenario(sc)
+
+
+def tiny_failures(
+    probability: float = 0.3, then: str = "reject", cells: int = 12, extra: str = ""
+) -> tuple:
+    """The tiny scenario with failing deliveries at D1 (Section VI-3) and a reject bin R1.
+
+    ``then`` is ``reject`` (to R1, then fetch a replacement), ``request`` (to R1, then a
+    new request for the part) or ``retry`` (in place, rework 2.0).
+    """
+    text = TINY.replace("CELLS", str(cells)).replace(
+        "  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}",
+        "  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}\n"
+        "  R1: {components: [{type: box, min: [2, 25], max: [6, 28]}]}",
+    )
+    if then == "retry":
+        spec = f"{{region: D1, probability: {probability}, then: retry, rework: 2.0}}"
+    else:
+        after = "fetch" if then == "reject" else "request"
+        spec = (
+            f"{{region: D1, probability: {probability}, then: reject, reject_region: R1, "
+            f"after_reject: {after}}}"
+        )
+    sc = loads_scenario(text + f"  failures:\n    - {spec}\n" + extra)
+    return sc, Workcell.from_scenario(sc)

@@ -14,7 +14,7 @@ module gives the motion actions as C-space displacements per stage:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -34,11 +34,45 @@ class ActionSet:
         Index of the orientation coordinate for robot-frame actions, or -1.
     labels
         A short name per action, for plots and logs.
+    noise_prob
+        ``(J,)`` probabilities of the noisy outcomes of every move (Section VI-4); one
+        outcome (``[1.0]``) when motion is exact. With ``J > 1`` the rows of ``disp`` after
+        the ``A`` commanded moves are the outcomes: row ``A + a J + j`` is where move ``a``
+        lands in outcome ``j``.
     """
 
     disp: np.ndarray
     heading_axis: int
     labels: tuple[str, ...]
+    noise_prob: np.ndarray = field(default_factory=lambda: np.ones(1))
+
+    @property
+    def commanded(self) -> int:
+        """``A``, the number of commanded moves (one label each)."""
+        return len(self.labels)
+
+
+def with_noise(acts: ActionSet, offsets: np.ndarray, prob: np.ndarray, frame: str) -> ActionSet:
+    """The action set with noisy outcomes appended (Section VI-4, rows ``A + a J + j``).
+
+    ``offsets`` is ``(J, 2)`` ``[along, across]`` each move (``frame="motion"``, translating
+    robots) or ``(J, dim)`` along the C-space axes in code units (``frame="world"``; for
+    robot-frame moves, in the robot's frame like the moves themselves).
+    """
+    disp = acts.disp
+    A, dim = disp.shape
+    J = len(prob)
+    out = np.empty((A, J, dim))
+    for a in range(A):
+        if frame == "motion":
+            length = float(np.hypot(disp[a, 0], disp[a, 1]))
+            u = disp[a, :2] / length
+            n = np.array([-u[1], u[0]])
+            out[a] = disp[a] + offsets[:, :1] * u + offsets[:, 1:2] * n
+        else:
+            out[a] = disp[a] + offsets
+    rows = np.concatenate([disp, out.reshape(A * J, dim)])
+    return ActionSet(np.ascontiguousarray(rows), acts.heading_axis, acts.labels, prob.copy())
 
 
 def action_set(

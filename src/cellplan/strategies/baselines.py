@@ -32,13 +32,58 @@ def per_request_values(mdp: LayeredMDP, tol: float = 1e-9, max_sweeps: int = 100
     args = mdp.kernel_args()
     d = len(mdp.shape)
     R = mdp.n_requests
-    for m in [mdp.c_layer(r) for r in range(R)] + [mdp.w_layer(r) for r in range(R)]:
+    rejects = [m for m, mode in enumerate(mdp.modes) if mode.kind == "X"]
+    order = [mdp.c_layer(r) for r in range(R)] + [mdp.w_layer(r) for r in range(R)] + rejects
+    for m in order:
         work[m][mdp.live[m]] = np.inf
         for s in range(max_sweeps):
             if kernels.sweep_layer(m, s % (1 << d), work, D, 0.0, False, False, args) < tol:
                 break
         h[m] = np.where(mdp.live[m], work[m], np.nan)
+    if not mdp.is_simple():
+        h = _with_failures(mdp, h, tol, max_sweeps)
     return h
+
+
+def _with_failures(mdp: LayeredMDP, h: np.ndarray, tol: float, max_sweeps: int) -> np.ndarray:
+    """The time-to-finish values when FMPs can fail (Section VI-3).
+
+    The layer sweeps above follow each FMP's success only. Passes then re-solve every
+    layer with its FMP's other outcomes (a retry, a rejection) valued at the last pass's
+    values, folded into the fine-motion time: ``t_f + sum_o P_o (c_o + h(L_o)) - h(next)``
+    makes the kernels' ``t_f + h(next)`` the expected FMP value. The error shrinks by the
+    failure probability per pass (a failure is the only way back into a solved layer).
+    """
+    out = mdp.fmp_outcomes()
+    args_of = mdp.kernel_args
+    d = len(mdp.shape)
+    R = mdp.n_requests
+    rejects = [m for m, mode in enumerate(mdp.modes) if mode.kind == "X"]
+    order = [mdp.c_layer(r) for r in range(R)] + [mdp.w_layer(r) for r in range(R)] + rejects
+    failing = [m for m in order if out.ptr[m + 1] - out.ptr[m] > 1]
+    D = np.zeros(h.shape)
+    work = np.where(mdp.live, h, 0.0)
+    for _ in range(max_sweeps):
+        tf = mdp.tf.copy()
+        for m in failing:
+            expected = np.zeros(mdp.n_cells)
+            fmp = np.isfinite(tf[m])
+            for o in range(out.ptr[m], out.ptr[m + 1]):
+                expected += out.prob[o] * (out.cost[o] + work[out.layer[o]])
+                if out.prob[o] > 0:
+                    fmp &= mdp.live[out.layer[o]]  # as the Bellman operator requires
+            tf[m, ~fmp] = np.inf
+            tf[m, fmp] += expected[fmp] - work[mdp.fmp_next[m], fmp]
+        args = args_of()._replace(layers=args_of().layers._replace(tf=tf))
+        before = work.copy()
+        for m in order:
+            for s in range(max_sweeps):
+                if kernels.sweep_layer(m, s % (1 << d), work, D, 0.0, False, False, args) < tol:
+                    break
+        change = np.max(np.abs(work - before)[mdp.live])
+        if change <= tol * max(1.0, float(np.max(np.abs(work[mdp.live])))):
+            break
+    return np.where(mdp.live, work, np.nan)
 
 
 def home_values(

@@ -7,6 +7,9 @@ side of equation (9), Section III-C of the strategies paper, without ``g``)
                        l(m) + sum_b P_b h(L_b, x),                          stay
                        min_a  l(m) + sum_b P_b H_{L_b}(x + dx_a) )          moves a
 
+(with noisy motion, Section VI-4, the move's term is ``sum_j p_j H_{L_b}(x + dx_{a,j})``:
+:mod:`cellplan.strategies.noisy`)
+
 with ``H`` the interpolation of :mod:`cellplan.strategies.interpolation` and the branches
 ``(L_b, P_b)`` of Section III-B. FMP's outcomes ``(L_o, P_o, c_o)`` are the single
 ``(next(m), 1, 0)`` of Section III-B, or success and failure (Section VI-3).
@@ -20,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cellplan.strategies.noisy import noisy_move_value
 from cellplan.strategies.stencils import EPS_W, decode, table_stencil
 
 
@@ -69,6 +73,7 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
     some = subset.shape[0] > 0
     d = shape.shape[0]
     ncorner = 1 << d
+    noisy = moves.noise_prob.shape[0] > 1  # Section VI-4: several landings per move
     mi = np.empty(d, np.int64)
     idx = np.empty(ncorner, np.int64)
     w = np.empty(ncorner)
@@ -120,6 +125,15 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
             t = mi[heading_axis] if heading_axis >= 0 else 0
             for a in range(na):
                 if ((vb >> a) & 1) == 0:
+                    continue
+                if noisy:
+                    val = cost + noisy_move_value(m, c, a, mi, inner, h, live, model, idx, w)
+                    if val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
+                        second = best
+                        best = val
+                        arg = a
+                    elif val < second:
+                        second = val
                     continue
                 if single and inner:
                     ssum = 0.0

@@ -51,6 +51,7 @@ class Moves(NamedTuple):
     coff: np.ndarray  # (K, A, T, 2^d) int64 flat offsets of the landing stencil's corners
     cw: np.ndarray  # (K, A, T, 2^d) their weights, decreasing (stop at the first zero)
     interior: np.ndarray  # (K, N) bool, cells whose every move stencil stays inside
+    noise_prob: np.ndarray  # (J,) noisy outcomes of a move (Section VI-4): row A + a J + j
 
 
 class Layers(NamedTuple):

@@ -13,6 +13,7 @@ import numpy as np
 from numba import njit
 
 from cellplan.strategies.interpolation import supported
+from cellplan.strategies.noisy import noisy_supported
 from cellplan.strategies.stencils import cell_of_order, move_corners
 
 
@@ -39,6 +40,7 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
     idx = np.empty(1 << d, np.int64)
     w = np.empty(1 << d)
     changed = False
+    noisy = moves.noise_prob.shape[0] > 1  # Section VI-4: every landing must be supported
     reach = np.zeros(ncell, np.bool_)
     nxt = lay.fmp_next[m]
     k = lay.vcls[m]
@@ -66,6 +68,14 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
                 continue
             good = False
             for a in range(-1, na):
+                if a >= 0 and noisy:
+                    if ((moves.valid[k, c] >> a) & 1) == 0:
+                        continue
+                    inner = moves.interior[k, c]
+                    if noisy_supported(m, c, a, mi, inner, target, live, model, idx, w):
+                        good = True
+                        break
+                    continue
                 if a >= 0:
                     if ((moves.valid[k, c] >> a) & 1) == 0:
                         continue

@@ -434,6 +434,12 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
     )
 
 
+def _failures() -> Experiment:
+    from cellplan.strategies.failure_experiment import EXPERIMENT
+
+    return EXPERIMENT
+
+
 EXPERIMENTS: list[Experiment] = [
     Experiment(
         name="strategies.anticipation",
@@ -451,4 +457,5 @@ EXPERIMENTS: list[Experiment] = [
         run=run_behaviours,
         report=report_behaviours,
     ),
+    _failures(),
 ]

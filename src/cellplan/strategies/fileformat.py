@@ -39,10 +39,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from cellplan.arrayfile import ArraySpec, read_arrays
 from cellplan.errors import PersistenceError, Problem
 from cellplan.schema import CELLS_RANGE
+from cellplan.strategies.section import MAX_NOISE_OUTCOMES
 from cellplan.strategies.stencils import MAX_DIM
 
 FORMAT = "cellplan-strategy"
-VERSION = 1
+VERSION = 2
+"""Version 2 (failure modes, Section VI-3) adds the FMP outcome arrays and the X modes."""
 #: Actions per move class: the valid-move bitmask is one int64 per cell.
 MAX_ACTIONS = 62
 #: Most grid cells of a strategy (a product of axes: checked before any size is used).
@@ -73,7 +75,7 @@ class StrategyMeta(_Strict):
     """The metadata string ``meta`` of a strategy file (JSON)."""
 
     format: Literal["cellplan-strategy"]
-    version: Literal[1]
+    version: Literal[2]
     scenario_digest: Annotated[str, Field(max_length=128)]
     scenario_name: Name
     gain: Finite
@@ -96,7 +98,7 @@ class StrategyMeta(_Strict):
     heading_axis: Annotated[int, Field(ge=-1, lt=MAX_DIM)]
     stage_time: Annotated[float, Field(gt=0, allow_inf_nan=False)]
     arrival: Annotated[float, Field(ge=0, le=1)]
-    modes: list[Annotated[list[Name], Field(min_length=4, max_length=4)]] = Field(
+    modes: list[Annotated[list[Name], Field(min_length=4, max_length=6)]] = Field(
         min_length=3, max_length=100_001
     )
     labels: list[list[Name]]
@@ -130,6 +132,11 @@ ARRAYS: dict[str, ArraySpec] = {
     "interior": ArraySpec("bool", ("K", "N"), doc="cells whose stencils stay inside"),
     "live": ArraySpec("bool", ("M", "N"), doc="states of the MDP"),
     "request_prob": ArraySpec("float64", ("R",), "0", "1", doc="probability of each request"),
+    "out_layer": ArraySpec("int64", ("G",), "0", "M - 1", doc="mode after each FMP outcome"),
+    "out_ptr": ArraySpec("int64", ("M + 1",), "0", "G", doc="FMP outcomes of each mode"),
+    "out_prob": ArraySpec("float64", ("G",), "0", "1", doc="probability of each FMP outcome"),
+    "out_cost": ArraySpec("float64", ("G",), "0", doc="extra loss of each outcome (rework)"),
+    "noise_prob": ArraySpec("float64", ("J",), "0", "1", doc="noisy landings of a move"),
     "values": ArraySpec("float64", ("M", "N"), nan=True, doc="cost-to-go (NaN off live)"),
 }
 
@@ -138,6 +145,8 @@ SIZE_LIMITS: dict[str, tuple[int | str, int | str]] = {
     "K": (1, "M"),
     "A": (1, MAX_ACTIONS),
     "B": ("M", "M * M"),
+    "G": ("M - 1", "M * M"),
+    "J": (1, MAX_NOISE_OUTCOMES),
 }
 
 
@@ -166,12 +175,17 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
         if not all(lo < hi for lo, hi in zip(grid.lower, grid.upper, strict=True)):
             raise fail("meta.grid: lower must be below upper on every axis")
         M = len(meta.modes)
-        if M % 2 != 1:
-            raise fail(f"meta.modes: expected NR and two modes per request, got {M} modes")
-        R = (M - 1) // 2
         kinds = [m[0] for m in meta.modes]
-        if kinds != ["NR"] + ["W"] * R + ["C"] * R:
-            raise fail("meta.modes: expected NR, then the W modes, then the C modes")
+        R = kinds.count("W")
+        X = M - 1 - 2 * R
+        if X < 0 or kinds != ["NR"] + ["W"] * R + ["C"] * R + ["X"] * X:
+            raise fail(
+                "meta.modes: expected NR, then the W modes, then the C modes, then the X modes"
+            )
+        if any(len(m) != (6 if m[0] == "X" else 4) for m in meta.modes):
+            raise fail("meta.modes: X modes have 6 fields, the others 4")
+        if any(m[5] not in ("fetch", "request") for m in meta.modes[1 + 2 * R :]):
+            raise fail("meta.modes: an X mode must end in 'fetch' or 'request'")
         h = meta.heading_axis
         if h >= d or (h >= 0 and (d < 3 or h < 2)):
             raise fail(f"meta.heading_axis: {h} is not an angle axis of a {d}-axis grid")
@@ -223,6 +237,11 @@ def _parse_meta(text: str, fail: Any) -> StrategyMeta:
         raise fail("meta: not valid JSON") from None
     if not isinstance(raw, dict):
         raise fail("meta: expected a JSON object")
+    if raw.get("format") == FORMAT and raw.get("version") == 1:
+        raise fail(
+            "a strategy file of version 1 (an older cellplan); solve the scenario again to "
+            f"write version {VERSION}"
+        )
     if raw.get("format") != FORMAT or raw.get("version") != VERSION:
         raise fail(
             f"not a cellplan strategy file (format {str(raw.get('format'))[:40]!r} "
@@ -238,7 +257,7 @@ def _parse_meta(text: str, fail: Any) -> StrategyMeta:
 
 
 def _check_consistency(meta: StrategyMeta, a: dict, sizes: dict[str, int], fail: Any) -> None:
-    from cellplan.strategies.model import corner_tables, stencil_tables
+    from cellplan.strategies.model import corner_tables, stencil_tables, table_rows
 
     grid = meta.grid
     M, K, B, N = sizes["M"], sizes["K"], sizes["B"], sizes["N"]
@@ -263,16 +282,23 @@ def _check_consistency(meta: StrategyMeta, a: dict, sizes: dict[str, int], fail:
     R = sizes["R"]
     nxt = a["fmp_next"]
     expected_next = np.concatenate([[-1], np.arange(R) + 1 + R, np.zeros(R, np.int64)])
-    if not np.array_equal(nxt, expected_next):
+    if not np.array_equal(nxt[: 1 + 2 * R], expected_next):
         raise fail("fmp_next: the FMP successors do not follow the mode order")
+    _check_outcomes(a, R, M, fail)
     if len(meta.labels) != K:
         raise fail(f"meta.labels: expected {K} lists (one per move class), got {len(meta.labels)}")
     nact = a["nact"]
     if ((a["valid"] >> nact[:, None]) != 0).any():
         raise fail("valid: marks an action beyond the class's action count")
+    noise = a["noise_prob"]
+    if not np.isclose(noise.sum(), 1.0, atol=1e-9):
+        raise fail("noise_prob: the landings of a move do not sum to 1")
+    rows = table_rows(nact, len(noise))
+    if (rows > a["disp"].shape[1]).any():
+        raise fail("nact: more moves (with their noisy landings) than rows of disp")
     heading = meta.heading_axis
     offs, fr = stencil_tables(a["disp"], heading, a["shape"], a["lower"], a["spacing"])
-    coff, cw, interior = corner_tables(offs, fr, nact, a["shape"])
+    coff, cw, interior = corner_tables(offs, fr, rows, a["shape"])
     for name, mine, exact in (
         ("offs", offs, True),
         ("fr", fr, False),
@@ -300,6 +326,32 @@ def _check_consistency(meta: StrategyMeta, a: dict, sizes: dict[str, int], fail:
     del M, N
 
 
+def _check_outcomes(a: dict, R: int, M: int, fail: Any) -> None:
+    """The FMP outcomes follow the model's rules (Section V, and VI-3 for failures)."""
+    ptr, layer, prob, cost = a["out_ptr"], a["out_layer"], a["out_prob"], a["out_cost"]
+    G = len(layer)
+    counts = np.diff(ptr)
+    if ptr[0] != 0 or ptr[-1] != G or (counts < 0).any():
+        raise fail("out_ptr: expected 0, non-decreasing, ending at the number of outcomes")
+    if counts[0] != 0 or (counts[1:] < 1).any():
+        raise fail("out_ptr: NR has no FMP and every other mode has at least one outcome")
+    if not np.isfinite(cost).all():
+        raise fail("out_cost: not finite")
+    sums = np.add.reduceat(prob, ptr[1:-1])
+    if not np.allclose(sums, 1.0, atol=1e-9):
+        raise fail("out_prob: the FMP outcomes of a mode do not sum to 1")
+    if not np.array_equal(layer[ptr[1:-1]], a["fmp_next"][1:]):
+        raise fail("out_layer: the first outcome of a mode's FMP is not its fmp_next")
+    for m in range(1, M):
+        rest = layer[ptr[m] + 1 : ptr[m + 1]]
+        if m <= 2 * R:
+            ok = ((rest == m) | (rest > 2 * R)).all()  # retry in place, or reject (X)
+        else:
+            ok = ((layer[ptr[m] : ptr[m + 1]] >= 1) & (layer[ptr[m] : ptr[m + 1]] <= R)).all()
+        if not ok:
+            raise fail(f"out_layer: mode {m} has an FMP outcome the model cannot produce")
+
+
 def _check_scenario(meta: StrategyMeta, sizes: dict[str, int], scenario: Any, fail: Any) -> None:
     if meta.scenario_digest != scenario.digest():
         raise fail(
@@ -314,7 +366,7 @@ def _check_scenario(meta: StrategyMeta, sizes: dict[str, int], scenario: Any, fa
     expected = [("NR", "", "", "")]
     expected += [("W", p, s, d) for p, s, d, _ in requests]
     expected += [("C", p, s, d) for p, s, d, _ in requests]
-    if [tuple(m) for m in meta.modes] != expected:
+    if [tuple(m) for m in meta.modes if m[0] != "X"] != expected:
         raise fail(
             f"meta.modes: {len(meta.modes)} modes, the scenario's requests give "
             f"{len(expected)}; solve this scenario again"

@@ -31,8 +31,9 @@ from typing import Any
 
 import numpy as np
 
+from cellplan import units
 from cellplan.errors import Problem, ScenarioError
-from cellplan.strategies.actions import ActionSet, action_set
+from cellplan.strategies.actions import ActionSet, action_set, with_noise
 from cellplan.strategies.bundles import Grid, Layers, Model, Moves, Outcomes, single_outcomes
 from cellplan.strategies.domain import live_layer
 from cellplan.strategies.motion import valid_moves
@@ -42,18 +43,47 @@ NR = "NR"
 
 @dataclass(frozen=True)
 class Mode:
-    """An assembly mode: ``NR``, or ``<part, source, destination, W|C>`` (Section II-C)."""
+    """An assembly mode: ``NR``, or ``<part, source, destination, W|C>`` (Section II-C),
+    or ``<part, source, destination, X:region>``: carrying a rejected part to the reject
+    region (failure modes, Section VI-3)."""
 
-    kind: str  # "NR", "W" or "C"
+    kind: str  # "NR", "W", "C" or "X"
     part: str = ""
     source: str = ""
     destination: str = ""
+    reject: str = ""  # X: the reject region
+    after: str = ""  # X: "fetch" or "request" (Section VI-3)
 
     @property
     def label(self) -> str:
         if self.kind == NR:
             return NR
-        return f"<{self.part},{self.source},{self.destination},{self.kind}>"
+        kind = self.kind
+        if kind == "X":
+            kind = f"X:{self.reject}" + (":request" if self.after == "request" else "")
+        return f"<{self.part},{self.source},{self.destination},{kind}>"
+
+
+@dataclass(frozen=True)
+class Failure:
+    """The failure model of one FMP (Section VI-3): fails with ``probability``; a failure is
+    retried in place after ``rework`` (``reject`` empty) or the part is carried to the
+    reject region ``reject``, followed by a fetch or a new request (``after``)."""
+
+    probability: float
+    rework: float = 0.0
+    reject: str = ""
+    after: str = "fetch"
+
+
+@dataclass(frozen=True)
+class Failures:
+    """Failures of every request's FMPs, and the geometry of the reject regions."""
+
+    pick: Sequence[Failure | None]  # per request, FMP at its source
+    drop: Sequence[Failure | None]  # per request, FMP at its destination
+    reject_drop: Mapping[tuple[str, str], np.ndarray]  # (part, region): where it is dropped
+    tf_reject: Mapping[str, np.ndarray]  # fine-motion time field of each reject region
 
 
 @dataclass
@@ -90,6 +120,8 @@ class LayeredMDP:
     labels: list[tuple[str, ...]] = field(default_factory=list)
     # FMP outcomes when some FMP can fail (Section VI-3); None: the Section V outcomes.
     outcomes: Outcomes | None = None
+    # (J,) probabilities of the noisy outcomes of every move (Section VI-4); [1]: exact.
+    noise_prob: np.ndarray = field(default_factory=lambda: np.ones(1))
 
     @property
     def n_cells(self) -> int:
@@ -101,7 +133,7 @@ class LayeredMDP:
 
     @property
     def n_requests(self) -> int:
-        return (len(self.modes) - 1) // 2
+        return sum(1 for m in self.modes if m.kind == "W")
 
     def w_layer(self, r: int) -> int:
         return 1 + r
@@ -126,6 +158,7 @@ class LayeredMDP:
             coff=self.coff,
             cw=self.cw,
             interior=self.interior,
+            noise_prob=self.noise_prob,
         )
         out = self.fmp_outcomes()
         layers = Layers(
@@ -151,9 +184,13 @@ class LayeredMDP:
     def is_simple(self) -> bool:
         """Whether every FMP has the single certain outcome of Section V.
 
-        The structured solver relies on it (a carrying layer's FMP ends in NR, a waiting
-        layer's in its carrying layer); other models are solved by policy iteration.
+        and every move lands where it is commanded (no noise, Section VI-4). The structured
+        solver relies on it (a carrying layer's FMP ends in NR, a waiting layer's in its
+        carrying layer, a move's landing stencil is one table row); other models are solved
+        by policy iteration.
         """
+        if len(self.noise_prob) > 1:
+            return False
         if self.outcomes is None:
             return True
         out = self.outcomes
@@ -200,10 +237,13 @@ def assemble(
     arrival: float,
     destination_change: float = 0.0,
     source_change: float = 0.0,
+    failures: Failures | None = None,
 ) -> LayeredMDP:
     """Build the layered MDP from bitmaps (the part that does not need a workcell).
 
-    Layer order: NR, then ``W`` of each request, then ``C`` of each request.
+    Layer order: NR, then ``W`` of each request, then ``C`` of each request, then the
+    ``X`` modes of failures that reject a part (one per request, reject region and what
+    follows the rejection).
     """
     shape_a = np.asarray(shape, np.int64)
     lower_a = np.asarray(lower, float)
@@ -215,6 +255,15 @@ def assemble(
     modes = [Mode(NR)]
     modes += [Mode("W", p, s, d) for p, s, d, _ in requests]
     modes += [Mode("C", p, s, d) for p, s, d, _ in requests]
+    # X modes (Section VI-3): carrying a rejected part of request r to a reject region.
+    x_index: dict[tuple[int, str, str], int] = {}
+    if failures is not None:
+        for r in range(R):
+            for f in (failures.pick[r], failures.drop[r]):
+                if f is not None and f.reject and (r, f.reject, f.after) not in x_index:
+                    x_index[(r, f.reject, f.after)] = len(modes)
+                    p, s, d, _ = requests[r]
+                    modes.append(Mode("X", p, s, d, f.reject, f.after))
     M = len(modes)
 
     # Move classes: (bitmap, action set), deduplicated by content.
@@ -255,6 +304,14 @@ def assemble(
         )
         tf[c, drop] = geometry.tf_drop[(p, d)].ravel()[drop]
 
+    for (r, reject, _after), x in x_index.items():
+        assert failures is not None
+        p, s, d, _ = requests[r]
+        vcls[x] = move_class(geometry.free_c[(p, s)].ravel(), actions_carrying[p])
+        into = geometry.free_c[(p, s)].ravel() & failures.reject_drop[(p, reject)].ravel()
+        tf[x, into] = failures.tf_reject[reject].ravel()[into]
+        fmp_next[x] = 1 + r
+
     # Branches (Section III-B).
     probs = np.array([q for *_, q in requests], float)
     ptr = [0]
@@ -291,6 +348,10 @@ def assemble(
                 layers.append((1 if kind == "W" else 1 + R) + i)
                 bprob.append(change / len(others))
             ptr.append(len(layers))
+    for x in x_index.values():
+        layers.append(x)
+        bprob.append(1.0)
+        ptr.append(len(layers))
     K = len(cls_free)
     A = max(a.disp.shape[0] for a in cls_actions)
     dim = len(shape_a)
@@ -298,18 +359,35 @@ def assemble(
     nact = np.zeros(K, np.int64)
     for k, acts in enumerate(cls_actions):
         disp[k, : acts.disp.shape[0]] = acts.disp
-        nact[k] = acts.disp.shape[0]
+        nact[k] = acts.commanded
+    noise_prob = actions_empty.noise_prob
+    J = len(noise_prob)
     heading_axis = actions_empty.heading_axis
     free = np.stack(cls_free).astype(np.bool_)
     valid = np.zeros((K, ncell), np.int64)
     grid = Grid(shape_a, lower_a, upper_a, spacing, periodic_a)
     for k in range(K):
-        valid[k] = valid_moves(free[k], disp[k, : nact[k]], heading_axis, grid)
+        na = int(nact[k])
+        if J == 1:
+            valid[k] = valid_moves(free[k], disp[k, :na], heading_axis, grid)
+            continue
+        # A noisy move is allowed where every outcome's swept motion is free (Section VI-4).
+        valid[k] = (1 << na) - 1
+        for j in range(J):
+            rows = na + np.arange(na) * J + j
+            valid[k] &= valid_moves(
+                free[k], np.ascontiguousarray(disp[k, rows]), heading_axis, grid
+            )
     offs, fr = stencil_tables(disp, heading_axis, shape_a, lower_a, spacing)
-    coff, cw, interior = corner_tables(offs, fr, nact, shape_a)
+    coff, cw, interior = corner_tables(offs, fr, table_rows(nact, J), shape_a)
     live = np.zeros((M, ncell), np.bool_)
     for m in range(M):
         live[m] = free[vcls[m]]
+    outcomes = None
+    if failures is not None:
+        outcomes = _failure_outcomes(requests, probs, x_index, failures)
+        for x in x_index.values():
+            fmp_next[x] = outcomes.layer[outcomes.ptr[x]]
     mdp = LayeredMDP(
         shape=shape_a,
         lower=lower_a,
@@ -339,9 +417,71 @@ def assemble(
         arrival=arrival,
         request_prob=probs,
         labels=[a.labels for a in cls_actions],
+        outcomes=outcomes,
+        noise_prob=np.asarray(noise_prob, float),
     )
     compute_live(mdp)
     return mdp
+
+
+def _failure_outcomes(
+    requests: Sequence[tuple[str, str, str, float]],
+    probs: np.ndarray,
+    x_index: Mapping[tuple[int, str, str], int],
+    failures: Failures,
+) -> Outcomes:
+    """The FMP outcomes of every mode with failures (Section VI-3), in mode order.
+
+    A failure with probability ``f`` splits the FMP's certain outcome: success with
+    ``1 - f``, and with ``f`` either the same state again at the rework cost (retry in
+    place) or the X mode of the rejected part. An X mode's FMP (the drop in the reject
+    region) leads to the request's W mode (fetch a replacement), or to the W modes of the
+    requests for the same part and destination, by their request probabilities.
+    """
+    R = len(requests)
+    ptr = [0]
+    layer: list[int] = []
+    prob: list[float] = []
+    cost: list[float] = []
+
+    def add(succ: int, m: int, r: int, f: Failure | None) -> None:
+        if f is None or f.probability <= 0.0:
+            layer.append(succ)
+            prob.append(1.0)
+            cost.append(0.0)
+            return
+        layer.extend([succ, x_index[(r, f.reject, f.after)] if f.reject else m])
+        prob.extend([1.0 - f.probability, f.probability])
+        cost.extend([0.0, 0.0 if f.reject else f.rework])
+
+    ptr.append(0)  # NR: no FMP
+    for r in range(R):
+        add(1 + R + r, 1 + r, r, failures.pick[r])
+        ptr.append(len(layer))
+    for r in range(R):
+        add(0, 1 + R + r, r, failures.drop[r])
+        ptr.append(len(layer))
+    for r, _, after in x_index:
+        p, _, d, _ = requests[r]
+        same = [i for i, (p2, _, d2, _) in enumerate(requests) if p2 == p and d2 == d]
+        weights = probs[same]
+        if after == "request" and weights.sum() > 0:
+            for i, w in zip(same, weights / weights.sum(), strict=True):
+                if w > 0:
+                    layer.append(1 + i)
+                    prob.append(float(w))
+                    cost.append(0.0)
+        else:
+            layer.append(1 + r)
+            prob.append(1.0)
+            cost.append(0.0)
+        ptr.append(len(layer))
+    return Outcomes(
+        np.asarray(ptr, np.int64),
+        np.asarray(layer, np.int64),
+        np.asarray(prob, float),
+        np.asarray(cost, float),
+    )
 
 
 def stencil_tables(
@@ -371,8 +511,14 @@ def stencil_tables(
     return offs.astype(np.int64), np.ascontiguousarray(fr)
 
 
+def table_rows(nact: np.ndarray, outcomes: int) -> np.ndarray:
+    """Rows of the move tables each class uses: its ``A`` commanded moves, and with noise
+    (``outcomes = J > 1``, Section VI-4) the ``A J`` noisy landings after them."""
+    return nact if outcomes == 1 else nact * (1 + outcomes)
+
+
 def corner_tables(
-    offs: np.ndarray, fr: np.ndarray, nact: np.ndarray, shape: np.ndarray
+    offs: np.ndarray, fr: np.ndarray, rows: np.ndarray, shape: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Flat corner offsets and weights of every move stencil, and the cells where they apply.
 
@@ -399,7 +545,7 @@ def corner_tables(
     idx = np.indices(tuple(int(n) for n in shape)).reshape(dim, ncell)
     interior = np.zeros((K, ncell), np.bool_)
     for k in range(K):
-        used = offs[k, : nact[k]]
+        used = offs[k, : rows[k]]
         lo = used.min(axis=(0, 1))
         hi = used.max(axis=(0, 1)) + 1
         ok = np.ones(ncell, bool)
@@ -522,6 +668,15 @@ def live_problems(mdp: LayeredMDP) -> list[Problem]:
                     where,
                     f"source {mode.source!r} is unreachable, or its part cannot reach "
                     f"destination {mode.destination!r} from there",
+                )
+            )
+    for m, mode in enumerate(mdp.modes):
+        if mode.kind == "X" and not mdp.live[m].any():
+            problems.append(
+                Problem(
+                    "strategy.failures",
+                    f"part {mode.part!r} (from {mode.source}) cannot be carried to reject region "
+                    f"{mode.reject!r} and dropped there",
                 )
             )
     return problems
@@ -660,6 +815,34 @@ def build_model(
             drop[(p, d)] = in_region(d, p)
             tf_drop[(p, d)] = tf_of(d)
     geometry = Geometry(free_nr, free_w, free_c, pick, drop, tf_pick, tf_drop)
+    failures = None
+    if sec.failures:
+
+        def failure(region: str, part: str) -> Failure | None:
+            f = sec.failure_at(region, part)
+            if f is None:
+                return None
+            return Failure(
+                float(f.probability),
+                float(f.rework or 0.0),
+                f.reject_region or "",
+                f.after_reject or "fetch",
+            )
+
+        pick_f = [failure(s, p) for p, s, _, _ in requests]
+        drop_f = [failure(d, p) for p, _, d, _ in requests]
+        rejected = {
+            (requests[r][0], f.reject)
+            for r, fs in enumerate(zip(pick_f, drop_f, strict=True))
+            for f in fs
+            if f is not None and f.reject
+        }
+        failures = Failures(
+            pick_f,
+            drop_f,
+            {(p, b): in_region(b, p) for p, b in rejected},
+            {b: tf_of(b) for _, b in rejected},
+        )
     empty, carrying = action_sets(sec, robot, parts)
     dst = sec.destination_change.per_stage(sec.stage_time) if sec.destination_change else 0.0
     src = sec.source_change.per_stage(sec.stage_time) if sec.source_change else 0.0
@@ -676,6 +859,7 @@ def build_model(
         arrival=sec.arrival.per_stage(sec.stage_time),
         destination_change=dst,
         source_change=src,
+        failures=failures,
     )
     problems = live_problems(mdp)
     if not problems and start is not None:
@@ -721,6 +905,14 @@ def action_sets(
         p: action_set(kind, robot.dim, factor=sec.carry_speed_factor.get(p, 1.0), **common)
         for p in parts
     }
+    if sec.noise is not None:
+        noise = sec.noise
+        prob = np.array([o.probability for o in noise.outcomes], float)
+        offsets = np.array([o.offset for o in noise.outcomes], float)
+        if noise.frame == "world":
+            offsets = units.config_from_file(robot.axis_names, offsets)
+        empty = with_noise(empty, offsets, prob, noise.frame)
+        carrying = {p: with_noise(a, offsets, prob, noise.frame) for p, a in carrying.items()}
     return empty, carrying
 
 
@@ -778,11 +970,12 @@ def estimate_memory(
     * tables: the stencil tables, float64/int64 ``(K, A, T, d)`` twice and
       ``(K, A, T, 2^d)`` twice (small);
     * policy (policy iteration, :mod:`~.policy_iteration`, in place of ``solver`` when
-      ``method`` is ``policy``; ``method`` defaults to ``strategy.solver.method``, and
-      ``auto`` counts as structured, which it picks for every model a scenario can
-      describe today): with ``S <= M N`` live states and ``Z = 2^d N sum_m B_m`` places
-      for the rows of a policy's matrix (``B_m`` the branches of mode ``m``: NR has one per
-      request and itself, a W or C layer itself and the requests it can change into),
+      ``method`` is ``policy``, or ``auto`` with failure modes or noise, which ``auto``
+      solves by policy iteration; ``method`` defaults to ``strategy.solver.method``): with
+      ``S <= M N`` live states and ``Z = 2^d J N sum_m B_m`` places for the rows of a
+      policy's matrix (``B_m`` the branches of mode ``m``: NR has one per request and
+      itself, a W or C layer itself and the requests it can change into; ``J`` landings
+      per move with noise, else 1; the modes of failure modes are not counted yet),
       the state index (int64 ``(M, N)``), the values, the certificate's three sweeps and
       the value-iteration copies (five more float64 ``(M, N)``), 44 bytes per state
       (state list, row starts, counts, cost, index pointers), 33 per place (its row and
@@ -824,7 +1017,9 @@ def estimate_memory(
         "policy": 100 * M * N + (33 + 44 + 24) * policy_places(requests, sec, N, d),
     }
     chosen = sec.solver.method if method is None else method
-    return MemoryEstimate(N, M, K, A, terms, "policy" if chosen == "policy" else "structured")
+    # auto picks policy iteration for failure modes and noisy motion (solver.solve).
+    policy = chosen == "policy" or (chosen == "auto" and bool(sec.failures or sec.noise))
+    return MemoryEstimate(N, M, K, A, terms, "policy" if policy else "structured")
 
 
 def policy_places(requests: Sequence[Any], sec: Any, N: int, d: int) -> int:
@@ -846,4 +1041,5 @@ def policy_places(requests: Sequence[Any], sec: Any, N: int, d: int) -> int:
                 else 0
             )
             branches += 1 + others
-    return (1 << d) * N * branches
+    landings = len(sec.noise.outcomes) if sec.noise is not None else 1
+    return (1 << d) * landings * N * branches

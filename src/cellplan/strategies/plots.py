@@ -148,13 +148,21 @@ def plot_mode(
     return base.save_figure(fig, path)
 
 
+def mode_regions(mode: Any) -> list[str]:
+    """The regions a frame highlights: the request's source and destination, and the reject
+    region of an X mode (Section VI-3)."""
+    if mode.kind == "NR":
+        return []
+    return [mode.source, mode.destination] + ([mode.reject] if mode.kind == "X" else [])
+
+
 def _frame(
     ax: Any, strategy: Strategy, cell: Any, sim: Simulation, first: int, last: int, title: str
 ) -> None:
     mode = strategy.mdp.modes[int(sim.modes[first])]
-    highlight = [] if mode.kind == "NR" else [mode.source, mode.destination]
+    highlight = mode_regions(mode)
     base.draw_workcell(ax, cell, highlight=highlight, labels=False)
-    carrying = mode.part if mode.kind == "C" else None
+    carrying = mode.part if mode.kind in ("C", "X") else None
     tool = cell.robot.tool_pose(sim.q[first : last + 1])[:, :2]
     ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.2)
     base.draw_robot(ax, cell, sim.q[first], carrying, alpha=0.25)
@@ -232,11 +240,11 @@ def save_animation(
         fig, axes = base.new_figure(size=4.8)
         ax = axes[0, 0]
         mode = strategy.mdp.modes[int(sim.modes[k])]
-        highlight = [] if mode.kind == "NR" else [mode.source, mode.destination]
+        highlight = mode_regions(mode)
         base.draw_workcell(ax, cell, highlight=highlight, labels=False)
         tool = cell.robot.tool_pose(sim.q[max(0, k - 30) : k + 1])[:, :2]
         ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.0)
-        base.draw_robot(ax, cell, sim.q[k], mode.part if mode.kind == "C" else None)
+        base.draw_robot(ax, cell, sim.q[k], mode.part if mode.kind in ("C", "X") else None)
         base.frame_counter(ax, f"stage {k:>{len(str(n - 1))}d} / {n - 1}")
         ax.set_title(f"mode {mode.label}", fontsize=9)
         frames.append(base.figure_to_rgb(fig, size))

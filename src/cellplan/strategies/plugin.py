@@ -58,8 +58,22 @@ def describe(setup: Setup) -> Mapping[str, str]:
     shape = " x ".join(str(int(n)) for n in mdp.shape)
     free_nr = float(np.mean(mdp.free[mdp.vcls[0]]))
     live_nr = float(np.mean(mdp.live[0]))
+    kinds = [m.kind for m in mdp.modes]
+    modes = f"{mdp.n_modes} (Section III-A; {mdp.n_requests} requests)"
+    if "X" in kinds:
+        modes = (
+            f"{mdp.n_modes}: {1 + 2 * mdp.n_requests} of Section III-A ({mdp.n_requests} "
+            f"requests) + {kinds.count('X')} carrying a rejected part (Section VI-3)"
+        )
+    failing = int(sum(np.diff(mdp.fmp_outcomes().ptr) > 1))
+    lines = {"assembly modes": modes}
+    if failing:
+        lines["failure modes"] = (
+            f"{failing} of the {mdp.n_modes - 1} fine motions can fail (Section VI-3); "
+            f"states: {int(mdp.live.sum()):,}"
+        )
     return {
-        "assembly modes": f"{mdp.n_modes} (Section III-A; {mdp.n_requests} requests)",
+        **lines,
         "strategy grid": f"{shape} cells",
         "free / live (NR)": f"{free_nr:.3f} / {live_nr:.3f} of the grid (live: every request "
         "can be served from there)",

@@ -23,6 +23,7 @@ from numba import njit
 
 from cellplan.strategies.interpolation import interp
 from cellplan.strategies.motion import motion_ok
+from cellplan.strategies.noisy import noisy_value_at
 from cellplan.strategies.stencils import (
     MAX_DIM,
     cell_containing,
@@ -76,7 +77,13 @@ def action_values_at(q, m, h, live, tf_here, fmp_allowed, model, out):  # pragma
         v = outcomes_at(m, h, live, lay, idx, w, n)
         if not np.isnan(v):
             out[0] = tf_here + v
+    noisy = moves.noise_prob.shape[0] > 1
     for a in range(-1, na):
+        if a >= 0 and noisy:  # Section VI-4: the expectation over the landings
+            v = noisy_value_at(q, m, a, h, live, model, idx, w, ibuf, fbuf, mbuf)
+            if not np.isnan(v):
+                out[2 + a] = lay.cost[m] + v
+            continue
         if a >= 0:
             displacement(q, moves.disp[k, a], moves.heading_axis, dq)
             if not motion_ok(

@@ -49,6 +49,7 @@ from scipy.sparse.linalg import splu
 
 from cellplan.strategies.bundles import Model
 from cellplan.strategies.model import LayeredMDP
+from cellplan.strategies.noisy import landing_row
 from cellplan.strategies.solver import (
     INNER_FACTOR,
     Certificate,
@@ -127,40 +128,48 @@ def action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p):  # pragm
                 n += 1
         return n, cost
     k = lay.vcls[m]
-    if a >= moves.nact[k] or ((moves.valid[k, c] >> a) & 1) == 0:
+    na = moves.nact[k]
+    if a >= na or ((moves.valid[k, c] >> a) & 1) == 0:
         return -1, 0.0
-    nc = move_corners(
-        k,
-        a,
-        c,
-        mi,
-        moves.interior[k, c],
-        moves.offs,
-        moves.fr,
-        moves.coff,
-        moves.cw,
-        moves.heading_axis,
-        grid.shape,
-        grid.periodic,
-        idx,
-        w,
-    )
-    for b in range(b0, b1):
-        L = lay.branch_layer[b]
-        ssum = 0.0
-        for j in range(nc):
-            if w[j] > EPS_W and live[L, idx[j]]:
-                ssum += w[j]
-        if ssum <= EPS_W:
-            return -1, 0.0
-        p = lay.branch_prob[b]
-        if p <= 0.0:
+    # With noisy motion (Section VI-4) the move lands at each of J displacements with
+    # probability noise_prob[j] (table rows na + a J + j, :mod:`.noisy`); else J = 1.
+    J = moves.noise_prob.shape[0]
+    for jn in range(J):
+        pj = moves.noise_prob[jn] if J > 1 else 1.0
+        if pj <= 0.0:
             continue
-        for j in range(nc):
-            if w[j] > EPS_W and live[L, idx[j]]:
-                out_s[n] = index[L, idx[j]]
-                out_p[n] = p * w[j] / ssum
-                n += 1
+        nc = move_corners(
+            k,
+            landing_row(na, a, jn, J) if J > 1 else a,
+            c,
+            mi,
+            moves.interior[k, c],
+            moves.offs,
+            moves.fr,
+            moves.coff,
+            moves.cw,
+            moves.heading_axis,
+            grid.shape,
+            grid.periodic,
+            idx,
+            w,
+        )
+        for b in range(b0, b1):
+            L = lay.branch_layer[b]
+            ssum = 0.0
+            for j in range(nc):
+                if w[j] > EPS_W and live[L, idx[j]]:
+                    ssum += w[j]
+            if ssum <= EPS_W:
+                return -1, 0.0
+            p = lay.branch_prob[b] * pj
+            if p <= 0.0:
+                continue
+            for j in range(nc):
+                if w[j] > EPS_W and live[L, idx[j]]:
+                    out_s[n] = index[L, idx[j]]
+                    out_p[n] = p * w[j] / ssum
+                    n += 1
     return n, cost
 
 
@@ -220,10 +229,15 @@ def hop_sweep(dist, act, fixed, index, order, flips, model):  # pragma: no cover
     mi = np.empty(d, np.int64)
     idx = np.empty(1 << d, np.int64)
     w = np.empty(1 << d)
-    width = (1 << d) * (lay.branch_prob.shape[0] + lay.out_prob.shape[0] + 1)
+    width = (
+        (1 << d)
+        * moves.noise_prob.shape[0]
+        * (lay.branch_prob.shape[0] + lay.out_prob.shape[0] + 1)
+    )
     out_s = np.empty(width, np.int64)
     out_p = np.empty(width)
     changed = False
+    J = moves.noise_prob.shape[0]
     for m in order:
         na = moves.nact[lay.vcls[m]]
         for kk in range(ncell):
@@ -270,22 +284,28 @@ def hop_sweep(dist, act, fixed, index, order, flips, model):  # pragma: no cover
             for a in range(na):
                 if ((vb >> a) & 1) == 0:
                     continue
-                nc = move_corners(
-                    k, a, c, mi, moves.interior[k, c], moves.offs, moves.fr, moves.coff,
-                    moves.cw, moves.heading_axis, shape, model.grid.periodic, idx, w,
-                )  # fmt: skip
                 near = np.inf
                 ok = True
-                for b in range(b0, b1):
-                    L = lay.branch_layer[b]
-                    sup = False
-                    for j in range(nc):
-                        if w[j] > EPS_W and live[L, idx[j]]:
-                            sup = True
-                            if lay.branch_prob[b] > 0.0:
-                                near = min(near, dist[index[L, idx[j]]])
-                    if not sup:
-                        ok = False
+                for jn in range(J):  # the landings of a noisy move (one without noise)
+                    if J > 1 and moves.noise_prob[jn] <= 0.0:
+                        continue
+                    nc = move_corners(
+                        k, landing_row(na, a, jn, J) if J > 1 else a, c, mi,
+                        moves.interior[k, c], moves.offs, moves.fr, moves.coff, moves.cw,
+                        moves.heading_axis, shape, model.grid.periodic, idx, w,
+                    )  # fmt: skip
+                    for b in range(b0, b1):
+                        L = lay.branch_layer[b]
+                        sup = False
+                        for j in range(nc):
+                            if w[j] > EPS_W and live[L, idx[j]]:
+                                sup = True
+                                if lay.branch_prob[b] > 0.0:
+                                    near = min(near, dist[index[L, idx[j]]])
+                        if not sup:
+                            ok = False
+                            break
+                    if not ok:
                         break
                 if ok and near + 1 < best:
                     best = near + 1
@@ -416,7 +436,7 @@ def hop_policy(
 def row_room(mdp: LayeredMDP) -> np.ndarray:
     """The most successors a state of each mode can have under one action (per mode)."""
     out = mdp.fmp_outcomes()
-    corners = 1 << len(mdp.shape)
+    corners = (1 << len(mdp.shape)) * len(mdp.noise_prob)  # per landing of a noisy move
     branches = np.diff(mdp.branch_ptr)
     return np.maximum(branches * corners, np.diff(out.ptr)).astype(np.int64)
 

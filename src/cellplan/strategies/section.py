@@ -112,6 +112,68 @@ class ActionSpec(StrictModel):
     )
 
 
+class FailureSpec(StrictModel):
+    """A fine motion that can fail (Section VI-3 of the strategies paper).
+
+    Every FMP of a request that picks at (a source) or delivers to (a destination)
+    ``region``, for ``part`` (default: every part), fails with ``probability``. A failure
+    is retried in place after ``rework`` time units (``then: retry``), or the part is
+    rejected (``then: reject``): the robot carries it to ``reject_region`` (a destination)
+    and drops it there, after which it fetches a replacement from the same source
+    (``after_reject: fetch``) or a new request for the same part and destination arrives at
+    once, its source drawn by the request probabilities (``after_reject: request``). The
+    request waits throughout: every stage counts in the loss.
+    """
+
+    region: Name = Field(description="source or destination whose FMP can fail", examples=["D1"])
+    part: Name | None = Field(default=None, description="only for this part (default: every part)")
+    probability: Probability = Field(description="failure probability per FMP attempt")
+    then: Literal["retry", "reject"] = Field(
+        description="retry in place after the rework time, or reject the part"
+    )
+    rework: NonNegativeFloat | None = Field(
+        default=None, description="retry: time lost before the next attempt (default 0)"
+    )
+    reject_region: Name | None = Field(
+        default=None, description="reject: the destination where rejected parts are dropped"
+    )
+    after_reject: Literal["fetch", "request"] | None = Field(
+        default=None,
+        description="reject: fetch a replacement from the same source (default), or a new "
+        "request for the part arrives",
+    )
+
+    def applies(self, region: str, part: str) -> bool:
+        return self.region == region and self.part in (None, part)
+
+
+class NoiseOutcome(StrictModel):
+    """One place a move can land, relative to the commanded one (Section VI-4)."""
+
+    offset: list[float] = Field(
+        description="displacement from the commanded landing point: [along, across] the move "
+        "(frame: motion), or one value per C-space axis, angles in degrees (frame: world)",
+        examples=[[0, 1.5]],
+    )
+    probability: Probability = Field(description="probability of this outcome")
+
+
+MAX_NOISE_OUTCOMES = 16
+"""Most outcomes of the noise model (each is a stencil per move in the model's tables)."""
+
+
+class NoiseSpec(StrictModel):
+    """Noisy motion, the first step of Section VI-4: each move lands at one of several
+    displacements around the commanded one with given probabilities."""
+
+    outcomes: Annotated[list[NoiseOutcome], Field(min_length=1, max_length=MAX_NOISE_OUTCOMES)]
+    frame: Literal["motion", "world"] = Field(
+        default="motion",
+        description="offsets along and across each move (translating robots), or along the "
+        "C-space axes (any robot)",
+    )
+
+
 #: The solver methods (:func:`cellplan.strategies.solver.solve`); the one list of them.
 SolverMethod = Literal["auto", "structured", "general", "policy"]
 
@@ -187,15 +249,34 @@ class StrategySection(StrictModel):
     solver: SolverSpec = Field(
         default_factory=SolverSpec, description="stopping rule and method of the solver"
     )
+    failures: Annotated[list[FailureSpec], Field(max_length=MAX_REQUESTS)] = Field(
+        default_factory=list, description="fine motions that can fail (Section VI-3)"
+    )
+    noise: NoiseSpec | None = Field(
+        default=None, description="where moves land: a discrete distribution (Section VI-4)"
+    )
+
+    def reject_regions(self) -> set[str]:
+        """Destinations that serve as reject regions (left out of ``requests: all``)."""
+        return {f.reject_region for f in self.failures if f.reject_region is not None}
+
+    def failure_at(self, region: str, part: str) -> FailureSpec | None:
+        """The failure model of an FMP of ``part`` at ``region`` (None: it never fails)."""
+        for f in self.failures:
+            if f.applies(region, part) and f.probability > 0.0:
+                return f
+        return None
 
     def request_list(self, scenario: Scenario) -> list[tuple[str, str, str, float]]:
         """The requestable (part, source, destination, probability), in a fixed order."""
         if self.requests == "all":
+            bins = self.reject_regions()
             triples = [
                 (p, s, d)
                 for p in scenario.parts
                 for s in scenario.sources
                 for d in scenario.destinations
+                if d not in bins
             ]
             n = len(triples)
             return [(p, s, d, 1.0 / n) for p, s, d in triples]
@@ -265,6 +346,8 @@ class StrategySection(StrictModel):
                     f"has {len(self.home)} entries; the C-space has dimension {dim}",
                 )
             )
+        problems.extend(self._check_failures(scenario))
+        problems.extend(self._check_noise(scenario))
         if self.destination_change is not None and not problems:
             problems.extend(self._check_changes(scenario, "destination"))
         if self.source_change is not None and not problems:
@@ -339,6 +422,117 @@ class StrategySection(StrictModel):
                             "strategy.requests", f"request probabilities sum to {total:g}, not 1"
                         )
                     )
+        return problems
+
+    def _check_failures(self, scenario: Scenario) -> list[Problem]:
+        """One line per mistake in ``strategy.failures`` (Section VI-3)."""
+        problems: list[Problem] = []
+        if not self.failures:
+            return problems
+        requests = self.request_list(scenario)
+        if self.requests == "all" and not requests and scenario.destinations:
+            problems.append(
+                Problem(
+                    "strategy.requests",
+                    "'all' leaves no request: every destination is a reject region",
+                )
+            )
+        used = {(p, s) for p, s, _, _ in requests} | {(p, d) for p, _, d, _ in requests}
+        seen: dict[tuple[str, str | None], int] = {}
+        for i, f in enumerate(self.failures):
+            where = f"strategy.failures[{i}]"
+            if f.region not in scenario.sources and f.region not in scenario.destinations:
+                problems.append(
+                    Problem(f"{where}.region", f"unknown source or destination {f.region!r}")
+                )
+            elif f.part is not None and f.part not in scenario.parts:
+                problems.append(Problem(f"{where}.part", f"unknown part {f.part!r}"))
+            elif requests and not any(
+                r == f.region and (f.part is None or p == f.part) for p, r in used
+            ):
+                problems.append(
+                    Problem(
+                        f"{where}.region",
+                        f"no request picks or delivers at {f.region!r}"
+                        + (f" with part {f.part!r}" if f.part else ""),
+                    )
+                )
+            if f.probability >= 1.0:
+                problems.append(
+                    Problem(
+                        f"{where}.probability",
+                        "must be below 1 (an FMP that always fails never serves its request)",
+                    )
+                )
+            overlap = [
+                j
+                for (region, part), j in seen.items()
+                if region == f.region and (part is None or f.part is None or part == f.part)
+            ]
+            if overlap:
+                problems.append(
+                    Problem(
+                        where, f"overlaps strategy.failures[{overlap[0]}] (same region and part)"
+                    )
+                )
+            seen[(f.region, f.part)] = i
+            if f.then == "retry":
+                for name in ("reject_region", "after_reject"):
+                    if getattr(f, name) is not None:
+                        problems.append(Problem(f"{where}.{name}", "only with then: reject"))
+            else:
+                if f.rework is not None:
+                    problems.append(Problem(f"{where}.rework", "only with then: retry"))
+                if f.reject_region is None:
+                    problems.append(
+                        Problem(f"{where}.reject_region", "then: reject needs a reject region")
+                    )
+                elif f.reject_region not in scenario.destinations:
+                    problems.append(
+                        Problem(
+                            f"{where}.reject_region",
+                            f"unknown region {f.reject_region!r} (declare it under destinations)",
+                        )
+                    )
+                elif f.reject_region == f.region:
+                    problems.append(
+                        Problem(f"{where}.reject_region", "is the region whose FMP fails")
+                    )
+        return problems
+
+    def _check_noise(self, scenario: Scenario) -> list[Problem]:
+        """One line per mistake in ``strategy.noise`` (Section VI-4)."""
+        noise = self.noise
+        robot = scenario.robot
+        if noise is None or robot is None:
+            return []
+        problems: list[Problem] = []
+        total = sum(o.probability for o in noise.outcomes)
+        if abs(total - 1.0) > _SUM_TOL:
+            problems.append(
+                Problem("strategy.noise.outcomes", f"probabilities sum to {total:g}, not 1")
+            )
+        dim = _dimension(robot)
+        translating = robot.type in ("point", "translating")
+        if noise.frame == "motion" and not translating:
+            problems.append(
+                Problem(
+                    "strategy.noise.frame",
+                    f"'motion' (along, across a move) is for translating robots, not "
+                    f"{robot.type!r}; use 'world'",
+                )
+            )
+        want = 2 if noise.frame == "motion" else dim
+        b = scenario.workcell.bounds
+        reach = math.hypot(b.xmax - b.xmin, b.ymax - b.ymin)
+        for i, o in enumerate(noise.outcomes):
+            where = f"strategy.noise.outcomes[{i}].offset"
+            if len(o.offset) != want:
+                problems.append(Problem(where, f"has {len(o.offset)} values; expected {want}"))
+            elif not all(math.isfinite(v) and abs(v) <= reach for v in o.offset):
+                problems.append(
+                    Problem(where, f"values must be finite and at most {reach:.4g} in size")
+                )
         return problems
 
     def _check_changes(self, scenario: Scenario, kind: str) -> list[Problem]:

@@ -53,6 +53,7 @@ class Request:
     delivery: int = -1
     waiting: float = 0.0
     changes: int = 0
+    failures: int = 0  # failed FMPs (Section VI-3)
 
 
 @dataclass
@@ -71,7 +72,9 @@ class Simulation:
     events: list[tuple[int, str, str]] = field(default_factory=list)
     """``(sample, kind, detail)``: ``request`` (at the first W sample), ``pick`` (first C
     sample), ``place`` (first NR sample after delivery), ``fmp_refused`` (the stage whose
-    FMP the exact region test refused), ``source_change`` / ``destination_change``."""
+    FMP the exact region test refused), ``source_change`` / ``destination_change``, and with
+    failure modes (Section VI-3) ``fmp_failed`` (a failed pick or delivery: retried, or the
+    part rejected) and ``reject`` (the rejected part dropped in the reject region)."""
 
     def metrics(self) -> dict[str, float]:
         """Loss per stage, waiting time per request (delivered only and all), counts.
@@ -102,6 +105,7 @@ class Simulation:
             "fmp_refused": float(self.fmp_refused),
             "corrections": float(self.corrections),
             "raised": float(self.raised),
+            "fmp_failures": float(sum(r.failures for r in self.requests)),
         }
 
     def segments(self) -> list[tuple[int, int]]:
@@ -249,6 +253,7 @@ def simulate(
         raise ValueError(f"policy must be one of {POLICIES}, not {policy!r}")
     rng = np.random.default_rng(seed)
     mdp = strategy.mdp
+    out = mdp.fmp_outcomes()
     test = region_test(strategy, cell, regions) if cell is not None else None
     rules = _Policies(strategy, home, learn, test)
     q = np.asarray(start if start is not None else default_start(strategy), float).copy()
@@ -300,18 +305,45 @@ def simulate(
             current.waiting += loss
         # Transition.
         if u == FMP:
-            m_next = int(mdp.fmp_next[m])
+            o0, o1 = out.ptr[m], out.ptr[m + 1]
+            oprob = out.prob[o0:o1]
+            o = o0 + min(
+                int(np.searchsorted(np.cumsum(oprob), rng.random() * oprob.sum(), side="right")),
+                o1 - o0 - 1,
+            )
+            m_next = int(out.layer[o])
+            # A rework time (retry in place, Section VI-3) is lost while the request waits.
+            loss += float(out.cost[o])
             assert current is not None
-            if mdp.modes[m].kind == "W":
+            kind = mdp.modes[m].kind
+            where = current.source if kind == "W" else current.destination
+            if o > o0 and kind in ("W", "C"):
+                current.failures += 1
+                then = "retry" if m_next == m else f"reject to {mdp.modes[m_next].reject}"
+                events.append((k + 1, "fmp_failed", f"{current.part} at {where}, {then}"))
+            elif kind == "W":
                 current.pickup = k + 1
                 events.append((k + 1, "pick", f"{current.part} at {current.source}"))
+            elif kind == "X":
+                events.append((k + 1, "reject", f"{current.part} at {mdp.modes[m].reject}"))
+                mode = mdp.modes[m_next]
+                if mode.source != current.source:
+                    events.append((k + 1, "source_change", f"{current.source} to {mode.source}"))
+                    current.source = mode.source
+                current.pickup = -1
             else:
                 current.delivery = k + 1
                 events.append((k + 1, "place", f"{current.part} at {current.destination}"))
                 current = None
         else:
             if u != STAY:
-                q = strategy.next_configuration(q, m, u)
+                landing = None
+                if len(mdp.noise_prob) > 1:  # Section VI-4: draw where the move lands
+                    cum = np.cumsum(mdp.noise_prob)
+                    landing = min(
+                        int(np.searchsorted(cum, rng.random() * cum[-1], "right")), len(cum) - 1
+                    )
+                q = strategy.next_configuration(q, m, u, landing)
             b0, b1 = mdp.branch_ptr[m], mdp.branch_ptr[m + 1]
             probs = mdp.branch_prob[b0:b1]
             pick = int(np.searchsorted(np.cumsum(probs), rng.random() * probs.sum(), side="right"))
@@ -363,7 +395,8 @@ def region_test(
 ) -> Callable[[np.ndarray, int], np.ndarray]:
     """The exact FMP region test of a workcell: ``(configurations, mode) -> bool array``.
 
-    W modes test the source (empty robot), C modes the destination with the carried part
+    W modes test the source (empty robot), C modes the destination with the carried part,
+    X modes (a rejected part, Section VI-3) the reject region with the part
     (:meth:`~cellplan.workcell.Workcell.in_region`).
     """
     modes = strategy.mdp.modes
@@ -372,6 +405,8 @@ def region_test(
         mode = modes[m]
         if mode.kind == "W":
             hit = cell.in_region(points, mode.source, regions, None, None)
+        elif mode.kind == "X":
+            hit = cell.in_region(points, mode.reject, regions, None, mode.part)
         else:
             hit = cell.in_region(points, mode.destination, regions, None, mode.part)
         return np.asarray(hit, dtype=bool)

@@ -682,8 +682,9 @@ def method_problem(mdp: LayeredMDP, method: str) -> str | None:
         return f"unknown solver method {method!r} (one of {', '.join(METHODS)})"
     if method == "structured" and not mdp.is_simple():
         return (
-            "the structured solver needs every fine motion to succeed with certainty "
-            "(Section V); this model has FMP outcomes (failure modes): use auto or policy"
+            "the structured solver needs every fine motion to succeed with certainty and "
+            "every move to land where commanded (Section V); this model has failure modes "
+            "or noisy motion: use auto or policy"
         )
     return None
 

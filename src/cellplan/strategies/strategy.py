@@ -24,7 +24,7 @@ import numpy as np
 from cellplan import units
 from cellplan.errors import ArgumentError, PersistenceError, Problem, ScenarioError
 from cellplan.fileio import atomic_path
-from cellplan.strategies.bundles import Model
+from cellplan.strategies.bundles import Model, Outcomes
 from cellplan.strategies.fileformat import FORMAT, VERSION
 from cellplan.strategies.model import LayeredMDP, Mode
 from cellplan.strategies.points import action_values_at, query
@@ -37,8 +37,10 @@ STAY = -1
 _ARRAY_FIELDS = [
     f.name
     for f in fields(LayeredMDP)
-    if f.name not in ("modes", "labels", "heading_axis", "stage_time", "arrival")
+    if f.name not in ("modes", "labels", "heading_axis", "stage_time", "arrival", "outcomes")
 ]
+#: The FMP outcome arrays of a strategy file (:class:`~.bundles.Outcomes`, by field).
+_OUTCOME_ARRAYS = {"out_ptr": "ptr", "out_layer": "layer", "out_prob": "prob", "out_cost": "cost"}
 
 
 @dataclass
@@ -99,10 +101,14 @@ class Strategy:
 
     def mode_index(self, text: str) -> int:
         """A mode from ``NR``, ``"1,1,1,W"`` (1-based indices in the scenario file's order,
-        the paper's notation) or ``"<P1,S1,D1,W>"`` (names, as mode labels print)."""
+        the paper's notation) or ``"<P1,S1,D1,W>"`` (names, as mode labels print; the X
+        modes of failures, Section VI-3, by their labels such as ``<P1,S1,D1,X:R1>``)."""
         text = text.strip()
         if text.upper() == "NR":
             return 0
+        for i, m in enumerate(self.modes):
+            if m.label == text or m.label == f"<{text}>":
+                return i  # every label, the X modes of failures included
         items = [t.strip() for t in text.strip("<>").split(",")]
         if len(items) != 4 or items[3].upper() not in ("W", "C"):
             raise PersistenceError([Problem("--mode", f"expected NR or 'p,s,d,W|C', got {text!r}")])
@@ -243,14 +249,24 @@ class Strategy:
         idx = np.array(np.unravel_index(self.cell_of(q), tuple(mdp.shape)))
         return np.asarray(mdp.lower + (idx + 0.5) * mdp.spacing)
 
-    def next_configuration(self, q: np.ndarray, mode: int, action: int) -> np.ndarray:
-        """Where a move (or stay/FMP) takes the robot, equation (5) and its variants."""
+    def next_configuration(
+        self, q: np.ndarray, mode: int, action: int, landing: int | None = None
+    ) -> np.ndarray:
+        """Where a move (or stay/FMP) takes the robot, equation (5) and its variants.
+
+        With noisy motion (Section VI-4), ``landing`` ``j`` gives the move's ``j``-th
+        outcome (:mod:`.noisy`); None gives the commanded move.
+        """
         q = np.asarray(q, float).copy()
         if action < 0:
             return q
         mdp = self.mdp
+        k = mdp.vcls[mode]
+        row = action
+        if landing is not None and len(mdp.noise_prob) > 1:
+            row = int(mdp.nact[k]) + action * len(mdp.noise_prob) + int(landing)
         dq = np.empty(len(q))
-        displacement(q, mdp.disp[mdp.vcls[mode], action], mdp.heading_axis, dq)
+        displacement(q, mdp.disp[k, row], mdp.heading_axis, dq)
         q = q + dq
         wrap(q, mdp.lower, mdp.upper, mdp.periodic)
         return q
@@ -266,12 +282,15 @@ class Strategy:
         mdp = self.mdp
         arrays = {name: np.asarray(getattr(mdp, name)) for name in _ARRAY_FIELDS}
         arrays["values"] = self.values
+        out = mdp.fmp_outcomes()
+        for name, attr in _OUTCOME_ARRAYS.items():
+            arrays[name] = np.asarray(getattr(out, attr))
         meta = dict(self.meta)
         meta.update(
             heading_axis=mdp.heading_axis,
             stage_time=mdp.stage_time,
             arrival=mdp.arrival,
-            modes=[[m.kind, m.part, m.source, m.destination] for m in mdp.modes],
+            modes=[_mode_fields(m) for m in mdp.modes],
             labels=[list(lab) for lab in mdp.labels],
             grid={
                 "shape": mdp.shape.tolist(),
@@ -306,11 +325,19 @@ class Strategy:
             heading_axis=int(meta["heading_axis"]),
             stage_time=float(meta["stage_time"]),
             arrival=float(meta["arrival"]),
+            outcomes=Outcomes(**{attr: arrays[name] for name, attr in _OUTCOME_ARRAYS.items()}),
             **kw,
         )
         # Optional fields absent from older files stay absent (the defaults apply).
         meta = {k: v for k, v in meta.items() if v is not None}
         return Strategy(mdp, arrays["values"], meta)
+
+
+def _mode_fields(mode: Mode) -> list[str]:
+    """A mode as the strategy file stores it: kind, part, source, destination, and for X
+    modes the reject region and what follows the rejection."""
+    fields = [mode.kind, mode.part, mode.source, mode.destination]
+    return [*fields, mode.reject, mode.after] if mode.kind == "X" else fields
 
 
 def best_action(vals: np.ndarray) -> int:

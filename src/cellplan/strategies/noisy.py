@@ -1,0 +1,158 @@
+"""Noisy motion (the first step of Section VI-4 of the strategies paper): moves that land
+at one of several displacements around the commanded one (numba).
+
+With noise, move ``a`` lands at ``x + dx_{a,j}`` with probability ``p_j``
+(:func:`cellplan.strategies.actions.with_noise`: the model's move tables hold these
+landings in rows ``A + a J + j`` after the ``A`` commanded moves), so its value in (9) is
+
+    l(m) + sum_b P_b sum_j p_j H_{L_b}(x + dx_{a,j}),
+
+and the move is allowed only where every landing's swept motion is free (the model's
+``valid`` bitmask says so per commanded move) and, in every branch, every landing has a
+live corner. The structured solver's kernels assume one landing per move; noisy models
+are solved by policy iteration, whose kernels call these functions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from cellplan.strategies.interpolation import interp, supported
+from cellplan.strategies.motion import motion_ok
+from cellplan.strategies.stencils import EPS_W, displacement, move_corners, stencil, wrap
+
+
+@njit(cache=True, nogil=True, inline="always")
+def landing_row(na, a, j, J):  # pragma: no cover - numba
+    """The table row of landing ``j`` of move ``a`` (``na`` commanded moves)."""
+    return na + a * J + j
+
+
+@njit(cache=True, nogil=True)
+def noisy_move_value(m, c, a, mi, inner, h, live, model, idx, w):  # pragma: no cover - numba
+    """``sum_b P_b sum_j p_j H_{L_b}(x_c + dx_{a,j})`` from the centre of cell ``c`` of mode
+    ``m`` (without the loss ``l(m)``); ``inf`` where some landing has no live corner."""
+    moves = model.moves
+    lay = model.layers
+    grid = model.grid
+    k = lay.vcls[m]
+    na = moves.nact[k]
+    J = moves.noise_prob.shape[0]
+    total = 0.0
+    for j in range(J):
+        p = moves.noise_prob[j]
+        if p <= 0.0:
+            continue
+        n = move_corners(
+            k,
+            landing_row(na, a, j, J),
+            c,
+            mi,
+            inner,
+            moves.offs,
+            moves.fr,
+            moves.coff,
+            moves.cw,
+            moves.heading_axis,
+            grid.shape,
+            grid.periodic,
+            idx,
+            w,
+        )
+        for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+            L = lay.branch_layer[b]
+            ssum = 0.0
+            vsum = 0.0
+            for i in range(n):
+                wi = w[i]
+                if wi > EPS_W and live[L, idx[i]]:
+                    ssum += wi
+                    vsum += wi * h[L, idx[i]]
+            if ssum <= EPS_W:
+                return np.inf
+            total += lay.branch_prob[b] * p * vsum / ssum
+    return total
+
+
+@njit(cache=True)
+def noisy_supported(m, c, a, mi, inner, target, live, model, idx, w):  # pragma: no cover
+    """Whether every landing of move ``a`` from cell ``c`` has a live corner in every branch
+    (``target`` stands for layer ``m`` itself), as :func:`.domain.live_layer` requires."""
+    moves = model.moves
+    lay = model.layers
+    grid = model.grid
+    k = lay.vcls[m]
+    na = moves.nact[k]
+    J = moves.noise_prob.shape[0]
+    for j in range(J):
+        if moves.noise_prob[j] <= 0.0:
+            continue
+        n = move_corners(
+            k,
+            landing_row(na, a, j, J),
+            c,
+            mi,
+            inner,
+            moves.offs,
+            moves.fr,
+            moves.coff,
+            moves.cw,
+            moves.heading_axis,
+            grid.shape,
+            grid.periodic,
+            idx,
+            w,
+        )
+        for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+            if lay.branch_prob[b] <= 0.0:
+                continue
+            L = lay.branch_layer[b]
+            src = target if L == m else live[L]
+            if not supported(src, idx, w, n):
+                return False
+    return True
+
+
+@njit(cache=True)
+def noisy_value_at(q, m, a, h, live, model, idx, w, ibuf, fbuf, mbuf):  # pragma: no cover
+    """``sum_b P_b sum_j p_j H_{L_b}(q + dq_{a,j})`` at a real configuration (without the
+    loss); NaN where a landing's swept motion collides or has no live corner."""
+    moves = model.moves
+    lay = model.layers
+    grid = model.grid
+    k = lay.vcls[m]
+    na = moves.nact[k]
+    J = moves.noise_prob.shape[0]
+    d = q.shape[0]
+    dq = np.empty(d)
+    qn = np.empty(d)
+    total = 0.0
+    for j in range(J):
+        p = moves.noise_prob[j]
+        if p <= 0.0:
+            continue
+        displacement(q, moves.disp[k, landing_row(na, a, j, J)], moves.heading_axis, dq)
+        if not motion_ok(
+            q,
+            dq,
+            moves.free[k],
+            grid.shape,
+            grid.lower,
+            grid.upper,
+            grid.spacing,
+            grid.periodic,
+            mbuf,
+        ):
+            return np.nan
+        for i in range(d):
+            qn[i] = q[i] + dq[i]
+        wrap(qn, grid.lower, grid.upper, grid.periodic)
+        n = stencil(qn, grid.shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, fbuf)
+        for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+            L = lay.branch_layer[b]
+            v = interp(h[L], live[L], idx, w, n)
+            if np.isnan(v):
+                return np.nan
+            total += lay.branch_prob[b] * p * v
+    return total
