@@ -12,7 +12,7 @@
 | :mod:`.coldstart` | a first policy by Dijkstra's algorithm |
 | :mod:`.bellman` | the Jacobi Bellman operator over every state (certificate) |
 | :mod:`.points` | equation (9) at a real state: online query, executor lookahead |
-| :mod:`.policy_iteration` | a policy's CSR transition matrix, hop distances (first policy), back-substitution in component order |
+| :mod:`.policy_iteration` | policy matrix (CSR), hop distances, back-substitution |
 
 The names below are re-exported for callers written against the single module.
 """
