@@ -319,3 +319,28 @@ def test_cli_solves_by_policy_iteration_and_refuses_structured_on_failures(
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "method" in lines[0] and "structured solver needs" in lines[0]
     assert not out.exists()
+
+
+def test_non_convergence_is_reported(tiny_model):
+    res = solve_policy_iteration(tiny_model, tol=1e-9, max_iterations=1)
+    assert res.status is Status.NOT_CONVERGED
+    assert res.gain_lower <= res.gain_upper and res.span >= 1e-9
+
+
+def test_a_failed_evaluation_is_recovered_by_value_iteration(tiny_model, monkeypatch):
+    import cellplan.strategies.policy_iteration as pi
+
+    real = pi.evaluate
+    calls = []
+
+    def first_fails(*args):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("Factor is exactly singular")
+        return real(*args)
+
+    monkeypatch.setattr(pi, "evaluate", first_fails)
+    res = pi.solve_policy_iteration(tiny_model, tol=1e-9)
+    assert res.status is Status.SOLVED and len(calls) > 1
+    assert res.sweeps >= pi.RECOVERY_SWEEPS
+    assert abs(res.gain - solve_structured(tiny_model, tol=1e-9).gain) < 1e-8

@@ -2,37 +2,38 @@
 
 The structured solver (:func:`cellplan.strategies.solver.solve_structured`) needs the
 Section V shape of the model: a carrying layer's FMP ends in NR, a waiting layer's in its
-carrying layer, with certainty. With failure modes (Section VI-3 of the strategies paper)
-an FMP has several outcomes (a retry in place, a rejected part carried elsewhere), and
-relative value iteration (:func:`~cellplan.strategies.solver.solve_general`) needs
-thousands of sweeps because the request cycle mixes slowly. Policy iteration needs a
-handful of iterations, each
+carrying layer, with certainty, and a move lands where it is commanded. With failure
+modes (Section VI-3 of the strategies paper) an FMP has several outcomes (a retry in
+place, a rejected part carried elsewhere), with noisy motion (Section VI-4) a move has
+several landings, and relative value iteration
+(:func:`~cellplan.strategies.solver.solve_general`) needs thousands of sweeps because the
+request cycle mixes slowly. Policy iteration needs a handful of iterations, each
 
-1. *evaluation*: the policy's transition matrix ``P`` over the live states (assembled in
-   CSR by the numba kernel :func:`policy_rows`, with the same transition law as
+1. *assembly*: the policy's transition matrix ``P`` over the live states in CSR and its
+   cost ``c`` (the numba kernel :func:`policy_rows`, with the transition law of
    :func:`cellplan.strategies.bellman.bellman_rows`: moves land on the live corners of
-   their stencil, renormalised, in every branch; stay keeps the cell in every branch; FMP
-   takes its outcomes) and its cost ``c``; then ``h + g = c + P h`` with ``h(ref) = 0``
-   is solved exactly. With ``B = I - P`` less the row and column of ``ref`` (an NR
-   state), ``u = B^-1 c`` and ``v = B^-1 1`` (the expected cost and number of stages
-   until ``ref``), ``h = u - g v`` and the row of ``ref`` gives
-   ``g = (c_ref + P_ref u) / (1 + P_ref v)``: one sparse LU factorisation (SuperLU), two
-   solves, and no dense column. ``B`` is non-singular exactly when the policy reaches
-   ``ref`` with probability one from every state (a *proper* policy);
-2. *improvement*: one Jacobi Bellman sweep (:func:`cellplan.strategies.solver.bellman`);
-   a state changes its action only where the best action beats the current one by more
-   than a small relative margin, so ties never make the policy cycle.
+   their stencil, renormalised, in every branch, at every landing of a noisy move; stay
+   keeps the cell in every branch; FMP takes its outcomes);
+2. *unichain check* (:func:`unichain`): the strongly connected components of the chain;
+   if more than one is closed, the states that do not reach the first take actions one
+   hop nearer to it;
+3. *evaluation* (:func:`evaluate`): ``h + g = c + P h`` exactly, by one sparse LU
+   (SuperLU) on the recurrent class and back-substitution of the transient components in
+   their order (:func:`back_substitute`);
+4. *improvement*: a few value iteration sweeps from ``h`` (modified policy iteration,
+   :data:`LOOKAHEAD_SWEEPS`), then the Jacobi Bellman operator
+   (:func:`cellplan.strategies.solver.bellman`); a state changes its action only where the
+   best action beats the current one by more than a small relative margin, so ties never
+   make the policy cycle.
 
-The first policy is proper by construction: hop distances to ``ref`` through the union of
-every action's successors (Gauss-Seidel sweeps of ``d(s) = 1 + min_a min_{s'} d(s')``
-by :func:`hop_sweep`, layers in the order they read each other), each state taking an
-action with a successor one hop nearer. An improved policy can still leave ``ref``
-unreachable from some states (a closed cycle in a waiting layer, which is never optimal
-but can look best against the last ``h``); those states take their first-policy action
-again, which restores properness (every such state has a successor one hop nearer, by
-induction on the hop distance). If a factorisation fails anyway, or its solution does
-not satisfy its equations, the solve goes on with relative value iteration sweeps from
-the last values. The answer is certified like every solve (:func:`.solver._finish`).
+The first policy is proper by construction: NR stays where it is, and every other state
+takes an action with a successor one hop nearer to NR (hop distances through the union of
+every action's successors, Gauss-Seidel sweeps of ``d(s) = 1 + min_a min_{s'} d(s')`` by
+:func:`hop_sweep`, layers in the order they read each other), so every request is
+finished with probability one. If a factorisation fails anyway, or its solution does not
+satisfy its equations, relative value iteration sweeps from the last values stand in for
+the evaluation. The answer is certified like every solve (:func:`.solver._finish`).
+docs/strategies.md ("Policy iteration") has the choices and the measurements.
 """
 
 from __future__ import annotations
@@ -592,9 +593,10 @@ def solve_policy_iteration(
     after ``max_iterations`` iterations. The result is certified by
     :func:`cellplan.strategies.solver._finish` (``SOLVED`` only when the span test
     passes). ``sweeps`` and ``full_sweeps`` count the Jacobi Bellman sweeps over every
-    state (one per iteration, plus any recovery sweeps and the two of the certificate),
-    ``eval_sweeps`` the exact evaluations (sparse LU solves), ``outer_iterations`` the
-    iterations.
+    state (per iteration one plus :data:`LOOKAHEAD_SWEEPS`, plus any recovery sweeps;
+    the certificate's two are added to ``full_sweeps``), ``eval_sweeps`` the exact
+    evaluations, ``outer_iterations`` the iterations. ``threads``: as in
+    :func:`cellplan.strategies.solver.solve`.
     """
     t0 = time.perf_counter()
     live = mdp.live
