@@ -1,0 +1,135 @@
+"""Noisy motion (the first step of Section VI-4 of the strategies paper).
+
+Each move lands at one of several displacements around the commanded one; the model holds
+the landings in its move tables, allows a move only where every landing is free, and the
+Bellman operator, the live states, the point query and the simulator take the expectation
+over them. Checked here: one line per mistake in ``strategy.noise``; the tables and the
+validity against the landings computed directly; noise with one landing is the Section V
+model; the simulator draws landings with the given probabilities.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from strategies_helpers import TINY, tiny
+
+from cellplan.registry import scenario_path
+from cellplan.scenario import loads_scenario
+from cellplan.strategies.model import build_model
+from cellplan.strategies.motion import valid_moves
+from cellplan.strategies.solver import solve
+from cellplan.workcell import Workcell
+
+BASE = TINY.replace("CELLS", "16")
+NOISE = (
+    "  noise:\n    outcomes:\n      - {offset: [0, 0], probability: 0.5}\n"
+    "      - {offset: [0, 1.2], probability: 0.25}\n"
+    "      - {offset: [0, -1.2], probability: 0.25}\n"
+)
+
+
+def noisy(text: str = NOISE, cells: int = 16) -> tuple:
+    sc = loads_scenario(TINY.replace("CELLS", str(cells)) + text)
+    return sc, Workcell.from_scenario(sc)
+
+
+MISTAKES = {
+    "  noise:\n    outcomes:\n      - {offset: [0, 0], probability: 0.9}\n": "strategy.noise."
+    "outcomes: probabilities sum to 0.9, not 1",
+    "  noise:\n    outcomes:\n      - {offset: [0, 0, 1], probability: 1.0}\n": "strategy.noise."
+    "outcomes[0].offset: has 3 values; expected 2",
+    "  noise:\n    outcomes:\n      - {offset: [0, .inf], probability: 1.0}\n": "strategy.noise."
+    "outcomes[0].offset[1]: expected a finite number",
+    "  noise:\n    outcomes:\n      - {offset: [0, 0], probability: 1.5}\n": "strategy.noise."
+    "outcomes[0].probability: must be less than or equal to 1",
+    "  noise:\n    outcomes: []\n": "strategy.noise.outcomes:",
+    "  noise:\n    frame: sideways\n    outcomes:\n      - {offset: [0, 0], probability: 1}\n": (
+        "strategy.noise.frame:"
+    ),
+}
+
+
+@pytest.mark.parametrize("text", list(MISTAKES))
+def test_each_noise_mistake_is_one_line_naming_the_field(cellplan, tmp_path, text):
+    path = tmp_path / "s.yaml"
+    path.write_text(BASE + text)
+    r = cellplan("validate", str(path))
+    assert r.returncode == 2, r.stdout
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert any(line.startswith("error: " + MISTAKES[text]) for line in lines), lines
+    assert "Traceback" not in r.stderr
+
+
+def test_motion_frame_is_refused_for_an_arm(cellplan, tmp_path):
+    arm = scenario_path("strategies_failures_arm").read_text()
+    path = tmp_path / "arm.yaml"
+    path.write_text(arm + "  noise:\n    outcomes:\n      - {offset: [0, 0], probability: 1.0}\n")
+    r = cellplan("validate", str(path))
+    assert r.returncode == 2
+    assert "error: strategy.noise.frame: 'motion' (along, across a move) is for translating" in (
+        r.stderr
+    )
+
+
+def test_landings_are_rows_after_the_commanded_moves_and_all_must_be_free():
+    sc, cell = noisy()
+    mdp = build_model(sc, cell)
+    J = len(mdp.noise_prob)
+    assert J == 3 and mdp.noise_prob.tolist() == [0.5, 0.25, 0.25]
+    k = int(mdp.vcls[0])
+    na = int(mdp.nact[k])
+    assert na == 8
+    for a in range(na):
+        step = mdp.disp[k, a]
+        u = step / np.hypot(*step)
+        n = np.array([-u[1], u[0]])
+        for j, across in enumerate((0.0, 1.2, -1.2)):
+            np.testing.assert_allclose(mdp.disp[k, na + a * J + j], step + across * n, atol=1e-12)
+    # Commanded move a is valid where all three landings are (computed one by one here).
+    grid = mdp.grid()
+    expect = np.full(mdp.n_cells, (1 << na) - 1, np.int64)
+    for j in range(J):
+        rows = [na + a * J + j for a in range(na)]
+        expect &= valid_moves(mdp.free[k], np.ascontiguousarray(mdp.disp[k, rows]), -1, grid)
+    np.testing.assert_array_equal(mdp.valid[k], expect)
+    # Noise removes moves near obstacles, never adds one.
+    plain = build_model(*tiny(cells=16))
+    assert ((mdp.valid[k] & ~plain.valid[int(plain.vcls[0])]) == 0).all()
+    assert (mdp.valid[k] != plain.valid[int(plain.vcls[0])]).any()
+
+
+def test_a_single_exact_landing_is_the_section_v_model():
+    sc, cell = noisy("  noise:\n    outcomes:\n      - {offset: [0, 0], probability: 1.0}\n")
+    mdp = build_model(sc, cell)
+    plain = build_model(*tiny(cells=16))
+    assert mdp.is_simple() and len(mdp.noise_prob) == 1
+    np.testing.assert_array_equal(mdp.valid, plain.valid)
+    assert solve(mdp).gain == pytest.approx(solve(plain).gain, abs=1e-12)
+
+
+def test_noise_costs_time_and_the_simulator_draws_the_landings():
+    from cellplan.strategies.simulate import simulate
+    from cellplan.strategies.strategy import solve_scenario
+
+    sc, cell = noisy()
+    strategy, result = solve_scenario(sc, cell)
+    assert result.converged and not strategy.mdp.is_simple()
+    plain = solve(build_model(*tiny(cells=16))).gain
+    assert result.gain > plain + 1e-3
+    sim = simulate(strategy, 6000, 4, cell=cell)
+    # Every move of the run: which landing it took, from the displacement it made.
+    mdp = strategy.mdp
+    moves = np.flatnonzero(sim.actions >= 0)
+    assert len(moves) > 500
+    counts = np.zeros(3)
+    for t in moves:
+        m, a = int(sim.modes[t]), int(sim.actions[t])
+        k = int(mdp.vcls[m])
+        na = int(mdp.nact[k])
+        step = sim.q[t + 1] - sim.q[t]
+        rows = mdp.disp[k, na + a * 3 : na + a * 3 + 3]
+        counts[int(np.argmin(np.linalg.norm(rows - step, axis=1)))] += 1
+    n = counts.sum()
+    for c, p in zip(counts, (0.5, 0.25, 0.25), strict=True):
+        assert abs(c - n * p) < 4 * np.sqrt(n * p * (1 - p)), counts
