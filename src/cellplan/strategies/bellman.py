@@ -73,7 +73,9 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
     some = subset.shape[0] > 0
     d = shape.shape[0]
     ncorner = 1 << d
-    noisy = moves.noise_prob.shape[0] > 1  # Section VI-4: several landings per move
+    noise_prob = moves.noise_prob
+    nj = noise_prob.shape[0]
+    noisy = nj > 1  # Section VI-4: several landings per move
     mi = np.empty(d, np.int64)
     idx = np.empty(ncorner, np.int64)
     w = np.empty(ncorner)
@@ -127,7 +129,30 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
                 if ((vb >> a) & 1) == 0:
                     continue
                 if noisy:
-                    val = cost + noisy_move_value(m, c, a, mi, inner, h, live, model, idx, w)
+                    if single and inner:
+                        # The landings' corners straight from the tables, as below.
+                        val = cost
+                        for j in range(nj):
+                            pj = noise_prob[j]
+                            if pj <= 0.0:
+                                continue
+                            row = na + a * nj + j
+                            ssum = 0.0
+                            vsum = 0.0
+                            for jj in range(ncorner):
+                                wj = cw[kcls, row, t, jj]
+                                if wj <= EPS_W:
+                                    break
+                                i = c + coff[kcls, row, t, jj]
+                                if livem[i]:
+                                    ssum += wj
+                                    vsum += wj * hm[i]
+                            if ssum <= EPS_W:
+                                val = np.inf
+                                break
+                            val += pj * vsum / ssum
+                    else:
+                        val = cost + noisy_move_value(m, c, a, mi, inner, h, live, model, idx, w)
                     if val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
                         second = best
                         best = val

@@ -131,10 +131,11 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             xs = [s for s, _ in gains]
             ax.plot(xs, [g for _, g in gains], "k-o", label="solved gain g (optimal)")
             for j, (k, color) in enumerate((("optimal", "#1f77b4"), ("reactive", "#d62728"))):
+                ci = [opt if j == 0 else rea for _, opt, rea in sims]
                 ax.errorbar(
                     [s + 0.04 * (j - 0.5) for s, *_ in sims],
-                    [c[1 + j][0] for c in sims],
-                    yerr=[0.0 if not np.isfinite(c[1 + j][1]) else c[1 + j][1] for c in sims],
+                    [m for m, _ in ci],
+                    yerr=[h if np.isfinite(h) else 0.0 for _, h in ci],
                     fmt="s",
                     color=color,
                     capsize=3,

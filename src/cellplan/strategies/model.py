@@ -908,9 +908,11 @@ def action_sets(
     if sec.noise is not None:
         noise = sec.noise
         prob = np.array([o.probability for o in noise.outcomes], float)
-        offsets = np.array([o.offset for o in noise.outcomes], float)
-        if noise.frame == "world":
-            offsets = units.config_from_file(robot.axis_names, offsets)
+        given = [o.offset for o in noise.outcomes]
+        if noise.frame == "world":  # angles in degrees in the file
+            offsets = np.stack([units.config_from_file(robot.axis_names, v) for v in given])
+        else:
+            offsets = np.array(given, float)
         empty = with_noise(empty, offsets, prob, noise.frame)
         carrying = {p: with_noise(a, offsets, prob, noise.frame) for p, a in carrying.items()}
     return empty, carrying
@@ -946,9 +948,9 @@ def estimate_memory(
 ) -> MemoryEstimate:
     """The memory of :func:`build_model` and the solver on this grid, before allocating.
 
-    Counts, per grid cell (``N``), with ``M`` modes (NR and two per request), ``K`` move
-    classes (at most NR, one per source and one per carried (part, source)), ``A``
-    actions, ``d`` axes:
+    Counts, per grid cell (``N``), with ``M`` modes (NR, two per request, the X modes of
+    rejected parts), ``K`` move classes (at most NR, one per source and one per carried
+    (part, source)), ``A`` actions (with their noisy landings), ``d`` axes:
 
     * model (:class:`LayeredMDP`, alive throughout): ``tf`` float64 ``(M, N)``, ``live``
       bool ``(M, N)``, ``free`` and ``interior`` bool ``(K, N)``, ``valid`` int64 ``(K, N)``;
@@ -996,7 +998,7 @@ def estimate_memory(
     N = int(np.prod(shape, dtype=object))
     requests = sec.request_list(scenario)
     R = len(requests)
-    M = 2 * R + 1
+    M = 2 * R + 1 + sec.reject_modes(requests)
     parts = sorted({p for p, *_ in requests})
     S = len({s for _, s, *_ in requests})
     PS = len({(p, s) for p, s, *_ in requests})

@@ -166,7 +166,9 @@ class NoiseSpec(StrictModel):
     """Noisy motion, the first step of Section VI-4: each move lands at one of several
     displacements around the commanded one with given probabilities."""
 
-    outcomes: Annotated[list[NoiseOutcome], Field(min_length=1, max_length=MAX_NOISE_OUTCOMES)]
+    outcomes: Annotated[list[NoiseOutcome], Field(min_length=1, max_length=MAX_NOISE_OUTCOMES)] = (
+        Field(description="where a move lands, with probabilities summing to 1")
+    )
     frame: Literal["motion", "world"] = Field(
         default="motion",
         description="offsets along and across each move (translating robots), or along the "
@@ -266,6 +268,16 @@ class StrategySection(StrictModel):
             if f.applies(region, part) and f.probability > 0.0:
                 return f
         return None
+
+    def reject_modes(self, requests: list[tuple[str, str, str, float]]) -> int:
+        """How many X modes (a rejected part carried to a reject region, Section VI-3) the
+        model of these requests has: one per (request, reject region, what follows)."""
+        keys = set()
+        for i, (p, s, d, _) in enumerate(requests):
+            for f in (self.failure_at(s, p), self.failure_at(d, p)):
+                if f is not None and f.then == "reject":
+                    keys.add((i, f.reject_region, f.after_reject or "fetch"))
+        return len(keys)
 
     def request_list(self, scenario: Scenario) -> list[tuple[str, str, str, float]]:
         """The requestable (part, source, destination, probability), in a fixed order."""
