@@ -60,18 +60,31 @@ def sparse_rvi_outcomes(mdp, tol=1e-11, max_iter=400000):
         for a in range(-1, int(mdp.nact[k])):
             if a >= 0 and not (int(mdp.valid[k, c]) >> a) & 1:
                 continue
-            q = centre + (mdp.disp[k, a] if a >= 0 else 0.0)
-            st_ = {c: 1.0} if a < 0 else _stencil(q, mdp)
+            # Noisy motion (Section VI-4): landing j of move a is row na + a J + j of disp.
+            J, na = len(mdp.noise_prob), int(mdp.nact[k])
+            if a < 0:
+                landings = [({c: 1.0}, 1.0)]
+            elif J == 1:
+                landings = [(_stencil(centre + mdp.disp[k, a], mdp), 1.0)]
+            else:
+                landings = [
+                    (_stencil(centre + mdp.disp[k, na + a * J + j], mdp), float(pj))
+                    for j, pj in enumerate(mdp.noise_prob)
+                    if pj > 0
+                ]
             entries = []
             ok = True
-            for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
-                L = mdp.branch_layer[b]
-                wl = {i: w for i, w in st_.items() if w > 1e-12 and live[L, i]}
-                tot = sum(wl.values())
-                if tot <= 1e-12:
-                    ok = False
-                    break
-                entries += [(index[L, i], mdp.branch_prob[b] * w / tot) for i, w in wl.items()]
+            for st_, pj in landings:
+                for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
+                    L = mdp.branch_layer[b]
+                    wl = {i: w for i, w in st_.items() if w > 1e-12 and live[L, i]}
+                    tot = sum(wl.values())
+                    if tot <= 1e-12:
+                        ok = False
+                        break
+                    entries += [
+                        (index[L, i], pj * mdp.branch_prob[b] * w / tot) for i, w in wl.items()
+                    ]
             if not ok:
                 continue
             for j, p in entries:
@@ -344,3 +357,26 @@ def test_a_failed_evaluation_is_recovered_by_value_iteration(tiny_model, monkeyp
     assert res.status is Status.SOLVED and len(calls) > 1
     assert res.sweeps >= pi.RECOVERY_SWEEPS
     assert abs(res.gain - solve_structured(tiny_model, tol=1e-9).gain) < 1e-8
+
+
+NOISE = (
+    "  noise:\n    outcomes:\n      - {offset: [0, 0], probability: 0.5}\n"
+    "      - {offset: [0.5, 1.2], probability: 0.3}\n"
+    "      - {offset: [0, -1.2], probability: 0.2}\n"
+)
+
+
+@pytest.mark.parametrize("failures", [False, True])
+def test_noisy_models_match_plain_sparse_rvi(failures):
+    # Noisy motion (Section VI-4) alone, and with a failing delivery retried in place.
+    extra = NOISE
+    if failures:
+        extra += "  failures:\n    - {region: D1, probability: 0.3, then: retry, rework: 2}\n"
+    sc = loads_scenario(TINY.replace("CELLS", "12") + extra)
+    mdp = build_model(sc, cellplan.workcell.Workcell.from_scenario(sc))
+    assert len(mdp.noise_prob) == 3
+    res = solve(mdp)
+    assert res.method == "policy" and res.status is Status.SOLVED
+    g_ref = sparse_rvi_outcomes(mdp)
+    assert res.gain_lower - 1e-9 <= g_ref <= res.gain_upper + 1e-9
+    assert abs(res.gain - g_ref) < 1e-6
