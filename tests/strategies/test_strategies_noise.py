@@ -133,3 +133,22 @@ def test_noise_costs_time_and_the_simulator_draws_the_landings():
     n = counts.sum()
     for c, p in zip(counts, (0.5, 0.25, 0.25), strict=True):
         assert abs(c - n * p) < 4 * np.sqrt(n * p * (1 - p)), counts
+
+
+def test_bundled_noise_scenario_keeps_clear_of_the_walls_in_the_passages(tmp_path):
+    # The behaviour of Section VI-4 asked for: with noise on, the moves that land in the
+    # narrow passages (the wall with the opening, and the wide passage beside it) keep a
+    # larger clearance than with exact motion; measured by the report's experiment, on
+    # its quick grid, per seed.
+    from cellplan.strategies.noise_experiment import EXPERIMENT
+
+    specs = EXPERIMENT.make_runs(3, True)
+    rows = [EXPERIMENT.run(s) for s in specs]
+    for r in rows:
+        assert r["noisy_passage_moves"] > 50 and r["exact_passage_moves"] > 50
+        assert r["noisy_passage_clearance"] > r["exact_passage_clearance"] + 0.1, r
+        assert r["noisy_near_misses"] < r["exact_near_misses"], r
+    assert rows[0]["noisy_gain"] > rows[0]["exact_gain"]  # noise costs time
+    piece = EXPERIMENT.report(rows, tmp_path)
+    assert len(piece.claims) == 3 and all(p.exists() for p in piece.figures)
+    assert piece.claims[0].n == 3 and piece.claims[0].reproduced is None  # too few seeds

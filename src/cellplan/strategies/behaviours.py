@@ -15,7 +15,9 @@ interval on it over seeds and the behaviour tests can assert it:
 * :func:`turns_to_changed_destination` — its first move after the destination changes
   heads toward the new destination (P4);
 * :func:`component_for_destination` — with a request from a two-component source, the
-  destination decides which component it picks from (P6).
+  destination decides which component it picks from (P6);
+* :func:`move_clearances` — how far from obstacles a simulated run's moves land (noisy
+  motion, Section VI-4).
 
 Each follows the optimal actions without random transitions (:func:`follow`), as the
 paper's figures do between mode changes.
@@ -253,3 +255,23 @@ def component_for_destination(
     if not picks[0]:
         return float("nan")
     return float(np.mean(picks[0]) - np.mean(picks[1]))
+
+
+def move_clearances(strategy: Strategy, cell: Any, sim: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``(configurations, clearances)`` after every move of a simulated run.
+
+    The clearance (workcell units, :meth:`~cellplan.workcell.Workcell.clearance`) is that
+    of the robot and what it carries to the obstacles of its mode: the other sources
+    while a request is served, every source in NR. Used to show that with noisy motion
+    (Section VI-4) the strategy keeps away from obstacles in narrow passages.
+    """
+    mdp = strategy.mdp
+    moved = np.flatnonzero(sim.actions >= 0)
+    out = np.empty(len(moved))
+    for m in np.unique(sim.modes[moved]):
+        sel = sim.modes[moved] == m
+        mode = mdp.modes[int(m)]
+        carrying = mode.part if mode.kind in ("C", "X") else None
+        avoid = "all" if mode.kind == "NR" else cell.sources_except(mode.source)
+        out[sel] = cell.clearance(sim.q[moved[sel] + 1], carrying, avoid)
+    return sim.q[moved + 1], out

@@ -434,10 +434,10 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
     )
 
 
-def _failures() -> Experiment:
-    from cellplan.strategies.failure_experiment import EXPERIMENT
+def _section_vi() -> list[Experiment]:
+    from cellplan.strategies import failure_experiment, noise_experiment
 
-    return EXPERIMENT
+    return [failure_experiment.EXPERIMENT, noise_experiment.EXPERIMENT]
 
 
 EXPERIMENTS: list[Experiment] = [
@@ -457,5 +457,5 @@ EXPERIMENTS: list[Experiment] = [
         run=run_behaviours,
         report=report_behaviours,
     ),
-    _failures(),
+    *_section_vi(),
 ]
