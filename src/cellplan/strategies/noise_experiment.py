@@ -159,7 +159,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
         f"seeds). Right: waiting per request under noise. Runs of {', '.join(map(str, stages))} "
         f"stages on {', '.join(c.replace(',', ' x ') for c in cells)} grids."
     )
-    table = [
+    table: list[dict[str, Scalar]] = [
         {
             "seed": int(r["seed"]),
             "gain (noisy / exact)": f"{float(r['noisy_gain']):.4f} / {float(r['exact_gain']):.4f}",
