@@ -91,7 +91,7 @@ def main() -> None:
         solve_policy_iteration(mdp)
         solve_general(mdp, max_sweeps=5)
     solve_structured(warm)
-    for n in (int(v) for v in args.grids.split(",")):
+    for n in (int(v) for v in args.grids.split(",") if v):
         mdp = build_model(setup.scenario, setup.workcell, [n, n])
         fail = retry_model(mdp, args.failure, args.rework)
         states = int(mdp.live.sum())
