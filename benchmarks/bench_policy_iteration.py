@@ -9,10 +9,9 @@ In one process, on problem 1 at each grid:
   :func:`~cellplan.strategies.policy_iteration.solve_policy_iteration` and
   :func:`~cellplan.strategies.solver.solve_general` (relative value iteration, the only
   solver for general models before policy iteration);
-* a failure model (Section VI-3): every carrying layer's FMP fails with probability
-  ``--failure`` and the part is retried in place after ``--rework`` time units (the
-  carrying layer again). The structured solver does not apply; policy iteration and
-  relative value iteration do.
+* a failure model (Section VI-3, ``strategy.failures``): every delivery fails with
+  probability ``--failure`` and is retried in place after ``--rework`` time units. The
+  structured solver does not apply; policy iteration and relative value iteration do.
 
 Then each ``--bundled`` Section VI scenario (failure modes, noisy motion) at its own grid,
 by policy iteration alone (relative value iteration would take minutes).
@@ -25,36 +24,24 @@ the ratio of relative value iteration's time to policy iteration's.
 from __future__ import annotations
 
 import argparse
-import dataclasses
-
-import numpy as np
+from typing import Any
 
 import cellplan
-from cellplan.strategies.bundles import Outcomes
-from cellplan.strategies.model import LayeredMDP, build_model, compute_live
+from cellplan.strategies.model import build_model
 from cellplan.strategies.policy_iteration import solve_policy_iteration
+from cellplan.strategies.section import FailureSpec
 from cellplan.strategies.solver import SolveResult, solve_general, solve_structured
 
 
-def retry_model(mdp: LayeredMDP, f: float, rework: float) -> LayeredMDP:
-    """Every carrying layer's FMP fails with probability ``f``: retried in place after
-    ``rework`` (the carrying layer again); waiting layers' FMPs (picks) always succeed."""
-    R = mdp.n_requests
-    ptr, layer, prob, cost = [0], [], [], []
-    for m in range(mdp.n_modes):
-        nxt = int(mdp.fmp_next[m])
-        if nxt >= 0:
-            carrying = m > R
-            layer += [nxt, m] if carrying else [nxt]
-            prob += [1.0 - f, f] if carrying else [1.0]
-            cost += [0.0, rework] if carrying else [0.0]
-        ptr.append(len(layer))
-    out = Outcomes(
-        np.array(ptr, np.int64), np.array(layer, np.int64), np.array(prob), np.array(cost)
-    )
-    new = dataclasses.replace(mdp, outcomes=out, live=mdp.live.copy())
-    compute_live(new)
-    return new
+def retry_scenario(scenario: Any, f: float, rework: float) -> Any:
+    """Problem 1 with every delivery failing with probability ``f``, retried in place after
+    ``rework`` time units (``strategy.failures``, Section VI-3); picks always succeed."""
+    failures = [
+        FailureSpec(region=d, probability=f, then="retry", rework=rework)
+        for d in scenario.destinations
+    ]
+    sec = scenario.strategy.model_copy(update={"failures": failures})
+    return scenario.model_copy(update={"strategy": sec})
 
 
 def row(label: str, states: int, res: SolveResult, base: float | None = None) -> None:
@@ -86,14 +73,15 @@ def main() -> None:
     )
     args = ap.parse_args()
     setup = cellplan.load("strategies_p1")
+    failing = retry_scenario(setup.scenario, args.failure, args.rework)
     warm = build_model(setup.scenario, setup.workcell, [34, 34])
-    for mdp in (warm, retry_model(warm, args.failure, args.rework)):
+    for mdp in (warm, build_model(failing, setup.workcell, [34, 34])):
         solve_policy_iteration(mdp)
         solve_general(mdp, max_sweeps=5)
     solve_structured(warm)
     for n in (int(v) for v in args.grids.split(",") if v):
         mdp = build_model(setup.scenario, setup.workcell, [n, n])
-        fail = retry_model(mdp, args.failure, args.rework)
+        fail = build_model(failing, setup.workcell, [n, n])
         states = int(mdp.live.sum())
         label = f"P1 {n}x{n} Section V"
         row(label, states, solve_structured(mdp))

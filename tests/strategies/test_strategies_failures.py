@@ -11,16 +11,13 @@ refuse tampered ones.
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from strategies_helpers import TINY, tiny, tiny_failures
-from test_strategies_fileformat import _write, check_load, craft
+from test_strategies_fileformat import _write, check_load, craft, solved_file
 
-from cellplan.api import load
 from cellplan.errors import PersistenceError
 from cellplan.strategies.model import build_model
 from cellplan.strategies.simulate import simulate
@@ -224,13 +221,7 @@ def test_strategy_file_keeps_the_outcomes_and_loads_for_simulate(tmp_path):
 @pytest.fixture(scope="module")
 def failure_base(tmp_path_factory):
     """A solved strategy file of the bundled arm scenario with failures."""
-    setup = load("strategies_failures_arm")
-    strategy, _ = solve_scenario(setup.scenario, setup.workcell)
-    path = strategy.save(tmp_path_factory.mktemp("fbase") / "base.npz")
-    with np.load(path, allow_pickle=False) as data:
-        arrays = {k: data[k] for k in data.files}
-    meta = json.loads(str(arrays.pop("meta")))
-    return setup, path, arrays, meta
+    return solved_file("strategies_failures_arm", tmp_path_factory.mktemp("fbase"))
 
 
 @pytest.mark.parametrize(

@@ -34,16 +34,21 @@ from cellplan.strategies.strategy import Strategy, solve_scenario
 SCENARIO = "strategies_tiny"
 
 
-@pytest.fixture(scope="module")
-def base(tmp_path_factory):
-    """A solved strategy file of the bundled tiny scenario: (setup, path, arrays, meta)."""
-    setup = load(SCENARIO)
+def solved_file(name: str, folder: Path) -> tuple:
+    """A solved strategy file of a bundled scenario: (setup, path, arrays, meta)."""
+    setup = load(name)
     strategy, _ = solve_scenario(setup.scenario, setup.workcell)
-    path = strategy.save(tmp_path_factory.mktemp("base") / "base.npz")
+    path = strategy.save(folder / "base.npz")
     with np.load(path, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(str(arrays.pop("meta")))
     return setup, path, arrays, meta
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    """A solved strategy file of the bundled tiny scenario."""
+    return solved_file(SCENARIO, tmp_path_factory.mktemp("base"))
 
 
 INT_FIELDS = [n for n, s in ARRAYS.items() if s.dtype == "int64"]
