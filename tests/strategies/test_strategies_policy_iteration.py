@@ -7,11 +7,10 @@ import dataclasses
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from strategies_helpers import TINY, tiny
-from test_strategies_solver import _stencil
+from test_strategies_solver import sparse_rvi
 
 import cellplan
 from cellplan.core import Status
@@ -24,85 +23,10 @@ from cellplan.strategies.solver import solve, solve_structured
 
 
 def sparse_rvi_outcomes(mdp, tol=1e-11, max_iter=400000):
-    """Relative value iteration from the definition, one scipy.sparse matrix per action.
-
-    FMP in mode m costs t_f(m, x) and then, with probability p_o, adds c_o and moves to
-    mode L_o at the same cell (every outcome must be a live state); stay keeps the cell
-    in every branch; a move lands on its stencil's live corners, renormalised per branch.
-    """
-    live = mdp.live
-    out = mdp.fmp_outcomes()
-    states = np.argwhere(live)
-    index = -np.ones(live.shape, np.int64)
-    index[live] = np.arange(len(states))
-    S = len(states)
-    A = int(mdp.nact.max())
-    rows = {a: ([], [], []) for a in range(-2, A)}
-    cost = {a: np.full(S, np.inf) for a in range(-2, A)}
-    for s, (m, c) in enumerate(states):
-        centre = mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
-        outs = [
-            (int(out.layer[o]), float(out.prob[o]), float(out.cost[o]))
-            for o in range(out.ptr[m], out.ptr[m + 1])
-            if out.prob[o] > 0
-        ]
-        if (
-            mdp.fmp_next[m] >= 0
-            and np.isfinite(mdp.tf[m, c])
-            and all(live[L, c] for L, _, _ in outs)
-        ):
-            for L, p, _ in outs:
-                rows[-2][0].append(s)
-                rows[-2][1].append(index[L, c])
-                rows[-2][2].append(p)
-            cost[-2][s] = mdp.tf[m, c] + sum(p * co for _, p, co in outs)
-        k = mdp.vcls[m]
-        for a in range(-1, int(mdp.nact[k])):
-            if a >= 0 and not (int(mdp.valid[k, c]) >> a) & 1:
-                continue
-            # Noisy motion (Section VI-4): landing j of move a is row na + a J + j of disp.
-            J, na = len(mdp.noise_prob), int(mdp.nact[k])
-            if a < 0:
-                landings = [({c: 1.0}, 1.0)]
-            elif J == 1:
-                landings = [(_stencil(centre + mdp.disp[k, a], mdp), 1.0)]
-            else:
-                landings = [
-                    (_stencil(centre + mdp.disp[k, na + a * J + j], mdp), float(pj))
-                    for j, pj in enumerate(mdp.noise_prob)
-                    if pj > 0
-                ]
-            entries = []
-            ok = True
-            for st_, pj in landings:
-                for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
-                    L = mdp.branch_layer[b]
-                    wl = {i: w for i, w in st_.items() if w > 1e-12 and live[L, i]}
-                    tot = sum(wl.values())
-                    if tot <= 1e-12:
-                        ok = False
-                        break
-                    entries += [
-                        (index[L, i], pj * mdp.branch_prob[b] * w / tot) for i, w in wl.items()
-                    ]
-            if not ok:
-                continue
-            for j, p in entries:
-                rows[a][0].append(s)
-                rows[a][1].append(j)
-                rows[a][2].append(p)
-            cost[a][s] = mdp.cost[m]
-    mats = {a: sp.csr_matrix((r[2], (r[0], r[1])), shape=(S, S)) for a, r in rows.items()}
-    h = np.zeros(S)
-    for _ in range(max_iter):
-        th = np.min(np.stack([cost[a] + mats[a] @ h for a in mats]), axis=0)
-        diff = th - h
-        if diff.max() - diff.min() < tol:
-            break
-        # Damped (aperiodic) iteration: the retry self-loops make no periodic chain, but
-        # the damping costs nothing and keeps the oracle independent of that.
-        h = 0.5 * (h + th) - 0.5 * (h + th)[0]
-    return 0.5 * (diff.max() + diff.min())
+    """The gain by the plain sparse value iteration of the solver tests (FMP outcomes and
+    noisy landings included), damped: the retry self-loops make no periodic chain, but the
+    damping keeps the oracle independent of that."""
+    return sparse_rvi(mdp, tol, max_iter, damping=0.5)[0]
 
 
 def with_outcomes(mdp: LayeredMDP, f: float, rework: float, into: str = "self") -> LayeredMDP:

@@ -52,52 +52,83 @@ def _stencil(q, mdp):
     return out
 
 
-def sparse_rvi(mdp, tol=1e-10, max_iter=200000):
-    """Relative value iteration with one scipy.sparse matrix per action."""
+def _landing(centre, step, mdp):
+    """Where a move from a cell centre lands (robot-frame moves turned, angles wrapped)."""
+    step = step.copy()
+    if mdp.heading_axis >= 0:  # robot-frame move of the rotating robot
+        th = centre[mdp.heading_axis]
+        dx, dy = step[0], step[1]
+        step[0], step[1] = (dx * np.cos(th) - dy * np.sin(th), dx * np.sin(th) + dy * np.cos(th))
+    q = centre + step
+    for j in range(len(q)):
+        if mdp.periodic[j]:
+            span = mdp.upper[j] - mdp.lower[j]
+            q[j] = mdp.lower[j] + (q[j] - mdp.lower[j]) % span
+    return q
+
+
+def sparse_rvi(mdp, tol=1e-10, max_iter=200000, damping=1.0):
+    """Relative value iteration from the definition, one scipy.sparse matrix per action.
+
+    FMP in mode m costs t_f(m, x) and then, with probability p_o, adds c_o and moves to
+    mode L_o at the same cell (Section V: one outcome; failure modes: several), every
+    outcome a live state; stay keeps the cell in every branch; a move lands at each of its
+    landings with probability p_j (one, exact, in Section V; noisy motion: row
+    ``A + a J + j`` of ``disp``), on the stencil's live corners renormalised per branch.
+    ``damping`` < 1 averages each iterate with the last (aperiodic whatever the chain).
+    Returns the gain and the relative values (NaN off the live states).
+    """
     live = mdp.live
+    out = mdp.fmp_outcomes()
     states = np.argwhere(live)
     index = -np.ones(live.shape, np.int64)
     index[live] = np.arange(len(states))
     S = len(states)
     A = int(mdp.nact.max())
+    J = len(mdp.noise_prob)
     rows = {a: ([], [], []) for a in range(-2, A)}
     cost = {a: np.full(S, np.inf) for a in range(-2, A)}
     for s, (m, c) in enumerate(states):
         centre = mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
-        nxt = mdp.fmp_next[m]
-        if nxt >= 0 and np.isfinite(mdp.tf[m, c]) and live[nxt, c]:
-            rows[-2][0].append(s)
-            rows[-2][1].append(index[nxt, c])
-            rows[-2][2].append(1.0)
-            cost[-2][s] = mdp.tf[m, c]
+        outs = [
+            (int(out.layer[o]), float(out.prob[o]), float(out.cost[o]))
+            for o in range(out.ptr[m], out.ptr[m + 1])
+            if out.prob[o] > 0
+        ]
+        if np.isfinite(mdp.tf[m, c]) and outs and all(live[L, c] for L, _, _ in outs):
+            for L, p, _ in outs:
+                rows[-2][0].append(s)
+                rows[-2][1].append(index[L, c])
+                rows[-2][2].append(p)
+            cost[-2][s] = mdp.tf[m, c] + sum(p * co for _, p, co in outs)
         k = mdp.vcls[m]
-        for a in range(-1, int(mdp.nact[k])):
+        na = int(mdp.nact[k])
+        for a in range(-1, na):
             if a >= 0 and not (int(mdp.valid[k, c]) >> a) & 1:
                 continue
-            step = mdp.disp[k, a].copy() if a >= 0 else np.zeros(len(centre))
-            if a >= 0 and mdp.heading_axis >= 0:  # robot-frame move of the rotating robot
-                th = centre[mdp.heading_axis]
-                dx, dy = step[0], step[1]
-                step[0], step[1] = (
-                    dx * np.cos(th) - dy * np.sin(th),
-                    dx * np.sin(th) + dy * np.cos(th),
-                )
-            q = centre + step
-            for j in range(len(q)):
-                if mdp.periodic[j]:
-                    span = mdp.upper[j] - mdp.lower[j]
-                    q[j] = mdp.lower[j] + (q[j] - mdp.lower[j]) % span
-            st = {c: 1.0} if a < 0 else _stencil(q, mdp)
+            if a < 0:
+                landings = [({c: 1.0}, 1.0)]
+            elif J == 1:
+                landings = [(_stencil(_landing(centre, mdp.disp[k, a], mdp), mdp), 1.0)]
+            else:
+                landings = [
+                    (_stencil(_landing(centre, mdp.disp[k, na + a * J + j], mdp), mdp), pj)
+                    for j, pj in enumerate(mdp.noise_prob.tolist())
+                    if pj > 0
+                ]
             entries = []
             ok = True
-            for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
-                L = mdp.branch_layer[b]
-                wl = {i: w for i, w in st.items() if w > 1e-12 and live[L, i]}
-                tot = sum(wl.values())
-                if tot <= 1e-12:
-                    ok = False
-                    break
-                entries += [(index[L, i], mdp.branch_prob[b] * w / tot) for i, w in wl.items()]
+            for st, pj in landings:
+                for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
+                    L = mdp.branch_layer[b]
+                    wl = {i: w for i, w in st.items() if w > 1e-12 and live[L, i]}
+                    tot = sum(wl.values())
+                    if tot <= 1e-12:
+                        ok = False
+                        break
+                    entries += [
+                        (index[L, i], pj * mdp.branch_prob[b] * w / tot) for i, w in wl.items()
+                    ]
             if not ok:
                 continue
             for j, p in entries:
@@ -113,7 +144,8 @@ def sparse_rvi(mdp, tol=1e-10, max_iter=200000):
         diff = th - h
         if diff.max() - diff.min() < tol:
             break
-        h = th - th[ref]
+        h = (1.0 - damping) * h + damping * th
+        h -= h[ref]
     values = np.full(live.shape, np.nan)
     values[live] = h
     return 0.5 * (diff.max() + diff.min()), values
