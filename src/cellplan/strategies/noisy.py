@@ -142,8 +142,15 @@ def noisy_supported(m, c, a, mi, inner, target, live, model, idx, w):  # pragma:
 
 @njit(cache=True)
 def noisy_value_at(q, m, a, h, live, model, idx, w, ibuf, fbuf, mbuf):  # pragma: no cover
-    """``sum_b P_b sum_j p_j H_{L_b}(q + dq_{a,j})`` at a real configuration (without the
-    loss); NaN where a landing's swept motion collides or has no live corner."""
+    """``sum_b P_b sum_j p_j H_{L_b}(q_j)`` at a real configuration (without the loss),
+    ``q_j = q + dq_{a,j}``, or ``q`` itself where landing ``j``'s swept motion is blocked;
+    NaN where every landing is blocked or a value has no live corner.
+
+    A real configuration is not a cell centre: near a wall a landing that is free from the
+    centre can be blocked from ``q``. Execution guards the motion (the robot stops where it
+    is, :meth:`~cellplan.strategies.strategy.Strategy.next_configuration`), and the value
+    here counts that outcome, so the robot is never left without a move.
+    """
     moves = model.moves
     lay = model.layers
     grid = model.grid
@@ -154,12 +161,13 @@ def noisy_value_at(q, m, a, h, live, model, idx, w, ibuf, fbuf, mbuf):  # pragma
     dq = np.empty(d)
     qn = np.empty(d)
     total = 0.0
+    moved = False
     for j in range(J):
         p = moves.noise_prob[j]
         if p <= 0.0:
             continue
         displacement(q, moves.disp[k, landing_row(na, a, j, J)], moves.heading_axis, dq)
-        if not motion_ok(
+        if motion_ok(
             q,
             dq,
             moves.free[k],
@@ -170,10 +178,13 @@ def noisy_value_at(q, m, a, h, live, model, idx, w, ibuf, fbuf, mbuf):  # pragma
             grid.periodic,
             mbuf,
         ):
-            return np.nan
-        for i in range(d):
-            qn[i] = q[i] + dq[i]
-        wrap(qn, grid.lower, grid.upper, grid.periodic)
+            moved = True
+            for i in range(d):
+                qn[i] = q[i] + dq[i]
+            wrap(qn, grid.lower, grid.upper, grid.periodic)
+        else:
+            for i in range(d):
+                qn[i] = q[i]
         n = stencil(qn, grid.shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, fbuf)
         for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
             L = lay.branch_layer[b]
@@ -181,4 +192,4 @@ def noisy_value_at(q, m, a, h, live, model, idx, w, ibuf, fbuf, mbuf):  # pragma
             if np.isnan(v):
                 return np.nan
             total += lay.branch_prob[b] * p * v
-    return total
+    return total if moved else np.nan

@@ -27,9 +27,10 @@ from cellplan.fileio import atomic_path
 from cellplan.strategies.bundles import Model, Outcomes
 from cellplan.strategies.fileformat import FORMAT, VERSION
 from cellplan.strategies.model import LayeredMDP, Mode
+from cellplan.strategies.motion import motion_ok
 from cellplan.strategies.points import action_values_at, query
 from cellplan.strategies.solver import SolveResult
-from cellplan.strategies.stencils import displacement, wrap
+from cellplan.strategies.stencils import MAX_DIM, displacement, wrap
 
 FMP = -2
 STAY = -1
@@ -255,7 +256,9 @@ class Strategy:
         """Where a move (or stay/FMP) takes the robot, equation (5) and its variants.
 
         With noisy motion (Section VI-4), ``landing`` ``j`` gives the move's ``j``-th
-        outcome (:mod:`.noisy`); None gives the commanded move.
+        outcome (:mod:`.noisy`), guarded: where its swept motion from ``q`` is blocked (a
+        landing free from the cell centre can be blocked from an off-centre ``q``), the
+        robot stops where it is. None gives the commanded move.
         """
         q = np.asarray(q, float).copy()
         if action < 0:
@@ -267,6 +270,18 @@ class Strategy:
             row = int(mdp.nact[k]) + action * len(mdp.noise_prob) + int(landing)
         dq = np.empty(len(q))
         displacement(q, mdp.disp[k, row], mdp.heading_axis, dq)
+        if row != action and not motion_ok(
+            q,
+            dq,
+            mdp.free[k],
+            mdp.shape,
+            mdp.lower,
+            mdp.upper,
+            mdp.spacing,
+            mdp.periodic,
+            np.empty(3 * MAX_DIM, np.int64),
+        ):
+            return q
         q = q + dq
         wrap(q, mdp.lower, mdp.upper, mdp.periodic)
         return q
