@@ -116,7 +116,7 @@ def read_arrays(
         The kind of file, for messages (``not a strategy file (...)``).
     """
     where = str(path)
-    limits = limits or {}
+    limits = {} if limits is None else limits  # the caller may fill it after the first arrays
 
     def fail(field: str, message: str) -> PersistenceError:
         return PersistenceError([Problem(where, f"{field}: {message}" if field else message)])

@@ -386,3 +386,17 @@ def test_slow_report_counts():
         pytest.skip("run together with test_slow_crafted_files_through_simulate_and_plot")
     print("\ncrafted strategy files:", json.dumps(COUNTS, sort_keys=True), time.strftime("%H:%M"))
     assert COUNTS["files"] >= min(SLOW_EXAMPLES, 1000)
+
+
+def test_sizes_read_from_the_file_are_held_to_their_limits(base, tmp_path):
+    # The limits of SIZE_LIMITS (K <= M move classes here) are filled in after the
+    # metadata is read; they were once dropped (an empty dict replaced by a new one).
+    setup, _, arrays, meta = base
+    arrays = {k: v.copy() for k, v in arrays.items()}
+    M = len(meta["modes"])
+    arrays["free"] = np.ones((M + 1, arrays["free"].shape[1]), bool)
+    path = _write(tmp_path / "bad.npz", arrays, meta, True)
+    with pytest.raises(
+        PersistenceError, match=rf"free: axis 0 \(K\) is {M + 1}, expected 1 to {M}"
+    ):
+        Strategy.load(path, setup.scenario)

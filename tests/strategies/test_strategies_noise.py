@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from strategies_helpers import TINY, tiny
 
 from cellplan.registry import scenario_path
@@ -204,3 +206,63 @@ def test_bundled_noise_runs_match_the_gain_at_100_cells():
     m = sim.metrics()
     assert m["served"] > 100 and m["corrections"] < 100
     assert abs(m["loss_per_stage"] - result.gain) < 0.05 * result.gain
+
+
+@pytest.fixture(scope="module")
+def noise_base(tmp_path_factory):
+    """A solved strategy file of the tiny scenario with noise: (setup, path, arrays, meta)."""
+    import json
+
+    from cellplan.setup import Setup
+    from cellplan.strategies.strategy import solve_scenario
+
+    sc, cell = noisy()
+    strategy, _ = solve_scenario(sc, cell)
+    path = strategy.save(tmp_path_factory.mktemp("nbase") / "base.npz")
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("meta")))
+    return Setup(sc), path, arrays, meta
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        (lambda a: a["noise_prob"].__setitem__(0, 0.9), "noise_prob: the landings"),
+        (lambda a: a.__setitem__("noise_prob", np.full(17, 1 / 17)), "axis 0 .J. is 17"),
+        (lambda a: a["disp"].__setitem__((0, 9, 0), 1e3), "disp|differs"),
+    ],
+)
+def test_tampered_noise_arrays_are_named(noise_base, tmp_path, change, words):
+    from test_strategies_fileformat import _write
+
+    from cellplan.errors import PersistenceError
+    from cellplan.strategies.strategy import Strategy
+
+    setup, _, arrays, meta = noise_base
+    arrays = {k: v.copy() for k, v in arrays.items()}
+    change(arrays)
+    path = _write(tmp_path / "bad.npz", arrays, meta, True)
+    with pytest.raises(PersistenceError, match=words):
+        Strategy.load(path, setup.scenario)
+
+
+def test_the_noisy_file_loads_and_simulates(noise_base):
+    from test_strategies_fileformat import check_load
+
+    setup, path, _, _ = noise_base
+    assert check_load(path, setup) == "accepted"
+
+
+@settings(
+    max_examples=25,
+    derandomize=True,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+@given(data=st.data())
+def test_crafted_noisy_files_are_refused_cleanly_or_usable(data, noise_base, tmp_path):
+    from test_strategies_fileformat import check_load, craft
+
+    _, path = craft(data, noise_base, tmp_path)
+    check_load(path, noise_base[0])
