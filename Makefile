@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean install docs browser-test
+.PHONY: demo test lint bench clean clean-kernels install docs browser-test
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -41,5 +41,11 @@ browser-test: $(STAMP)
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
 
+# numba's on-disk cache checks the mtime of a kernel's own file only: after editing a
+# module that kernels call (stencils.py, noisy.py, ...), drop the compiled kernels.
+clean-kernels:
+	find src -name '*.nbi' -delete -o -name '*.nbc' -delete
+
 clean:
 	rm -rf $(VENV) cellplan-out .pytest_cache .hypothesis build
+	find src -name '*.nbi' -delete -o -name '*.nbc' -delete
