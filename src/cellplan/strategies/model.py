@@ -1,7 +1,9 @@
 """The layered MDP of the strategies paper (Sections III-IV) on a C-space grid.
 
 State space ``X = C x M`` (Section III-A): the modes are NR plus ``<p,s,d,W>`` and
-``<p,s,d,C>`` for every requestable (part, source, destination), ``2R + 1`` in all.
+``<p,s,d,C>`` for every requestable (part, source, destination), ``2R + 1`` in all, plus
+with failure modes (Section VI-3) the ``<p,s,d,X:R>`` modes of a rejected part carried to
+a reject region ``R`` (:func:`_failure_outcomes`).
 Each mode is a *layer*: a copy of the grid restricted to that mode's free space,
 equations (1)-(3) (:func:`cellplan.cspace.free_bitmap` with ``avoid_sources``):
 
