@@ -266,3 +266,12 @@ def test_crafted_noisy_files_are_refused_cleanly_or_usable(data, noise_base, tmp
 
     _, path = craft(data, noise_base, tmp_path)
     check_load(path, noise_base[0])
+
+
+def test_validate_reports_the_landings(cellplan, tmp_path):
+    path = tmp_path / "s.yaml"
+    path.write_text(BASE + NOISE)
+    r = cellplan("validate", str(path))
+    assert r.returncode == 0, r.stderr
+    assert "noisy motion: 3 landings per move (Section VI-4)" in r.stdout
+    assert "assembly modes: 5 (Section III-A; 2 requests)" in r.stdout

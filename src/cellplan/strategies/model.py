@@ -979,7 +979,7 @@ def estimate_memory(
       ``S <= M N`` live states and ``Z = 2^d J N sum_m B_m`` places for the rows of a
       policy's matrix (``B_m`` the branches of mode ``m``: NR has one per request and
       itself, a W or C layer itself and the requests it can change into; ``J`` landings
-      per move with noise, else 1; the modes of failure modes are not counted yet),
+      per move with noise, else 1; an X mode of failure modes has one branch),
       the state index (int64 ``(M, N)``), the values, the certificate's three sweeps and
       the value-iteration copies (five more float64 ``(M, N)``), 44 bytes per state
       (state list, row starts, counts, cost, index pointers), 33 per place (its row and
@@ -1045,5 +1045,6 @@ def policy_places(requests: Sequence[Any], sec: Any, N: int, d: int) -> int:
                 else 0
             )
             branches += 1 + others
+    branches += sec.reject_modes(requests)  # an X mode (Section VI-3): itself only
     landings = len(sec.noise.outcomes) if sec.noise is not None else 1
     return (1 << d) * landings * N * branches

@@ -72,6 +72,11 @@ def describe(setup: Setup) -> Mapping[str, str]:
             f"{failing} of the {mdp.n_modes - 1} fine motions can fail (Section VI-3); "
             f"states: {int(mdp.live.sum()):,}"
         )
+    if len(mdp.noise_prob) > 1:
+        lines["noisy motion"] = (
+            f"{len(mdp.noise_prob)} landings per move (Section VI-4), a move allowed where "
+            f"every landing is free; states: {int(mdp.live.sum()):,}"
+        )
     return {
         **lines,
         "strategy grid": f"{shape} cells",
