@@ -19,6 +19,7 @@ import sys
 import time
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from hypothesis import strategies as st
 
 from cellplan.api import load
 from cellplan.errors import CellplanError, PersistenceError
+from cellplan.setup import Setup
 from cellplan.strategies.fileformat import ARRAYS
 from cellplan.strategies.simulate import simulate_result
 from cellplan.strategies.strategy import Strategy, solve_scenario
@@ -34,9 +36,9 @@ from cellplan.strategies.strategy import Strategy, solve_scenario
 SCENARIO = "strategies_tiny"
 
 
-def solved_file(name: str, folder: Path) -> tuple:
-    """A solved strategy file of a bundled scenario: (setup, path, arrays, meta)."""
-    setup = load(name)
+def solved_file(source: str | Setup, folder: Path) -> tuple:
+    """A solved strategy file of a bundled scenario (or a setup): (setup, path, arrays, meta)."""
+    setup = load(source) if isinstance(source, str) else source
     strategy, _ = solve_scenario(setup.scenario, setup.workcell)
     path = strategy.save(folder / "base.npz")
     with np.load(path, allow_pickle=False) as data:
@@ -239,10 +241,16 @@ def test_the_untouched_file_loads(base):
     ],
 )
 def test_out_of_range_indices_are_named(base, tmp_path, field, index, value, words):
+    assert_refused(base, tmp_path, lambda a: a[field].reshape(-1).__setitem__(index, value), words)
+
+
+def assert_refused(base: tuple, folder: Path, change: Any, words: str) -> None:
+    """``change`` (a function of the arrays) makes the file refused with a line matching
+    ``words``."""
     setup, _, arrays, meta = base
     arrays = {k: v.copy() for k, v in arrays.items()}
-    arrays[field].reshape(-1)[index] = value
-    path = _write(tmp_path / "bad.npz", arrays, meta, True)
+    change(arrays)
+    path = _write(folder / "bad.npz", arrays, meta, True)
     with pytest.raises(PersistenceError, match=words):
         Strategy.load(path, setup.scenario)
 

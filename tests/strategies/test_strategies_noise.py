@@ -211,18 +211,11 @@ def test_bundled_noise_runs_match_the_gain_at_100_cells():
 @pytest.fixture(scope="module")
 def noise_base(tmp_path_factory):
     """A solved strategy file of the tiny scenario with noise: (setup, path, arrays, meta)."""
-    import json
+    from test_strategies_fileformat import solved_file
 
     from cellplan.setup import Setup
-    from cellplan.strategies.strategy import solve_scenario
 
-    sc, cell = noisy()
-    strategy, _ = solve_scenario(sc, cell)
-    path = strategy.save(tmp_path_factory.mktemp("nbase") / "base.npz")
-    with np.load(path, allow_pickle=False) as data:
-        arrays = {k: data[k] for k in data.files}
-    meta = json.loads(str(arrays.pop("meta")))
-    return Setup(sc), path, arrays, meta
+    return solved_file(Setup(noisy()[0]), tmp_path_factory.mktemp("nbase"))
 
 
 @pytest.mark.parametrize(
@@ -234,17 +227,9 @@ def noise_base(tmp_path_factory):
     ],
 )
 def test_tampered_noise_arrays_are_named(noise_base, tmp_path, change, words):
-    from test_strategies_fileformat import _write
+    from test_strategies_fileformat import assert_refused
 
-    from cellplan.errors import PersistenceError
-    from cellplan.strategies.strategy import Strategy
-
-    setup, _, arrays, meta = noise_base
-    arrays = {k: v.copy() for k, v in arrays.items()}
-    change(arrays)
-    path = _write(tmp_path / "bad.npz", arrays, meta, True)
-    with pytest.raises(PersistenceError, match=words):
-        Strategy.load(path, setup.scenario)
+    assert_refused(noise_base, tmp_path, change, words)
 
 
 def test_the_noisy_file_loads_and_simulates(noise_base):
