@@ -211,7 +211,7 @@ def policy_rows(
 
 
 @njit(cache=True, nogil=True)
-def hop_sweep(dist, act, fixed, index, order, flips, model):  # pragma: no cover - numba
+def hop_sweep(dist, act, fixed, index, order, flips, usable, model):  # pragma: no cover
     """One Gauss-Seidel sweep of the hop distances ``d(s) = 1 + min_a min_{s'} d(s')``.
 
     ``dist`` (per state: 0 on the targets, a large number where unknown) and ``act`` are
@@ -219,7 +219,10 @@ def hop_sweep(dist, act, fixed, index, order, flips, model):  # pragma: no cover
     action (or take the first available one, stay first, where it is ``-3``). The layers
     are visited in ``order``, the cells of each in the sweep order ``flips``
     (:func:`~cellplan.strategies.stencils.cell_of_order`). A state takes the action with
-    the successor nearest to the targets. Returns whether any distance fell.
+    the successor nearest to the targets, among the moves whose every successor is a live
+    state (``usable``, a bitmask per state, found on the first visit: -1 before); a noisy
+    move's successors for the distance are those of its first landing (Section VI-4).
+    Returns whether any distance fell.
     """
     lay = model.layers
     moves = model.moves
@@ -239,6 +242,9 @@ def hop_sweep(dist, act, fixed, index, order, flips, model):  # pragma: no cover
     out_p = np.empty(width)
     changed = False
     J = moves.noise_prob.shape[0]
+    j0 = 0
+    while J > 1 and moves.noise_prob[j0] <= 0.0:
+        j0 += 1
     for m in order:
         na = moves.nact[lay.vcls[m]]
         for kk in range(ncell):
@@ -282,33 +288,57 @@ def hop_sweep(dist, act, fixed, index, order, flips, model):  # pragma: no cover
             b0 = lay.branch_ptr[m]
             b1 = lay.branch_ptr[m + 1]
             vb = moves.valid[k, c]
-            for a in range(na):
-                if ((vb >> a) & 1) == 0:
-                    continue
-                near = np.inf
-                ok = True
-                for jn in range(J):  # the landings of a noisy move (one without noise)
-                    if J > 1 and moves.noise_prob[jn] <= 0.0:
+            # The moves every landing of which has a live corner in every branch do not
+            # change from sweep to sweep: found once per state (usable[s] < 0 until then).
+            bits = usable[s]
+            if bits < 0:
+                bits = 0
+                for a in range(na):
+                    if ((vb >> a) & 1) == 0:
                         continue
-                    nc = move_corners(
-                        k, landing_row(na, a, jn, J) if J > 1 else a, c, mi,
-                        moves.interior[k, c], moves.offs, moves.fr, moves.coff, moves.cw,
-                        moves.heading_axis, shape, model.grid.periodic, idx, w,
-                    )  # fmt: skip
-                    for b in range(b0, b1):
-                        L = lay.branch_layer[b]
-                        sup = False
-                        for j in range(nc):
-                            if w[j] > EPS_W and live[L, idx[j]]:
-                                sup = True
-                                if lay.branch_prob[b] > 0.0:
-                                    near = min(near, dist[index[L, idx[j]]])
-                        if not sup:
-                            ok = False
+                    ok = True
+                    for jn in range(J):  # the landings of a noisy move (one without noise)
+                        if J > 1 and moves.noise_prob[jn] <= 0.0:
+                            continue
+                        nc = move_corners(
+                            k, landing_row(na, a, jn, J) if J > 1 else a, c, mi,
+                            moves.interior[k, c], moves.offs, moves.fr, moves.coff, moves.cw,
+                            moves.heading_axis, shape, model.grid.periodic, idx, w,
+                        )  # fmt: skip
+                        for b in range(b0, b1):
+                            L = lay.branch_layer[b]
+                            sup = False
+                            for j in range(nc):
+                                if w[j] > EPS_W and live[L, idx[j]]:
+                                    sup = True
+                                    break
+                            if not sup:
+                                ok = False
+                                break
+                        if not ok:
                             break
-                    if not ok:
-                        break
-                if ok and near + 1 < best:
+                    if ok:
+                        bits |= 1 << a
+                usable[s] = bits
+            # A hop goes through the first landing of positive probability: progress there
+            # has positive probability, which is all a proper policy needs.
+            for a in range(na):
+                if ((bits >> a) & 1) == 0:
+                    continue
+                nc = move_corners(
+                    k, landing_row(na, a, j0, J) if J > 1 else a, c, mi,
+                    moves.interior[k, c], moves.offs, moves.fr, moves.coff, moves.cw,
+                    moves.heading_axis, shape, model.grid.periodic, idx, w,
+                )  # fmt: skip
+                near = np.inf
+                for b in range(b0, b1):
+                    if lay.branch_prob[b] <= 0.0:
+                        continue
+                    L = lay.branch_layer[b]
+                    for j in range(nc):
+                        if w[j] > EPS_W and live[L, idx[j]]:
+                            near = min(near, dist[index[L, idx[j]]])
+                if near + 1 < best:
                     best = near + 1
                     arg = a
             act[s] = arg
@@ -425,9 +455,11 @@ def hop_policy(
     act = np.where(targets, actions, -3).astype(np.int64)
     order = layer_order(mdp)
     d = len(mdp.shape)
+    usable = np.full(S, -1, np.int64)  # per state, the moves a policy may take (bitmask)
     sweeps = 0
     while sweeps < MAX_HOP_SWEEPS:
-        changed = hop_sweep(dist, act, targets, chain.index, order, sweeps % (1 << d), model)
+        flips = sweeps % (1 << d)
+        changed = hop_sweep(dist, act, targets, chain.index, order, flips, usable, model)
         sweeps += 1
         if not changed:
             break
