@@ -260,3 +260,17 @@ def test_validate_reports_the_landings(cellplan, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "noisy motion: 3 landings per move (Section VI-4)" in r.stdout
     assert "assembly modes: 5 (Section III-A; 2 requests)" in r.stdout
+
+
+def test_a_noisy_file_with_more_table_rows_than_actions_round_trips(tmp_path):
+    # 16 headings and 3 landings make 64 rows of move tables: more than the 62 actions a
+    # class may have (the valid bitmask), which the file's size limit once confused.
+    from cellplan.strategies.strategy import Strategy, solve_scenario
+
+    text = TINY.replace("CELLS", "16").replace("headings: 8", "headings: 16") + NOISE
+    sc = loads_scenario(text)
+    cell = Workcell.from_scenario(sc)
+    strategy, _ = solve_scenario(sc, cell)
+    assert strategy.mdp.disp.shape[1] == 64
+    back = Strategy.load(strategy.save(tmp_path / "n.npz"), sc)
+    np.testing.assert_array_equal(back.values, strategy.values)

@@ -143,7 +143,7 @@ ARRAYS: dict[str, ArraySpec] = {
 #: Sizes read from the file, with their limits (M, the mode count, is known by then).
 SIZE_LIMITS: dict[str, tuple[int | str, int | str]] = {
     "K": (1, "M"),
-    "A": (1, MAX_ACTIONS),
+    "A": (1, MAX_ACTIONS * (1 + MAX_NOISE_OUTCOMES)),  # moves, then their noisy landings
     "B": ("M", "M * M"),
     "G": ("M - 1", "M * M"),
     "J": (1, MAX_NOISE_OUTCOMES),
@@ -288,6 +288,8 @@ def _check_consistency(meta: StrategyMeta, a: dict, sizes: dict[str, int], fail:
     if len(meta.labels) != K:
         raise fail(f"meta.labels: expected {K} lists (one per move class), got {len(meta.labels)}")
     nact = a["nact"]
+    if (nact > MAX_ACTIONS).any():
+        raise fail(f"nact: more than {MAX_ACTIONS} actions in a move class")
     if ((a["valid"] >> nact[:, None]) != 0).any():
         raise fail("valid: marks an action beyond the class's action count")
     noise = a["noise_prob"]
