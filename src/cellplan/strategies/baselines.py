@@ -31,10 +31,7 @@ def per_request_values(mdp: LayeredMDP, tol: float = 1e-9, max_sweeps: int = 100
     work = np.where(mdp.live, 0.0, 0.0)
     args = mdp.kernel_args()
     d = len(mdp.shape)
-    R = mdp.n_requests
-    rejects = [m for m, mode in enumerate(mdp.modes) if mode.kind == "X"]
-    order = [mdp.c_layer(r) for r in range(R)] + [mdp.w_layer(r) for r in range(R)] + rejects
-    for m in order:
+    for m in _request_layers(mdp):
         work[m][mdp.live[m]] = np.inf
         for s in range(max_sweeps):
             if kernels.sweep_layer(m, s % (1 << d), work, D, 0.0, False, False, args) < tol:
@@ -43,6 +40,13 @@ def per_request_values(mdp: LayeredMDP, tol: float = 1e-9, max_sweeps: int = 100
     if not mdp.is_simple():
         h = _with_failures(mdp, h, tol, max_sweeps)
     return h
+
+
+def _request_layers(mdp: LayeredMDP) -> list[int]:
+    """The layers of a request, each after those its FMP leads to: C, W, then the X modes."""
+    R = mdp.n_requests
+    rejects = [m for m, mode in enumerate(mdp.modes) if mode.kind == "X"]
+    return [mdp.c_layer(r) for r in range(R)] + [mdp.w_layer(r) for r in range(R)] + rejects
 
 
 def _with_failures(mdp: LayeredMDP, h: np.ndarray, tol: float, max_sweeps: int) -> np.ndarray:
@@ -57,9 +61,7 @@ def _with_failures(mdp: LayeredMDP, h: np.ndarray, tol: float, max_sweeps: int) 
     out = mdp.fmp_outcomes()
     args_of = mdp.kernel_args
     d = len(mdp.shape)
-    R = mdp.n_requests
-    rejects = [m for m, mode in enumerate(mdp.modes) if mode.kind == "X"]
-    order = [mdp.c_layer(r) for r in range(R)] + [mdp.w_layer(r) for r in range(R)] + rejects
+    order = _request_layers(mdp)
     failing = [m for m in order if out.ptr[m + 1] - out.ptr[m] > 1]
     D = np.zeros(h.shape)
     work = np.where(mdp.live, h, 0.0)

@@ -32,7 +32,10 @@ def landing_row(na, a, j, J):  # pragma: no cover - numba
 @njit(cache=True, nogil=True, inline="always")
 def noisy_move_value(m, c, a, mi, inner, h, live, model, idx, w):  # pragma: no cover - numba
     """``sum_b P_b sum_j p_j H_{L_b}(x_c + dx_{a,j})`` from the centre of cell ``c`` of mode
-    ``m`` (without the loss ``l(m)``); ``inf`` where some landing has no live corner."""
+    ``m`` (without the loss ``l(m)``); ``inf`` where some landing has no live corner.
+
+    :func:`.bellman.bellman_rows` writes the single-branch interior case out itself (a call
+    per move costs ten times the work there) and calls this for the rest."""
     moves = model.moves
     lay = model.layers
     grid = model.grid
@@ -40,32 +43,6 @@ def noisy_move_value(m, c, a, mi, inner, h, live, model, idx, w):  # pragma: no 
     na = moves.nact[k]
     J = moves.noise_prob.shape[0]
     total = 0.0
-    b0 = lay.branch_ptr[m]
-    if inner and lay.branch_ptr[m + 1] - b0 == 1 and lay.branch_layer[b0] == m:
-        # One branch into the layer itself (C and W without mode changes), away from the
-        # border: the landings' corners come straight from the tables (no stencil buffers).
-        t = mi[moves.heading_axis] if moves.heading_axis >= 0 else 0
-        hm = h[m]
-        livem = live[m]
-        for j in range(J):
-            p = moves.noise_prob[j]
-            if p <= 0.0:
-                continue
-            row = na + a * J + j
-            ssum = 0.0
-            vsum = 0.0
-            for jj in range(moves.cw.shape[3]):
-                wj = moves.cw[k, row, t, jj]
-                if wj <= EPS_W:
-                    break
-                i = c + moves.coff[k, row, t, jj]
-                if livem[i]:
-                    ssum += wj
-                    vsum += wj * hm[i]
-            if ssum <= EPS_W:
-                return np.inf
-            total += p * vsum / ssum
-        return total
     for j in range(J):
         p = moves.noise_prob[j]
         if p <= 0.0:
