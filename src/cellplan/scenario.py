@@ -351,6 +351,7 @@ class _UniqueKeyLoader(_BaseLoader):
     """
 
 
+_TOO_DEEP = f"YAML nested too deeply (more than {MAX_YAML_DEPTH} levels)"
 _OPEN = (yaml.MappingStartEvent, yaml.SequenceStartEvent)
 _CLOSE = (yaml.MappingEndEvent, yaml.SequenceEndEvent)
 _VALUE = (yaml.ScalarEvent, yaml.AliasEvent, *_OPEN)
@@ -372,7 +373,7 @@ def _check_size(text: str, source: str) -> None:
         if isinstance(event, _OPEN):
             depth += 1
             if depth > MAX_YAML_DEPTH:
-                reason = f"YAML nested too deeply (more than {MAX_YAML_DEPTH} levels)"
+                reason = _TOO_DEEP
         elif isinstance(event, _CLOSE):
             depth -= 1
         if reason:
@@ -447,9 +448,14 @@ def parse_yaml(text: str, source: str = "<string>") -> Any:
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
-        raise ScenarioError(
-            [Problem(where, f"YAML syntax: {_one_line(exc.problem or exc)}")]
-        ) from None
+        problem = _one_line(exc.problem or exc)
+        # libyaml >= 0.2.6 (PyYAML 6.0.4's wheels) stops at its own depth limit while
+        # scanning ahead, before _check_size sees the events; say it the same way.
+        if "maximum nesting depth" in problem:
+            problem = _TOO_DEEP
+        else:
+            problem = f"YAML syntax: {problem}"
+        raise ScenarioError([Problem(where, problem)]) from None
     except yaml.reader.ReaderError as exc:
         position = exc.position
         if _BaseLoader is not yaml.SafeLoader:  # libyaml counts UTF-8 bytes
