@@ -3,7 +3,7 @@
 For relative values ``h`` the operator of the average-cost problem is (the right-hand
 side of equation (9), Section III-C of the strategies paper, without ``g``)
 
-    (T h)(m, x) = min( t_f(m, x) + sum_o P_o (c_o + h(L_o, x)),             FMP
+    (T h)(m, x) = min( min_j t_f(j, x) + sum_o P_o (c_o + h(L_o, x)),       FMP options j
                        l(m) + sum_b P_b h(L_b, x),                          stay
                        min_a  l(m) + sum_b P_b H_{L_b}(x + dx_a) )          moves a
 
@@ -12,7 +12,9 @@ side of equation (9), Section III-C of the strategies paper, without ``g``)
 
 with ``H`` the interpolation of :mod:`cellplan.strategies.interpolation` and the branches
 ``(L_b, P_b)`` of Section III-B. FMP's outcomes ``(L_o, P_o, c_o)`` are the single
-``(next(m), 1, 0)`` of Section III-B, or success and failure (Section VI-3).
+``(next(m), 1, 0)`` of Section III-B, or success and failure (Section VI-3). A mode has
+one FMP option except with simultaneous requests (Section VI-2), where a pick may serve
+any open request whose source allows it.
 ``min (T h - h) <= g <= max (T h - h)`` over the live states brackets the optimal gain
 (the span test of relative value iteration), which is how every reported gain is
 certified (:func:`cellplan.strategies.solver.certify`).
@@ -24,15 +26,15 @@ import numpy as np
 from numba import njit
 
 from cellplan.strategies.noisy import noisy_move_value
-from cellplan.strategies.stencils import EPS_W, decode, table_stencil
+from cellplan.strategies.stencils import EPS_W, decode, fmp_code, table_stencil
 
 
 @njit(cache=True, nogil=True, inline="always")
-def fmp_value(m, c, tf_mc, h, live, lay):  # pragma: no cover - numba
-    """FMP at state ``(m, c)``: ``t_f + sum_o P_o (c_o + h(L_o, c))``; inf if an outcome
-    with positive probability is not a live state."""
-    val = tf_mc
-    for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
+def fmp_value(opt, c, tf_oc, h, live, lay):  # pragma: no cover - numba
+    """FMP option ``opt`` at cell ``c``: ``t_f + sum_o P_o (c_o + h(L_o, c))``; inf if an
+    outcome with positive probability is not a live state."""
+    val = tf_oc
+    for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
         p = lay.out_prob[o]
         if p <= 0.0:
             continue
@@ -48,8 +50,9 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
     """One Jacobi sweep over the states ``start <= m * N + c < stop``: ``out = T h`` there.
 
     No ``g`` is subtracted. ``policy[m, c]`` receives the minimising action: ``-1`` stay,
-    ``-2`` FMP, ``a >= 0`` move ``a``; ``-3`` for states outside the MDP. Ties (within
-    1e-12 relative) go to the first action in the order FMP, stay, moves. ``gap[m, c]``
+    ``-2`` FMP (``-3 - j`` its option ``j >= 1``, :func:`.stencils.fmp_code`), ``a >= 0``
+    move ``a``; ``-3`` for states outside the MDP. Ties (within 1e-12 relative) go to the
+    first action in the order FMP options, stay, moves. ``gap[m, c]``
     receives the second-best action value minus the best (``inf`` with a single action):
     adding to ``h`` anything whose span (max - min) is below it cannot change the action
     there. A non-empty ``subset`` (boolean, like ``h``) limits the sweep to the live
@@ -81,6 +84,8 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
     w = np.empty(ncorner)
     for m in range(start // ncell, (stop + ncell - 1) // ncell):
         nxt = lay.fmp_next[m]
+        opt0 = lay.opt_ptr[m]
+        opt1 = lay.opt_ptr[m + 1]
         kcls = lay.vcls[m]
         na = moves.nact[kcls]
         b0 = lay.branch_ptr[m]
@@ -103,11 +108,16 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
             best = np.inf
             second = np.inf
             arg = -3
-            if nxt >= 0 and tf[m, c] < np.inf:
-                fval = fmp_value(m, c, tf[m, c], h, live, lay)
-                if fval < np.inf:
-                    best = fval
-                    arg = -2
+            if nxt >= 0:
+                for opt in range(opt0, opt1):
+                    if tf[opt, c] < np.inf:
+                        fval = fmp_value(opt, c, tf[opt, c], h, live, lay)
+                        if fval < best and (best == np.inf or fval < best - 1e-12 * abs(best)):
+                            second = best
+                            best = fval
+                            arg = fmp_code(opt - opt0)
+                        elif fval < second:
+                            second = fval
             sval = cost
             sok = True
             for b in range(b0, b1):

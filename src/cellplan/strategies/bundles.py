@@ -13,7 +13,10 @@ in the hot loops):
 * :class:`Layers`: one layer per assembly mode (Section III-A): the live states, the
   loss of eq. (7), the FMP successor and its fine-motion time, the mode-change
   branches of Section III-B, and the FMP's outcomes (one, with probability one, in the
-  Section V model; success and failure with failure modes, Section VI-3).
+  Section V model; success and failure with failure modes, Section VI-3). A mode's FMP
+  may have several *options* (simultaneous requests, Section VI-2: which open request a
+  pick serves), each with its own fine-motion field and outcomes; every other model has
+  one option per mode, option ``o`` of mode ``m`` being ``o = m``.
 
 :meth:`cellplan.strategies.model.LayeredMDP.kernel_args` builds the bundle; no module
 depends on the order of the fields, only on their names.
@@ -61,11 +64,12 @@ class Layers(NamedTuple):
     vcls: np.ndarray  # (M,) int64 move class
     cost: np.ndarray  # (M,) loss per stage, eq. (7): 0 in NR, the stage time otherwise
     fmp_next: np.ndarray  # (M,) int64 mode after a successful FMP, -1 where none (NR)
-    tf: np.ndarray  # (M, N) fine-motion time, inf where FMP is not allowed
+    opt_ptr: np.ndarray  # (M + 1,) int64: FMP options of m are opt_ptr[m]:opt_ptr[m+1]
+    tf: np.ndarray  # (O, N) fine-motion time of each FMP option, inf where not allowed
     branch_ptr: np.ndarray  # (M + 1,) int64: branches of m are branch_ptr[m]:branch_ptr[m+1]
     branch_layer: np.ndarray  # (B,) int64 next mode of each branch
     branch_prob: np.ndarray  # (B,) its probability (Section III-B)
-    out_ptr: np.ndarray  # (M + 1,) int64: FMP outcomes of m are out_ptr[m]:out_ptr[m+1]
+    out_ptr: np.ndarray  # (O + 1,) int64: outcomes of option o are out_ptr[o]:out_ptr[o+1]
     out_layer: np.ndarray  # (G,) int64 mode after FMP in each outcome
     out_prob: np.ndarray  # (G,) its probability (1 - failure rate, failure rate, ...)
     out_cost: np.ndarray  # (G,) extra loss of the outcome (rework time), added to t_f
@@ -80,14 +84,15 @@ class Model(NamedTuple):
 
 
 class Outcomes(NamedTuple):
-    """The outcomes of each mode's FMP when it is not the Section V one (failure modes).
+    """The outcomes of each FMP option when they are not the Section V ones.
 
-    FMP in mode ``m`` costs ``t_f(m, x)`` and then, with probability ``prob[g]``, adds
+    FMP option ``o`` costs ``t_f(o, x)`` and then, with probability ``prob[g]``, adds
     ``cost[g]`` and moves to mode ``layer[g]`` at the same configuration, for ``g`` in
-    ``ptr[m]:ptr[m+1]``; the first outcome is the success (``fmp_next[m]``).
+    ``ptr[o]:ptr[o+1]``; the first outcome is the success (``fmp_next[m]`` for the first
+    option of mode ``m``). Without options, option ``o`` is mode ``o``.
     """
 
-    ptr: np.ndarray  # (M + 1,) int64
+    ptr: np.ndarray  # (O + 1,) int64
     layer: np.ndarray  # (G,) int64
     prob: np.ndarray  # (G,) float
     cost: np.ndarray  # (G,) float

@@ -22,10 +22,11 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
     """Shrink layer ``m`` of ``live`` (``(M, N)``, in place) once; returns whether it changed.
 
     A layer with an FMP successor keeps the states from which an FMP-capable state
-    (``fmp_ok``, with every FMP outcome live) is reachable through actions whose every
-    branch lands on live states (a backward closure); a layer without FMP (NR) keeps the
-    states that have some such action. The result depends only on the rows ``live[m]``,
-    ``fmp_ok[m]``, the FMP outcome layers' and the branch layers' ``live`` rows, and the
+    (``fmp_ok``, ``(O, N)`` by FMP option, with every outcome of an allowed option live)
+    is reachable through actions whose every branch lands on live states (a backward
+    closure); a layer without FMP (NR) keeps the states that have some such action. The
+    result depends only on the rows ``live[m]``, the ``fmp_ok`` rows of the layer's FMP
+    options, the FMP outcome layers' and the branch layers' ``live`` rows, and the
     layer's motion class, and running it again on its own output changes nothing (the caller,
     :func:`cellplan.strategies.model.compute_live`, relies on both to skip work).
     ``model.layers.live`` is not read (``live`` replaces it).
@@ -47,13 +48,19 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
     na = moves.nact[k]
     if nxt >= 0:
         for c in range(ncell):
-            ok = live[m, c] and fmp_ok[m, c]
-            # Every outcome of the FMP (success, and failure with failure modes) must land
-            # on a live state; a retry in place lands on this very state.
-            for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
-                if ok and lay.out_prob[o] > 0.0:
-                    ok = live[lay.out_layer[o], c]
-            reach[c] = ok
+            if not live[m, c]:
+                continue
+            # Some FMP option (one but with simultaneous requests, Section VI-2) every
+            # outcome of which (success, and failure with failure modes) lands on a live
+            # state; a retry in place lands on this very state.
+            for opt in range(lay.opt_ptr[m], lay.opt_ptr[m + 1]):
+                ok = fmp_ok[opt, c]
+                for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
+                    if ok and lay.out_prob[o] > 0.0:
+                        ok = live[lay.out_layer[o], c]
+                if ok:
+                    reach[c] = True
+                    break
         target = reach
     else:
         target = live[m].copy()

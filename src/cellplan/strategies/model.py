@@ -47,19 +47,27 @@ NR = "NR"
 class Mode:
     """An assembly mode: ``NR``, or ``<part, source, destination, W|C>`` (Section II-C),
     or ``<part, source, destination, X:region>``: carrying a rejected part to the reject
-    region (failure modes, Section VI-3)."""
+    region (failure modes, Section VI-3), or with simultaneous requests (Section VI-2) the
+    set of open requests and the one carried (kind ``Q``, label ``{P1,S1,D1; P2,S2,D1} +
+    <P1,S1,D2>``)."""
 
-    kind: str  # "NR", "W", "C" or "X"
+    kind: str  # "NR", "W", "C", "X" or "Q"
     part: str = ""
     source: str = ""
     destination: str = ""
     reject: str = ""  # X: the reject region
     after: str = ""  # X: "fetch" or "request" (Section VI-3)
+    # Q (simultaneous requests, Section VI-2): the open requests not yet picked up, as
+    # "part,source,destination"; part, source and destination name the carried request.
+    waiting: tuple[str, ...] = ()
 
     @property
     def label(self) -> str:
         if self.kind == NR:
             return NR
+        if self.kind == "Q":
+            text = "{" + "; ".join(self.waiting) + "}"
+            return text + (f" + <{self.part},{self.source},{self.destination}>" if self.part else "")
         kind = self.kind
         if kind == "X":
             kind = f"X:{self.reject}" + (":request" if self.after == "request" else "")
@@ -124,6 +132,9 @@ class LayeredMDP:
     outcomes: Outcomes | None = None
     # (J,) probabilities of the noisy outcomes of every move (Section VI-4); [1]: exact.
     noise_prob: np.ndarray = field(default_factory=lambda: np.ones(1))
+    # (M + 1,) FMP options of each mode (simultaneous requests, Section VI-2): ``tf`` and
+    # the outcomes are then per option, ``(O, N)``; None: one option per mode, ``o = m``.
+    opt_ptr: np.ndarray | None = None
 
     @property
     def n_cells(self) -> int:
@@ -142,6 +153,18 @@ class LayeredMDP:
 
     def c_layer(self, r: int) -> int:
         return 1 + self.n_requests + r
+
+    @property
+    def options(self) -> np.ndarray:
+        """``(M + 1,)``: the FMP options of mode ``m`` are ``options[m]:options[m+1]``."""
+        if self.opt_ptr is not None:
+            return self.opt_ptr
+        return np.arange(self.n_modes + 1, dtype=np.int64)
+
+    def fmp_allowed(self, m: int) -> np.ndarray:
+        """``(N,)`` bool: the cells where some FMP option of mode ``m`` is allowed."""
+        ptr = self.options
+        return (self.tf[ptr[m] : ptr[m + 1]] < np.inf).any(axis=0)
 
     def grid(self) -> Grid:
         """The grid bundle of the kernels."""
@@ -168,6 +191,7 @@ class LayeredMDP:
             vcls=self.vcls,
             cost=self.cost,
             fmp_next=self.fmp_next,
+            opt_ptr=self.options,
             tf=self.tf,
             branch_ptr=self.branch_ptr,
             branch_layer=self.branch_layer,
@@ -189,9 +213,9 @@ class LayeredMDP:
         and every move lands where it is commanded (no noise, Section VI-4). The structured
         solver relies on it (a carrying layer's FMP ends in NR, a waiting layer's in its
         carrying layer, a move's landing stencil is one table row); other models are solved
-        by policy iteration.
+        by policy iteration. A model with FMP options (Section VI-2) is not simple either.
         """
-        if len(self.noise_prob) > 1:
+        if len(self.noise_prob) > 1 or self.opt_ptr is not None:
             return False
         if self.outcomes is None:
             return True
@@ -268,19 +292,8 @@ def assemble(
                     modes.append(Mode("X", p, s, d, f.reject, f.after))
     M = len(modes)
 
-    # Move classes: (bitmap, action set), deduplicated by content.
-    class_keys: dict[bytes, int] = {}
-    cls_free: list[np.ndarray] = []
-    cls_actions: list[ActionSet] = []
-
-    def move_class(free: np.ndarray, acts: ActionSet) -> int:
-        key = hashlib.sha1(free.tobytes() + acts.disp.tobytes()).digest()
-        if key not in class_keys:
-            class_keys[key] = len(cls_free)
-            cls_free.append(free)
-            cls_actions.append(acts)
-        return class_keys[key]
-
+    classes = MoveClasses()
+    move_class = classes.add
     vcls = np.zeros(M, np.int64)
     cost = np.full(M, stage_time)
     cost[0] = 0.0  # equation (7): no loss while no request waits
@@ -354,6 +367,72 @@ def assemble(
         layers.append(x)
         bprob.append(1.0)
         ptr.append(len(layers))
+    outcomes = None
+    if failures is not None:
+        outcomes = _failure_outcomes(requests, probs, x_index, failures)
+        for x in x_index.values():
+            fmp_next[x] = outcomes.layer[outcomes.ptr[x]]
+    return finish_model(
+        grid=Grid(shape_a, lower_a, upper_a, spacing, periodic_a),
+        modes=modes,
+        classes=classes,
+        vcls=vcls,
+        cost=cost,
+        fmp_next=fmp_next,
+        tf=tf,
+        branches=(ptr, layers, bprob),
+        outcomes=outcomes,
+        noise_prob=actions_empty.noise_prob,
+        heading_axis=actions_empty.heading_axis,
+        stage_time=stage_time,
+        arrival=arrival,
+        request_prob=probs,
+    )
+
+
+class MoveClasses:
+    """Move classes ``k``: a free bitmap and an action set each, deduplicated by content."""
+
+    def __init__(self) -> None:
+        self.keys: dict[bytes, int] = {}
+        self.free: list[np.ndarray] = []
+        self.actions: list[ActionSet] = []
+
+    def add(self, free: np.ndarray, acts: ActionSet) -> int:
+        """The class of this bitmap and action set (a new one if it is not known yet)."""
+        key = hashlib.sha1(free.tobytes() + acts.disp.tobytes()).digest()
+        if key not in self.keys:
+            self.keys[key] = len(self.free)
+            self.free.append(free)
+            self.actions.append(acts)
+        return self.keys[key]
+
+
+def finish_model(
+    *,
+    grid: Grid,
+    modes: list[Mode],
+    classes: MoveClasses,
+    vcls: np.ndarray,
+    cost: np.ndarray,
+    fmp_next: np.ndarray,
+    tf: np.ndarray,
+    branches: tuple[Sequence[int], Sequence[int], Sequence[float]],
+    outcomes: Outcomes | None,
+    noise_prob: np.ndarray,
+    heading_axis: int,
+    stage_time: float,
+    arrival: float,
+    request_prob: np.ndarray,
+    opt_ptr: np.ndarray | None = None,
+) -> LayeredMDP:
+    """The move tables (valid moves, stencils) and the live states of a layered MDP whose
+    modes, classes, FMP options and branches (``(ptr, layer, prob)``) are given."""
+    shape_a, lower_a, upper_a, spacing, periodic_a = grid
+    ncell = int(np.prod(shape_a))
+    M = len(modes)
+    ptr, layers, bprob = branches
+    cls_free, cls_actions = classes.free, classes.actions
     K = len(cls_free)
     A = max(a.disp.shape[0] for a in cls_actions)
     dim = len(shape_a)
@@ -362,12 +441,9 @@ def assemble(
     for k, acts in enumerate(cls_actions):
         disp[k, : acts.disp.shape[0]] = acts.disp
         nact[k] = acts.commanded
-    noise_prob = actions_empty.noise_prob
     J = len(noise_prob)
-    heading_axis = actions_empty.heading_axis
     free = np.stack(cls_free).astype(np.bool_)
     valid = np.zeros((K, ncell), np.int64)
-    grid = Grid(shape_a, lower_a, upper_a, spacing, periodic_a)
     for k in range(K):
         na = int(nact[k])
         if J == 1:
@@ -385,11 +461,6 @@ def assemble(
     live = np.zeros((M, ncell), np.bool_)
     for m in range(M):
         live[m] = free[vcls[m]]
-    outcomes = None
-    if failures is not None:
-        outcomes = _failure_outcomes(requests, probs, x_index, failures)
-        for x in x_index.values():
-            fmp_next[x] = outcomes.layer[outcomes.ptr[x]]
     mdp = LayeredMDP(
         shape=shape_a,
         lower=lower_a,
@@ -417,10 +488,11 @@ def assemble(
         live=live,
         stage_time=stage_time,
         arrival=arrival,
-        request_prob=probs,
+        request_prob=request_prob,
         labels=[a.labels for a in cls_actions],
         outcomes=outcomes,
         noise_prob=np.asarray(noise_prob, float),
+        opt_ptr=opt_ptr,
     )
     compute_live(mdp)
     return mdp
@@ -592,10 +664,12 @@ def _live_pass(
     out = mdp.fmp_outcomes()
     row_digest: dict[tuple[int, int], bytes] = {}
 
+    options = mdp.options
+
     def digest(which: int, m: int) -> bytes:
         key = (which, m)
         if key not in row_digest:
-            row = live[m] if which == 0 else fmp_ok[m]
+            row = live[m] if which == 0 else fmp_ok[m]  # fmp_ok: by option
             row_digest[key] = hashlib.blake2b(row.tobytes(), digest_size=16).digest()
         return row_digest[key]
 
@@ -604,10 +678,13 @@ def _live_pass(
         branches = [int(L) for L in mdp.branch_layer[lo:hi][mdp.branch_prob[lo:hi] > 0]]
         # The kernel needs every branch supported, so their order does not matter.
         others = tuple(sorted(digest(0, L) for L in branches if L != m))
-        nxt = int(mdp.fmp_next[m])
-        lo, hi = out.ptr[m], out.ptr[m + 1]
-        landing = sorted({int(L) for L in out.layer[lo:hi][out.prob[lo:hi] > 0]})
-        fmp = (digest(1, m), tuple((L == m, digest(0, L)) for L in landing)) if nxt >= 0 else None
+        fmp: tuple[Any, ...] | None = None
+        if mdp.fmp_next[m] >= 0:
+            fmp = ()
+            for o in range(options[m], options[m + 1]):
+                lo, hi = out.ptr[o], out.ptr[o + 1]
+                landing = sorted({int(L) for L in out.layer[lo:hi][out.prob[lo:hi] > 0]})
+                fmp += ((digest(1, o), tuple((L == m, digest(0, L)) for L in landing)),)
         return (int(mdp.vcls[m]), digest(0, m), fmp, m in branches, others)
 
     done: dict[tuple[Any, ...], int] = {}
@@ -817,6 +894,33 @@ def build_model(
             drop[(p, d)] = in_region(d, p)
             tf_drop[(p, d)] = tf_of(d)
     geometry = Geometry(free_nr, free_w, free_c, pick, drop, tf_pick, tf_drop)
+    if sec.simultaneous():
+        from cellplan.strategies.bundles import Grid as KernelGrid
+        from cellplan.strategies.pending import assemble_pending, pending_problems
+
+        empty, carrying = action_sets(sec, robot, parts)
+        shape_a = np.asarray(shape, np.int64)
+        lower = np.asarray(grid.lower, float)
+        upper = np.asarray(grid.upper, float)
+        mdp = assemble_pending(
+            grid=KernelGrid(
+                shape_a, lower, upper, (upper - lower) / shape_a, np.asarray(grid.periodic, bool)
+            ),
+            requests=requests,
+            geometry=geometry,
+            actions_empty=empty,
+            actions_carrying=carrying,
+            stage_time=sec.stage_time,
+            arrival=sec.arrival.per_stage(sec.stage_time),
+            max_pending=sec.max_pending,
+            urgency=sec.urgency,
+        )
+        problems = pending_problems(mdp, requests)
+        if not problems and start is not None:
+            problems = start_problems(mdp, start)
+        if problems:
+            raise ScenarioError(problems)
+        return mdp
     failures = None
     if sec.failures:
 

@@ -34,11 +34,11 @@ from cellplan.strategies.stencils import (
 
 
 @njit(cache=True)
-def outcomes_at(m, h, live, lay, idx, w, n):  # pragma: no cover - numba
-    """``sum_o P_o (c_o + H_{L_o})`` over the FMP outcomes of mode ``m`` at the stencil
+def outcomes_at(opt, h, live, lay, idx, w, n):  # pragma: no cover - numba
+    """``sum_o P_o (c_o + H_{L_o})`` over the outcomes of FMP option ``opt`` at the stencil
     ``idx, w`` (NaN when an outcome has no live corner)."""
     val = 0.0
-    for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
+    for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
         p = lay.out_prob[o]
         if p <= 0.0:
             continue
@@ -74,7 +74,7 @@ def action_values_at(q, m, h, live, tf_here, fmp_allowed, model, out):  # pragma
     nxt = lay.fmp_next[m]
     if nxt >= 0 and fmp_allowed:
         n = stencil(q, shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, fbuf)
-        v = outcomes_at(m, h, live, lay, idx, w, n)
+        v = outcomes_at(lay.opt_ptr[m], h, live, lay, idx, w, n)
         if not np.isnan(v):
             out[0] = tf_here + v
     noisy = moves.noise_prob.shape[0] > 1
@@ -136,7 +136,7 @@ def query(q, m, h, live, forbid_fmp, model, out):  # pragma: no cover - numba
     """
     grid = model.grid
     c = cell_containing(q, grid.shape, grid.lower, grid.spacing, grid.periodic)
-    tf_here = model.layers.tf[m, c]
+    tf_here = model.layers.tf[model.layers.opt_ptr[m], c]
     allowed = (not forbid_fmp) and tf_here < np.inf
     action_values_at(q, m, h, live, tf_here if allowed else 0.0, allowed, model, out)
     best = np.inf
@@ -218,11 +218,11 @@ def lookahead(
         qd[0, j] = q[j]
     if nxt >= 0 and fmp_root:
         c = cell_containing(q, shape, lower, spacing, periodic)
-        if tf[m, c] < np.inf:
+        if tf[lay.opt_ptr[m], c] < np.inf:
             n = stencil(q, shape, lower, spacing, periodic, idx, w, ibuf, frac)
-            v = outcomes_at(m, h, live, lay, idx, w, n)
+            v = outcomes_at(lay.opt_ptr[m], h, live, lay, idx, w, n)
             if not np.isnan(v):
-                best = tf[m, c] - offset + v
+                best = tf[lay.opt_ptr[m], c] - offset + v
                 seq[0] = -2
                 length = 1
     level = 0
@@ -255,7 +255,7 @@ def lookahead(
             continue
         acc[level + 1] = acc[level] + step
         fmp_here = False
-        if nxt >= 0 and tf[m, c] < np.inf:
+        if nxt >= 0 and tf[lay.opt_ptr[m], c] < np.inf:
             if collect:
                 if count < nodes.shape[0]:
                     for j in range(d):
@@ -265,9 +265,9 @@ def lookahead(
             count += 1
         if fmp_here:
             n = stencil(qd[level + 1], shape, lower, spacing, periodic, idx, w, ibuf, frac)
-            v = outcomes_at(m, h, live, lay, idx, w, n)
-            if not np.isnan(v) and acc[level + 1] + tf[m, c] - offset + v < best:
-                best = acc[level + 1] + tf[m, c] - offset + v
+            v = outcomes_at(lay.opt_ptr[m], h, live, lay, idx, w, n)
+            if not np.isnan(v) and acc[level + 1] + tf[lay.opt_ptr[m], c] - offset + v < best:
+                best = acc[level + 1] + tf[lay.opt_ptr[m], c] - offset + v
                 for i in range(level + 1):
                     seq[i] = choice[i]
                 seq[level + 1] = -2
@@ -282,3 +282,34 @@ def lookahead(
         else:
             level += 1
     return best, length, count
+
+
+@njit(cache=True)
+def fmp_options_at(q, m, h, live, allowed, model):  # pragma: no cover - numba
+    """The best FMP option of mode ``m`` at a real configuration ``q`` and its value.
+
+    Option ``j`` is offered where ``allowed[j]`` (its fine motion is possible at ``q``); its
+    value is ``t_f(j, q's cell) + sum_o P_o (c_o + H_{L_o}(q))``. Returns ``(j, value)``,
+    ``(-1, inf)`` when no option is offered or none has live outcomes. With simultaneous
+    requests (Section VI-2) this is the choice of which open request a pick serves.
+    """
+    grid = model.grid
+    lay = model.layers
+    d = grid.shape.shape[0]
+    idx = np.empty(1 << d, np.int64)
+    w = np.empty(1 << d)
+    ibuf = np.empty(3 * MAX_DIM, np.int64)
+    fbuf = np.empty(MAX_DIM)
+    c = cell_containing(q, grid.shape, grid.lower, grid.spacing, grid.periodic)
+    n = stencil(q, grid.shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, fbuf)
+    best = np.inf
+    arg = -1
+    o0 = lay.opt_ptr[m]
+    for j in range(lay.opt_ptr[m + 1] - o0):
+        if not allowed[j] or not lay.tf[o0 + j, c] < np.inf:
+            continue
+        v = outcomes_at(o0 + j, h, live, lay, idx, w, n)
+        if not np.isnan(v) and lay.tf[o0 + j, c] + v < best:
+            best = lay.tf[o0 + j, c] + v
+            arg = j
+    return arg, best

@@ -60,7 +60,14 @@ from cellplan.strategies.solver import (
     bellman,
     solve_general,
 )
-from cellplan.strategies.stencils import EPS_W, cell_of_order, decode, move_corners
+from cellplan.strategies.stencils import (
+    EPS_W,
+    cell_of_order,
+    decode,
+    fmp_code,
+    fmp_option,
+    move_corners,
+)
 from cellplan.strategies.threads import Workers, workers_for
 
 log = logging.getLogger(__name__)
@@ -85,7 +92,7 @@ DIRECT_ABOVE = 64
 def action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p):  # pragma: no cover
     """Successor states of action ``a`` at live state ``(m, c)`` and their probabilities.
 
-    ``a`` is ``-2`` (FMP), ``-1`` (stay) or a move. Fills ``out_s`` (state indices from
+    ``a`` is an FMP code (``-2``, or ``-3 - j`` for option ``j``), ``-1`` (stay) or a move. Fills ``out_s`` (state indices from
     ``index``) and ``out_p``; returns ``(n, cost)``, ``n = -1`` where the action is not
     available (FMP not allowed or an outcome not live; a move not collision-free, or a
     branch with no live corner). The law is that of
@@ -98,11 +105,13 @@ def action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p):  # pragm
     grid = model.grid
     live = lay.live
     n = 0
-    if a == -2:
-        if lay.fmp_next[m] < 0 or not lay.tf[m, c] < np.inf:
+    j = fmp_option(a)
+    if j >= 0:
+        opt = lay.opt_ptr[m] + j
+        if lay.fmp_next[m] < 0 or opt >= lay.opt_ptr[m + 1] or not lay.tf[opt, c] < np.inf:
             return -1, 0.0
-        cost = lay.tf[m, c]
-        for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
+        cost = lay.tf[opt, c]
+        for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
             p = lay.out_prob[o]
             if p <= 0.0:
                 continue
@@ -252,10 +261,12 @@ def hop_sweep(dist, act, fixed, index, order, flips, usable, model):  # pragma: 
             if not live[m, c]:
                 continue
             s = index[m, c]
+            nopt = lay.opt_ptr[m + 1] - lay.opt_ptr[m]
             if fixed[s]:
-                for a in range(-1, na + 1):
+                # The first available action: stay, the moves, then the FMP options.
+                for a in range(-1, na + nopt):
                     if act[s] == -3:
-                        aa = a if a < na else -2
+                        aa = a if a < na else fmp_code(a - na)
                         n, _ = action_successors(m, c, aa, mi, index, model, idx, w, out_s, out_p)
                         if n >= 0:
                             act[s] = aa
@@ -263,15 +274,18 @@ def hop_sweep(dist, act, fixed, index, order, flips, usable, model):  # pragma: 
             best = dist[s]
             arg = act[s]
             # FMP and stay: their successors keep the cell.
-            if lay.fmp_next[m] >= 0 and lay.tf[m, c] < np.inf:
+            for j in range(nopt if lay.fmp_next[m] >= 0 else 0):
+                opt = lay.opt_ptr[m] + j
+                if not lay.tf[opt, c] < np.inf:
+                    continue
                 near = np.inf
-                for o in range(lay.out_ptr[m], lay.out_ptr[m + 1]):
+                for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
                     if lay.out_prob[o] > 0.0:
                         L = lay.out_layer[o]
                         near = min(near, dist[index[L, c]]) if live[L, c] else -np.inf
                 if near > -np.inf and near + 1 < best:
                     best = near + 1
-                    arg = -2
+                    arg = fmp_code(j)
             near = np.inf
             for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
                 L = lay.branch_layer[b]
@@ -421,12 +435,13 @@ def layer_order(mdp: LayeredMDP) -> np.ndarray:
     (NR <- C <- W <- NR in the Section V model).
     """
     out = mdp.fmp_outcomes()
+    options = mdp.options
     M = mdp.n_modes
     readers: list[set[int]] = [set() for _ in range(M)]
     for m in range(M):
         for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
             readers[int(mdp.branch_layer[b])].add(m)
-        for o in range(out.ptr[m], out.ptr[m + 1]):
+        for o in range(out.ptr[options[m]], out.ptr[options[m + 1]]):
             readers[int(out.layer[o])].add(m)
     order = [0]
     seen = {0}
@@ -471,7 +486,13 @@ def row_room(mdp: LayeredMDP) -> np.ndarray:
     out = mdp.fmp_outcomes()
     corners = (1 << len(mdp.shape)) * len(mdp.noise_prob)  # per landing of a noisy move
     branches = np.diff(mdp.branch_ptr)
-    return np.maximum(branches * corners, np.diff(out.ptr)).astype(np.int64)
+    options = mdp.options
+    per_option = np.diff(out.ptr)
+    fmp = np.array(
+        [per_option[options[m] : options[m + 1]].max(initial=0) for m in range(mdp.n_modes)],
+        np.int64,
+    )
+    return np.maximum(branches * corners, fmp).astype(np.int64)
 
 
 def assemble(

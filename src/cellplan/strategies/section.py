@@ -159,6 +159,10 @@ class NoiseOutcome(StrictModel):
 
 
 MAX_NOISE_OUTCOMES = 16
+#: Most requests open at once (Section VI-2); the modes grow as C(R, k).
+MAX_PENDING = 8
+#: Most modes of a model with simultaneous requests (each is a layer of the grid).
+MAX_PENDING_MODES = 20_000
 """Most outcomes of the noise model (each is a stencil per move in the model's tables)."""
 
 
@@ -257,6 +261,18 @@ class StrategySection(StrictModel):
     noise: NoiseSpec | None = Field(
         default=None, description="where moves land: a discrete distribution (Section VI-4)"
     )
+    max_pending: Annotated[int, Field(ge=1, le=MAX_PENDING)] = Field(
+        default=1,
+        description="most requests open at once (Section VI-2); 1: one at a time (Section V)",
+    )
+    urgency: dict[Name, PositiveFloat] = Field(
+        default_factory=dict,
+        description="per part: weight of its open requests in the loss (Section VI-2; default 1)",
+    )
+
+    def simultaneous(self) -> bool:
+        """Whether the model is that of simultaneous requests (Section VI-2)."""
+        return self.max_pending > 1 or bool(self.urgency)
 
     def reject_regions(self) -> set[str]:
         """Destinations that serve as reject regions (left out of ``requests: all``)."""
@@ -360,10 +376,47 @@ class StrategySection(StrictModel):
             )
         problems.extend(self._check_failures(scenario))
         problems.extend(self._check_noise(scenario))
+        problems.extend(self._check_pending(scenario))
         if self.destination_change is not None and not problems:
             problems.extend(self._check_changes(scenario, "destination"))
         if self.source_change is not None and not problems:
             problems.extend(self._check_changes(scenario, "source"))
+        return problems
+
+    def _check_pending(self, scenario: Scenario) -> list[Problem]:
+        """One line per mistake in ``max_pending`` and ``urgency`` (Section VI-2)."""
+        from cellplan.strategies.pending import mode_counts
+
+        problems = []
+        for part in self.urgency:
+            if part not in scenario.parts:
+                problems.append(Problem(f"strategy.urgency.{part}", "unknown part"))
+        if not self.simultaneous():
+            return problems
+        for key, given in (
+            ("failures", bool(self.failures)),
+            ("destination_change", self.destination_change is not None),
+            ("source_change", self.source_change is not None),
+        ):
+            if given:
+                problems.append(
+                    Problem(
+                        f"strategy.{key}",
+                        "cannot be combined with simultaneous requests (max_pending or "
+                        "urgency) yet",
+                    )
+                )
+        if scenario.parts and scenario.sources and scenario.destinations and not problems:
+            R = len(self.request_list(scenario))
+            M = sum(mode_counts(R, self.max_pending))
+            if M > MAX_PENDING_MODES:
+                problems.append(
+                    Problem(
+                        "strategy.max_pending",
+                        f"{self.max_pending} open requests of {R} types make {M:,} modes (at "
+                        f"most {MAX_PENDING_MODES:,}); lower it or list fewer requests",
+                    )
+                )
         return problems
 
     def _check_steps(self, scenario: Scenario) -> list[Problem]:

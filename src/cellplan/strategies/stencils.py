@@ -226,3 +226,27 @@ def move_corners(
             nc += 1
         return nc
     return table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
+
+
+# Action codes of a policy: a move ``a >= 0``, stay -1, FMP (its first option) -2, a state
+# outside the MDP -3, and FMP option ``j >= 1`` of the mode (simultaneous requests,
+# Section VI-2: which open request a pick serves) ``-3 - j``.
+STAY_CODE = -1
+FMP_CODE = -2
+OUTSIDE_CODE = -3
+
+
+@njit(cache=True, inline="always")
+def fmp_code(j):  # pragma: no cover - numba
+    """The action code of FMP option ``j`` (0-based within its mode)."""
+    return -2 if j == 0 else -3 - j
+
+
+@njit(cache=True, inline="always")
+def fmp_option(code):  # pragma: no cover - numba
+    """The option ``j`` of an FMP action code, -1 for any other code."""
+    if code == -2:
+        return 0
+    if code <= -4:
+        return -3 - code
+    return -1

@@ -38,7 +38,8 @@ STAY = -1
 _ARRAY_FIELDS = [
     f.name
     for f in fields(LayeredMDP)
-    if f.name not in ("modes", "labels", "heading_axis", "stage_time", "arrival", "outcomes")
+    if f.name
+    not in ("modes", "labels", "heading_axis", "stage_time", "arrival", "outcomes", "opt_ptr")
 ]
 #: The FMP outcome arrays of a strategy file (:class:`~.bundles.Outcomes`, by field).
 _OUTCOME_ARRAYS = {"out_ptr": "ptr", "out_layer": "layer", "out_prob": "prob", "out_cost": "cost"}
