@@ -67,7 +67,9 @@ class Mode:
             return NR
         if self.kind == "Q":
             text = "{" + "; ".join(self.waiting) + "}"
-            return text + (f" + <{self.part},{self.source},{self.destination}>" if self.part else "")
+            if self.part:
+                text += f" + <{self.part},{self.source},{self.destination}>"
+            return text
         kind = self.kind
         if kind == "X":
             kind = f"X:{self.reject}" + (":request" if self.after == "request" else "")

@@ -149,17 +149,17 @@ def assemble_pending(
                 opt_tf.append(field * cost[m] / stage_time)
                 out_layer.append(nxt)
         opt_ptr.append(len(opt_tf))
-    O = len(opt_tf)
-    tf = np.stack(opt_tf) if O else np.zeros((0, ncell))
+    n_opt = len(opt_tf)
+    tf = np.stack(opt_tf) if n_opt else np.zeros((0, ncell))
     opt = np.asarray(opt_ptr, np.int64)
     fmp_next = np.array(
         [out_layer[opt[m]] if opt[m + 1] > opt[m] else -1 for m in range(M)], np.int64
     )
     outcomes = Outcomes(
-        np.arange(O + 1, dtype=np.int64),
+        np.arange(n_opt + 1, dtype=np.int64),
         np.asarray(out_layer, np.int64),
-        np.ones(O),
-        np.zeros(O),
+        np.ones(n_opt),
+        np.zeros(n_opt),
     )
 
     # Arrivals (Section III-B, type 1) in every mode with room for one more request.

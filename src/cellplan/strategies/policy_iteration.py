@@ -92,10 +92,11 @@ DIRECT_ABOVE = 64
 def action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p):  # pragma: no cover
     """Successor states of action ``a`` at live state ``(m, c)`` and their probabilities.
 
-    ``a`` is an FMP code (``-2``, or ``-3 - j`` for option ``j``), ``-1`` (stay) or a move. Fills ``out_s`` (state indices from
-    ``index``) and ``out_p``; returns ``(n, cost)``, ``n = -1`` where the action is not
-    available (FMP not allowed or an outcome not live; a move not collision-free, or a
-    branch with no live corner). The law is that of
+    ``a`` is an FMP code (``-2``, or ``-3 - j`` for option ``j``), ``-1`` (stay) or a
+    move. Fills ``out_s`` (state indices from ``index``) and ``out_p``; returns
+    ``(n, cost)``, ``n = -1`` where the action is not available (FMP not allowed or an
+    outcome not live; a move not collision-free, or a branch with no live corner). The
+    law is that of
     :func:`cellplan.strategies.bellman.bellman_rows` (the same weights and renormalisation);
     a successor may appear twice (the caller's sparse matrix sums them). ``mi`` is the
     multi-index of ``c``; ``idx`` and ``w`` are scratch of ``2^d``.
