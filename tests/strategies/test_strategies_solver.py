@@ -70,9 +70,9 @@ def _landing(centre, step, mdp):
 def sparse_rvi(mdp, tol=1e-10, max_iter=200000, damping=1.0):
     """Relative value iteration from the definition, one scipy.sparse matrix per action.
 
-    FMP in mode m costs t_f(m, x) and then, with probability p_o, adds c_o and moves to
-    mode L_o at the same cell (Section V: one outcome; failure modes: several), every
-    outcome a live state; stay keeps the cell in every branch; a move lands at each of its
+    FMP option j of mode m (one per mode but with simultaneous requests) costs t_f(j, x)
+    and then, with probability p_o, adds c_o and moves to mode L_o at the same cell
+    (Section V: one outcome; failure modes: several), every outcome a live state; stay keeps the cell in every branch; a move lands at each of its
     landings with probability p_j (one, exact, in Section V; noisy motion: row
     ``A + a J + j`` of ``disp``), on the stencil's live corners renormalised per branch.
     ``damping`` < 1 averages each iterate with the last (aperiodic whatever the chain).
@@ -86,21 +86,24 @@ def sparse_rvi(mdp, tol=1e-10, max_iter=200000, damping=1.0):
     S = len(states)
     A = int(mdp.nact.max())
     J = len(mdp.noise_prob)
-    rows = {a: ([], [], []) for a in range(-2, A)}
-    cost = {a: np.full(S, np.inf) for a in range(-2, A)}
+    options = mdp.options  # FMP options per mode (several with simultaneous requests)
+    fmp = [-2 - j for j in range(int(np.diff(options).max(initial=0)))]  # keys, not codes
+    rows = {a: ([], [], []) for a in [*fmp, *range(-1, A)]}
+    cost = {a: np.full(S, np.inf) for a in rows}
     for s, (m, c) in enumerate(states):
         centre = mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
-        outs = [
-            (int(out.layer[o]), float(out.prob[o]), float(out.cost[o]))
-            for o in range(out.ptr[m], out.ptr[m + 1])
-            if out.prob[o] > 0
-        ]
-        if np.isfinite(mdp.tf[m, c]) and outs and all(live[L, c] for L, _, _ in outs):
-            for L, p, _ in outs:
-                rows[-2][0].append(s)
-                rows[-2][1].append(index[L, c])
-                rows[-2][2].append(p)
-            cost[-2][s] = mdp.tf[m, c] + sum(p * co for _, p, co in outs)
+        for j, opt in enumerate(range(options[m], options[m + 1])):
+            outs = [
+                (int(out.layer[o]), float(out.prob[o]), float(out.cost[o]))
+                for o in range(out.ptr[opt], out.ptr[opt + 1])
+                if out.prob[o] > 0
+            ]
+            if np.isfinite(mdp.tf[opt, c]) and outs and all(live[L, c] for L, _, _ in outs):
+                for L, p, _ in outs:
+                    rows[-2 - j][0].append(s)
+                    rows[-2 - j][1].append(index[L, c])
+                    rows[-2 - j][2].append(p)
+                cost[-2 - j][s] = mdp.tf[opt, c] + sum(p * co for _, p, co in outs)
         k = mdp.vcls[m]
         na = int(mdp.nact[k])
         for a in range(-1, na):

@@ -4,7 +4,8 @@ Section V lets a request arrive only while none is open. Section VI-2 suggests t
 general case: requests keep arriving while the robot serves one, and the loss counts the
 requests open per stage. With up to ``k = max_pending`` requests open at once, a mode is
 
-* the set ``Q`` of open requests not yet picked up (at most one per request type), and
+* the multiset ``Q`` of open requests not yet picked up (their types: two requests of
+  one type are interchangeable in the model), and
 * the request ``r`` whose part the robot carries, or none,
 
 with ``|Q| + [r carried] <= k``. The mode ``(empty, none)`` is NR (layer 0). Choices the
@@ -12,15 +13,15 @@ paper leaves open, and the ones made here (docs/strategies.md, "Simultaneous req
 
 * **Arrivals.** Each stage of motion or waiting, a request arrives with probability
   ``P`` and is of type ``r`` with probability ``pi_r`` (as in Section III-B). It joins
-  ``Q`` unless ``k`` requests are open already or one of its type is waiting in ``Q``:
-  then it is turned away (the simulator counts these). As in Section V, no request
-  arrives during an FMP (a fine motion is one decision step of the model).
+  ``Q`` unless ``k`` requests are open already: then it is turned away (the simulator
+  counts these; ``k`` is a modelling bound, chosen so that this is rare). As in Section
+  V, no request arrives during an FMP (a fine motion is one decision step of the model).
 * **Loss.** The weighted number of open requests per unit of time: each open request
   (waiting or carried) adds its part's ``urgency`` (default 1) times the stage time per
   stage, and times ``t_f`` during an FMP. With one type of weight 1 and ``k = 1`` this is
   equation (7), and the model is exactly the Section V model (tested).
 * **The order of service is chosen.** FMP in ``(Q, none)`` has one *option* per
-  request of ``Q`` (:class:`~cellplan.strategies.bundles.Layers`: ``opt_ptr``): picking
+  request type in ``Q`` (:class:`~cellplan.strategies.bundles.Layers`: ``opt_ptr``): picking
   up its part at its source, leading to ``(Q - r, r)``. Two requests for the same part
   and source are different options at the same configurations: the pick decides which
   destination the part goes to. FMP in ``(Q, r)`` is the delivery of ``r``, leading to
@@ -39,7 +40,7 @@ source)), so the layers cost one bitmap each only in ``live`` and ``tf``.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from itertools import combinations
+from itertools import combinations_with_replacement
 from math import comb
 
 import numpy as np
@@ -52,29 +53,24 @@ from cellplan.strategies.model import NR, Geometry, LayeredMDP, Mode, MoveClasse
 def pending_modes(R: int, k: int) -> list[tuple[tuple[int, ...], int]]:
     """Every mode ``(Q, r)`` for ``R`` request types and at most ``k`` open requests.
 
-    ``Q`` is a sorted tuple of request indices, ``r`` the carried request or -1. Order:
+    ``Q`` is a sorted tuple of request indices (a multiset: an index may repeat), ``r``
+    the carried request or -1. Order:
     NR (``((), -1)``) first, then the empty modes by the size of ``Q``, then the
     carrying modes by ``r`` and the size of ``Q``.
     """
     out: list[tuple[tuple[int, ...], int]] = []
     for n in range(k + 1):
-        out += [(q, -1) for q in combinations(range(R), n)]
+        out += [(q, -1) for q in combinations_with_replacement(range(R), n)]
     for r in range(R):
         for n in range(k):
-            out += [(q, r) for q in combinations(range(R), n)]
+            out += [(q, r) for q in combinations_with_replacement(range(R), n)]
     return out
 
 
 def mode_counts(R: int, k: int) -> tuple[int, int]:
-    """``(empty, carrying)`` mode counts: ``sum_{i<=k} C(R, i)`` and ``R sum_{i<k} C(R, i)``."""
-    empty = sum(comb(R, i) for i in range(k + 1))
-    carrying = R * sum(comb(R, i) for i in range(k))
-    return empty, carrying
-
-
-def option_count(R: int, k: int) -> int:
-    """FMP options: one per waiting request in each empty mode, one per carrying mode."""
-    return sum(i * comb(R, i) for i in range(k + 1)) + mode_counts(R, k)[1]
+    """``(empty, carrying)`` mode counts: the multisets of at most ``k`` of ``R`` types,
+    ``C(R + k, k)``, and ``R`` times those of at most ``k - 1``, ``R C(R + k - 1, k - 1)``."""
+    return comb(R + k, k), R * comb(R + k - 1, k - 1) if k > 0 else 0
 
 
 def assemble_pending(
@@ -141,9 +137,11 @@ def assemble_pending(
             opt_tf.append(field * cost[m] / stage_time)
             out_layer.append(nxt)
         else:
-            for i in q:
+            for i in sorted(set(q)):
                 p, s, _, _ = requests[i]
-                nxt = index[(tuple(j for j in q if j != i), i)]
+                rest = list(q)
+                rest.remove(i)
+                nxt = index[(tuple(rest), i)]
                 where = geometry.pick[(p, s)].ravel() & free_mode[m] & free_mode[nxt]
                 field = np.where(where, geometry.tf_pick[(p, s)].ravel(), np.inf)
                 opt_tf.append(field * cost[m] / stage_time)
@@ -171,8 +169,8 @@ def assemble_pending(
         if len(q) + (r >= 0) < max_pending:
             for i in range(R):
                 p_i = arrival * probs[i]
-                if i in q or p_i <= 0.0:
-                    continue  # a request of a type already waiting is turned away
+                if p_i <= 0.0:
+                    continue
                 layers.append(index[(tuple(sorted((*q, i))), r)])
                 bprob.append(p_i)
                 stay -= p_i

@@ -248,7 +248,17 @@ def simulate(
     progress
         Called as ``progress(done, stages, text)`` about 200 times in the run (the CLI
         draws a bar with it).
+
+    A model of simultaneous requests (Section VI-2) runs in
+    :func:`cellplan.strategies.pending_sim.simulate_pending` instead (its policies are
+    ``optimal``, ``fcfs``, ``nearest`` and ``reactive``; FMP follows the grid cell).
     """
+    if strategy.mdp.opt_ptr is not None:
+        from cellplan.strategies.pending_sim import simulate_pending
+
+        return simulate_pending(
+            strategy, stages, seed, policy=policy, start=start, progress=progress
+        )
     if policy not in POLICIES:
         raise ValueError(f"policy must be one of {POLICIES}, not {policy!r}")
     rng = np.random.default_rng(seed)
@@ -533,7 +543,9 @@ def simulate_result(
     stages, seed
         Length of the run (1 to :data:`MAX_STAGES`) and the seed of its random stream.
     policy
-        ``optimal`` (the strategy), ``reactive`` or ``home`` (the baselines of Section V-C).
+        ``optimal`` (the strategy), ``reactive`` or ``home`` (the baselines of Section V-C);
+        with simultaneous requests (Section VI-2) ``optimal``, ``fcfs``, ``nearest`` or
+        ``reactive`` (:mod:`cellplan.strategies.pending_sim`).
     cell
         The :class:`~cellplan.workcell.Workcell`: with it every FMP is confirmed by the
         exact region test, and the trajectory's columns take the robot's axis names.
@@ -576,8 +588,11 @@ def simulate_result(
         )
     if not isinstance(seed, int | np.integer) or int(seed) < 0:
         problems.append(Problem("seed", f"must be a non-negative integer, got {seed!r}"))
-    if policy not in POLICIES:
-        problems.append(Problem("policy", f"must be one of {', '.join(POLICIES)}, got {policy!r}"))
+    allowed = POLICIES
+    if strategy.mdp.opt_ptr is not None:  # simultaneous requests (Section VI-2)
+        from cellplan.strategies.pending_sim import PENDING_POLICIES as allowed
+    if policy not in allowed:
+        problems.append(Problem("policy", f"must be one of {', '.join(allowed)}, got {policy!r}"))
     if max_wait is not None and not (np.isfinite(max_wait) and max_wait > 0):
         problems.append(Problem("max_wait", f"must be a positive number, got {max_wait!r}"))
     mdp = strategy.mdp
