@@ -165,7 +165,8 @@ MISTAKES = {
     "  max_pending: 2\n  destination_change: {probability: 0.1}\n": (
         "strategy.destination_change: cannot be combined with simultaneous requests"
     ),
-    "  max_pending: 2\n  failures:\n    - {region: D1, probability: 0.2, then: retry, rework: 1}\n": (
+    "  max_pending: 2\n  failures:\n"
+    "    - {region: D1, probability: 0.2, then: retry, rework: 1}\n": (
         "strategy.failures: cannot be combined with simultaneous requests"
     ),
 }
@@ -186,7 +187,8 @@ def test_too_many_modes_are_refused_before_building(cellplan, tmp_path):
     # 2 sources x 27 destinations = 54 request types; 8 open make ~1e9 modes.
     text = TINY.replace("CELLS", "12").replace(
         "destinations:\n",
-        "destinations:\n" + "".join(
+        "destinations:\n"
+        + "".join(
             f"  E{i}: {{components: [{{type: box, min: [{i}, 27], max: [{i + 0.5}, 28]}}]}}\n"
             for i in range(2, 28)
         ),

@@ -72,11 +72,12 @@ def sparse_rvi(mdp, tol=1e-10, max_iter=200000, damping=1.0):
 
     FMP option j of mode m (one per mode but with simultaneous requests) costs t_f(j, x)
     and then, with probability p_o, adds c_o and moves to mode L_o at the same cell
-    (Section V: one outcome; failure modes: several), every outcome a live state; stay keeps the cell in every branch; a move lands at each of its
-    landings with probability p_j (one, exact, in Section V; noisy motion: row
-    ``A + a J + j`` of ``disp``), on the stencil's live corners renormalised per branch.
-    ``damping`` < 1 averages each iterate with the last (aperiodic whatever the chain).
-    Returns the gain and the relative values (NaN off the live states).
+    (Section V: one outcome; failure modes: several), every outcome a live state; stay
+    keeps the cell in every branch; a move lands at each of its landings with
+    probability p_j (one, exact, in Section V; noisy motion: row ``A + a J + j`` of
+    ``disp``), on the stencil's live corners renormalised per branch. ``damping`` < 1
+    averages each iterate with the last (aperiodic whatever the chain). Returns the gain
+    and the relative values (NaN off the live states).
     """
     live = mdp.live
     out = mdp.fmp_outcomes()

@@ -167,14 +167,14 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     ax.set_ylabel("mean wait per delivered request (stages)")
     ax.legend(fontsize=8)
     figure = base.save_figure(fig, outdir / "strategies_pending.png")
-    cells = sorted({str(r["cells"]) for r in rows if "cells" in r})
+    cells = sorted({str(r["cells"]).replace(",", " x ") for r in rows if "cells" in r})
     stages = sorted({int(r["stages"]) for r in rows if "stages" in r})
     caption = (
         f"Left: loss per stage of each policy (the weighted number of open requests, which "
         f"the optimal strategy minimises; dashed: its gain). Right: mean wait of the "
         f"delivered requests per part. Bars: mean and 95% interval over {n} seed"
         f"{'s' if n != 1 else ''}, every policy on the same requests; runs of "
-        f"{', '.join(map(str, stages))} stages on {', '.join(c.replace(',', ' x ') for c in cells)} "
+        f"{', '.join(map(str, stages))} stages on {', '.join(cells)} "
         f"grids, {int(rows[0]['modes'])} modes, {int(rows[0]['states']):,} states."
     )
     return ReportPiece(

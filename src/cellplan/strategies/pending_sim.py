@@ -34,8 +34,8 @@ import numpy as np
 from cellplan.strategies.model import NR, LayeredMDP, Mode, compute_live
 from cellplan.strategies.points import action_values_at, fmp_options_at
 from cellplan.strategies.simulate import Request, Simulation
-from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
 from cellplan.strategies.stencils import fmp_code
+from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
 
 PENDING_POLICIES: tuple[str, ...] = ("optimal", "fcfs", "nearest", "reactive")
 
