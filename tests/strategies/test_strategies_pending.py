@@ -210,3 +210,23 @@ def test_quick_pending_experiment_reports_three_claims(tmp_path):
     piece = EXPERIMENT.report(rows, tmp_path)
     assert len(piece.claims) == 3 and all(p.exists() for p in piece.figures)
     assert all(c.n == 2 and c.reproduced is None for c in piece.claims)  # too few seeds
+
+
+def test_solve_simulate_and_gif_on_the_command_line(cellplan, tmp_path):
+    import json
+
+    path = tmp_path / "q.yaml"
+    path.write_text(TINY.replace("CELLS", "12") + "  max_pending: 2\n  urgency: {P1: 2.0}\n")
+    r = cellplan("solve", str(path), "-o", str(tmp_path / "q.npz"))
+    assert r.returncode == 0, r.stderr
+    for policy in PENDING_POLICIES:
+        out = tmp_path / policy
+        args = ["--strategy", str(tmp_path / "q.npz"), "--stages", "300", "--policy", policy]
+        r = cellplan("simulate", str(path), *args, "-o", str(out), "--gif-size", "240")
+        assert r.returncode == 0, r.stderr
+        metrics = json.loads((out / "metrics.json").read_text())["metrics"]
+        assert metrics["policy"] == policy and "mean_open" in metrics and "turned_away" in metrics
+        assert (out / "simulation.gif").stat().st_size > 0 and (out / "trajectory.csv").exists()
+    r = cellplan("simulate", str(path), "--strategy", str(tmp_path / "q.npz"), "--policy", "home")
+    assert r.returncode == 2
+    assert "policy: must be one of optimal, fcfs, nearest, reactive" in r.stderr

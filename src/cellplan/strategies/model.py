@@ -166,7 +166,7 @@ class LayeredMDP:
     def fmp_allowed(self, m: int) -> np.ndarray:
         """``(N,)`` bool: the cells where some FMP option of mode ``m`` is allowed."""
         ptr = self.options
-        return (self.tf[ptr[m] : ptr[m + 1]] < np.inf).any(axis=0)
+        return np.asarray((self.tf[ptr[m] : ptr[m + 1]] < np.inf).any(axis=0))
 
     def grid(self) -> Grid:
         """The grid bundle of the kernels."""
@@ -917,12 +917,7 @@ def build_model(
             max_pending=sec.max_pending,
             urgency=sec.urgency,
         )
-        problems = pending_problems(mdp, requests)
-        if not problems and start is not None:
-            problems = start_problems(mdp, start)
-        if problems:
-            raise ScenarioError(problems)
-        return mdp
+        return _checked(mdp, pending_problems(mdp, requests), start)
     failures = None
     if sec.failures:
 
@@ -969,7 +964,13 @@ def build_model(
         source_change=src,
         failures=failures,
     )
-    problems = live_problems(mdp)
+    return _checked(mdp, live_problems(mdp), start)
+
+
+def _checked(
+    mdp: LayeredMDP, problems: list[Problem], start: Sequence[float] | np.ndarray | None
+) -> LayeredMDP:
+    """``mdp``, unless a request can never be served or the start is outside its domain."""
     if not problems and start is not None:
         problems = start_problems(mdp, start)
     if problems:

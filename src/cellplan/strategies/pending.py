@@ -45,6 +45,7 @@ from math import comb
 
 import numpy as np
 
+from cellplan.errors import Problem
 from cellplan.strategies.actions import ActionSet
 from cellplan.strategies.bundles import Grid, Outcomes
 from cellplan.strategies.model import NR, Geometry, LayeredMDP, Mode, MoveClasses, finish_model
@@ -197,15 +198,15 @@ def assemble_pending(
     )
 
 
-def pending_problems(mdp: LayeredMDP, requests: Sequence[tuple[str, str, str, float]]) -> list:
+def pending_problems(
+    mdp: LayeredMDP, requests: Sequence[tuple[str, str, str, float]]
+) -> list[Problem]:
     """One problem per request that can never be served (checked before solving).
 
     Request ``r`` alone is served through the modes ``({r}, none)`` and ``(empty, r)``,
     the Section V modes ``W`` and ``C`` of ``r``; the messages are those of
     :func:`cellplan.strategies.model.live_problems`.
     """
-    from cellplan.errors import Problem
-
     index = {(m.waiting, m.part, m.source, m.destination): i for i, m in enumerate(mdp.modes)}
     problems = []
     if not mdp.live[0].any():

@@ -47,7 +47,7 @@ def _solved(cells: str) -> Any:
 def make_runs(runs: int, quick: bool) -> list[RunSpec]:
     """One run per seed (each runs every policy on the seed's stream of requests)."""
     cells = QUICK_CELLS if quick else CELLS
-    stages = 4000 if quick else 40000
+    stages = 4000 if quick else 160000
     return [
         RunSpec("strategies.pending", {"cells": cells, "stages": stages}, seed)
         for seed in range(runs)

@@ -71,9 +71,10 @@ def single_request_model(mdp: LayeredMDP) -> LayeredMDP:
     R = len(mdp.request_prob)
     # pending_modes puts the modes ({r}, none) right after NR, in request order.
     names = [mdp.modes[1 + r].waiting[0] for r in range(R)]
+    triples = [_triple(name) for name in names]
     by_key = {(m.waiting, m.part, m.source, m.destination): i for i, m in enumerate(mdp.modes)}
     w_layers = [by_key[((name,), "", "", "")] for name in names]
-    c_layers = [by_key[((), *name.split(","))] for name in names]
+    c_layers = [by_key[((), p, s, d)] for p, s, d in triples]
     keep = [0, *w_layers, *c_layers]
     opt = mdp.options
     tf = np.full((len(keep), mdp.n_cells), np.inf)
@@ -96,8 +97,8 @@ def single_request_model(mdp: LayeredMDP) -> LayeredMDP:
     sub = replace(
         mdp,
         modes=[Mode(NR)]
-        + [Mode("W", *name.split(",")) for name in names]
-        + [Mode("C", *name.split(",")) for name in names],
+        + [Mode("W", p, s, d) for p, s, d in triples]
+        + [Mode("C", p, s, d) for p, s, d in triples],
         cost=cost,
         vcls=vcls.astype(np.int64),
         free=mdp.free[used],
@@ -154,7 +155,7 @@ class Rules:
         names = tuple(self.names[r] for r in sorted(waiting))
         if carried < 0:
             return self.index[(names, "", "", "")]
-        p, s, d = self.names[carried].split(",")
+        p, s, d = _triple(self.names[carried])
         return self.index[(names, p, s, d)]
 
     def optimal(self, q: np.ndarray, m: int) -> int:
@@ -282,7 +283,7 @@ def simulate_pending(
                 q = strategy.next_configuration(q, m, u)
             if arrive[k]:
                 r_type = int(kinds[k])
-                p, s, d = rules.names[r_type].split(",")
+                p, s, d = _triple(rules.names[r_type])
                 if open_now >= k_max:
                     turned += 1
                     events.append((k + 1, "turned_away", f"<{p},{s},{d}>"))
@@ -317,6 +318,12 @@ def _choose(policy: str, q: np.ndarray, waiting_type: list[int], rules: Rules) -
         times = [rules.finish_time(q, r) for r in waiting_type]
         return waiting_type[int(np.argmin(times))]
     return waiting_type[0]
+
+
+def _triple(name: str) -> tuple[str, str, str]:
+    """``(part, source, destination)`` of a request's name ``"part,source,destination"``."""
+    p, s, d = name.split(",")
+    return p, s, d
 
 
 def _start(strategy: Strategy) -> np.ndarray:
