@@ -296,7 +296,7 @@ def _set_version(v: int) -> Any:
 
 
 @settings(
-    max_examples=30,
+    max_examples=80,
     derandomize=True,
     deadline=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
