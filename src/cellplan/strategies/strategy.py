@@ -15,6 +15,7 @@ scenario whose digest differs raises :class:`~cellplan.errors.PersistenceError`.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -143,8 +144,6 @@ class Strategy:
 
     def _pending_index(self, text: str) -> int:
         """A Q mode (simultaneous requests) from its label, spaces and order free."""
-        import re
-
         found = re.fullmatch(r"\{([^{}<>]*)\}(?:\+<([^{}<>]*)>)?", "".join(text.split()))
         if found is None:
             raise PersistenceError(
