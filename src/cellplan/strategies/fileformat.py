@@ -9,17 +9,24 @@ values); :func:`read_strategy` checks a file against both with
 that no array reaches a compiled kernel unless every index it holds is in range:
 
 * sizes: ``d`` axes, ``N`` cells (product of ``grid.shape``), ``M`` modes (``2R + 1``
-  for ``R`` requests), ``T`` heading slices, ``C = 2 ** d`` stencil corners, from the
-  metadata; ``K`` move classes, ``A`` actions per class and ``B`` branches, from the
-  arrays (``K <= M``, ``A <= 62``, ``M <= B <= M * M``);
+  for ``R`` requests, plus the X modes of failures; or NR and the Q modes of
+  simultaneous requests), ``R`` request types, ``T`` heading slices, ``C = 2 ** d``
+  stencil corners, from the metadata; ``K`` move classes, ``A`` actions per class, ``B``
+  branches, ``O`` FMP options and ``G`` FMP outcomes, from the arrays (``K <= M``,
+  ``A <= 62``, ``M <= B <= M * M``, ``M - 1 <= O, G <= M * M``);
 * the grid arrays equal the metadata's grid; the spacing is ``(upper - lower) / shape``;
 * the stencil tables (``offs``, ``fr``, ``coff``, ``cw``, ``interior``) equal the tables
   recomputed from ``disp`` and the grid, so every flat offset a kernel adds stays inside
   the grid;
-* each mode's branches are a probability distribution, the FMP successors follow the
-  mode order (NR, then W, then C), the live states are free, the cost-to-go is finite on
-  the live states and NaN elsewhere;
-* with a scenario: its digest, its robot's dimension and its request list (the modes).
+* each mode's branches are a probability distribution; the FMP options (``opt_ptr``)
+  start at 0, never decrease and end at ``O``, one per mode (the identity) unless the
+  model is that of simultaneous requests; each option's outcomes are a probability
+  distribution over successors the model can produce (Section V and VI-3: the FMP
+  successors follow the mode order NR, W, C, X; Section VI-2: a pick of a waiting
+  request or the delivery of the carried one); the live states are free, the cost-to-go
+  is finite on the live states and NaN elsewhere;
+* with a scenario: its digest and its request list (the modes; with simultaneous
+  requests, also ``max_pending``).
 
 Every problem is one :class:`~cellplan.errors.PersistenceError` line naming the file and
 the array or metadata field (the CLI exits 2).
@@ -31,7 +38,7 @@ import json
 import math
 from collections.abc import MutableMapping
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -39,12 +46,17 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from cellplan.arrayfile import ArraySpec, read_arrays
 from cellplan.errors import PersistenceError, Problem
 from cellplan.schema import CELLS_RANGE
-from cellplan.strategies.section import MAX_NOISE_OUTCOMES
+from cellplan.strategies.section import MAX_NOISE_OUTCOMES, MAX_PENDING
 from cellplan.strategies.stencils import MAX_DIM
 
+if TYPE_CHECKING:
+    from cellplan.strategies.model import Mode
+
 FORMAT = "cellplan-strategy"
-VERSION = 2
-"""Version 2 (failure modes, Section VI-3) adds the FMP outcome arrays and the X modes."""
+VERSION = 3
+"""Version 2 (failure modes, Section VI-3) added the FMP outcome arrays and the X modes;
+version 3 (simultaneous requests, Section VI-2) adds the FMP options ``opt_ptr`` (``tf``
+and the outcomes by option) and the Q modes."""
 #: Actions per move class: the valid-move bitmask is one int64 per cell.
 MAX_ACTIONS = 62
 #: Most grid cells of a strategy (a product of axes: checked before any size is used).
@@ -75,7 +87,7 @@ class StrategyMeta(_Strict):
     """The metadata string ``meta`` of a strategy file (JSON)."""
 
     format: Literal["cellplan-strategy"]
-    version: Literal[2]
+    version: Literal[3]
     scenario_digest: Annotated[str, Field(max_length=128)]
     scenario_name: Name
     gain: Finite
@@ -98,7 +110,9 @@ class StrategyMeta(_Strict):
     heading_axis: Annotated[int, Field(ge=-1, lt=MAX_DIM)]
     stage_time: Annotated[float, Field(gt=0, allow_inf_nan=False)]
     arrival: Annotated[float, Field(ge=0, le=1)]
-    modes: list[Annotated[list[Name], Field(min_length=4, max_length=6)]] = Field(
+    # kind, part, source, destination; an X mode adds its reject region and what follows,
+    # a Q mode its waiting requests ("part,source,destination", at most MAX_PENDING).
+    modes: list[Annotated[list[Name], Field(min_length=4, max_length=4 + MAX_PENDING)]] = Field(
         min_length=3, max_length=100_001
     )
     labels: list[list[Name]]
@@ -120,7 +134,8 @@ ARRAYS: dict[str, ArraySpec] = {
     "cost": ArraySpec("float64", ("M",), "0", doc="loss per stage, eq. (7)"),
     "vcls": ArraySpec("int64", ("M",), "0", "K - 1", doc="move class of each mode"),
     "fmp_next": ArraySpec("int64", ("M",), "-1", "M - 1", doc="mode after FMP (-1: none)"),
-    "tf": ArraySpec("float64", ("M", "N"), "0", inf=True, doc="fine-motion time (inf: no FMP)"),
+    "tf": ArraySpec("float64", ("O", "N"), "0", inf=True, doc="FMP time per option (inf: none)"),
+    "opt_ptr": ArraySpec("int64", ("M + 1",), "0", "O", doc="FMP options of each mode"),
     "branch_ptr": ArraySpec("int64", ("M + 1",), "0", "B", doc="branches of each mode"),
     "branch_prob": ArraySpec("float64", ("B",), "0", "1", doc="probability of each branch"),
     "nact": ArraySpec("int64", ("K",), "1", "A", doc="actions of each move class"),
@@ -133,7 +148,7 @@ ARRAYS: dict[str, ArraySpec] = {
     "live": ArraySpec("bool", ("M", "N"), doc="states of the MDP"),
     "request_prob": ArraySpec("float64", ("R",), "0", "1", doc="probability of each request"),
     "out_layer": ArraySpec("int64", ("G",), "0", "M - 1", doc="mode after each FMP outcome"),
-    "out_ptr": ArraySpec("int64", ("M + 1",), "0", "G", doc="FMP outcomes of each mode"),
+    "out_ptr": ArraySpec("int64", ("O + 1",), "0", "G", doc="outcomes of each FMP option"),
     "out_prob": ArraySpec("float64", ("G",), "0", "1", doc="probability of each FMP outcome"),
     "out_cost": ArraySpec("float64", ("G",), "0", doc="extra loss of each outcome (rework)"),
     "noise_prob": ArraySpec("float64", ("J",), "0", "1", doc="noisy landings of a move"),
@@ -145,6 +160,7 @@ SIZE_LIMITS: dict[str, tuple[int | str, int | str]] = {
     "K": (1, "M"),
     "A": (1, MAX_ACTIONS * (1 + MAX_NOISE_OUTCOMES)),  # moves, then their noisy landings
     "B": ("M", "M * M"),
+    "O": ("M - 1", "M * M"),
     "G": ("M - 1", "M * M"),
     "J": (1, MAX_NOISE_OUTCOMES),
 }
@@ -176,16 +192,21 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
             raise fail("meta.grid: lower must be below upper on every axis")
         M = len(meta.modes)
         kinds = [m[0] for m in meta.modes]
-        R = kinds.count("W")
-        X = M - 1 - 2 * R
-        if X < 0 or kinds != ["NR"] + ["W"] * R + ["C"] * R + ["X"] * X:
-            raise fail(
-                "meta.modes: expected NR, then the W modes, then the C modes, then the X modes"
-            )
-        if any(len(m) != (6 if m[0] == "X" else 4) for m in meta.modes):
-            raise fail("meta.modes: X modes have 6 fields, the others 4")
-        if any(m[5] not in ("fetch", "request") for m in meta.modes[1 + 2 * R :]):
-            raise fail("meta.modes: an X mode must end in 'fetch' or 'request'")
+        if kinds[0] == "NR" and M > 1 and set(kinds[1:]) == {"Q"}:
+            found["pending"] = _pending_keys(meta.modes, fail)
+            R = len({w for key in found["pending"] for w in key[0]})
+        else:
+            R = kinds.count("W")
+            X = M - 1 - 2 * R
+            if X < 0 or kinds != ["NR"] + ["W"] * R + ["C"] * R + ["X"] * X:
+                raise fail(
+                    "meta.modes: expected NR, then the W modes, then the C modes, then the X "
+                    "modes (or NR, then the Q modes of simultaneous requests)"
+                )
+            if any(len(m) != (6 if m[0] == "X" else 4) for m in meta.modes):
+                raise fail("meta.modes: X modes have 6 fields, the others 4")
+            if any(m[5] not in ("fetch", "request") for m in meta.modes[1 + 2 * R :]):
+                raise fail("meta.modes: an X mode must end in 'fetch' or 'request'")
         h = meta.heading_axis
         if h >= d or (h >= 0 and (d < 3 or h < 2)):
             raise fail(f"meta.heading_axis: {h} is not an angle axis of a {d}-axis grid")
@@ -217,9 +238,10 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
         what="a strategy file",
     )
     meta: StrategyMeta = found["meta"]
-    _check_consistency(meta, arrays, sizes, fail)
+    pending: list[PendingKey] | None = found.get("pending")
+    _check_consistency(meta, arrays, sizes, fail, pending)
     if scenario is not None:
-        _check_scenario(meta, sizes, scenario, fail)
+        _check_scenario(meta, sizes, scenario, fail, pending)
     del arrays["meta"]
     return meta.model_dump(), arrays
 
@@ -237,10 +259,11 @@ def _parse_meta(text: str, fail: Any) -> StrategyMeta:
         raise fail("meta: not valid JSON") from None
     if not isinstance(raw, dict):
         raise fail("meta: expected a JSON object")
-    if raw.get("format") == FORMAT and raw.get("version") == 1:
+    old = raw.get("version")
+    if raw.get("format") == FORMAT and type(old) is int and 1 <= old < VERSION:
         raise fail(
-            "a strategy file of version 1 (an older cellplan); solve the scenario again to "
-            f"write version {VERSION}"
+            f"a strategy file of version {old} (an older cellplan); solve the scenario again "
+            f"to write version {VERSION}"
         )
     if raw.get("format") != FORMAT or raw.get("version") != VERSION:
         raise fail(
@@ -256,7 +279,65 @@ def _parse_meta(text: str, fail: Any) -> StrategyMeta:
         raise fail(f"meta.{loc}: {return_msg}") from None
 
 
-def _check_consistency(meta: StrategyMeta, a: dict, sizes: dict[str, int], fail: Any) -> None:
+#: A mode of simultaneous requests (Section VI-2): the waiting requests and the carried
+#: one (``"part,source,destination"``, ``""`` when empty); NR is ``(frozenset(), "")``.
+PendingKey = tuple[frozenset[str], str]
+
+
+def _pending_keys(modes: list[list[str]], fail: Any) -> list[PendingKey]:
+    """The modes of a model of simultaneous requests (NR, then Q modes), checked.
+
+    They must be every mode ``(Q, r)`` of ``R`` request types (those the modes name) and at
+    most ``k`` open requests (the most any mode holds), once each: a set of distinct valid
+    modes is all of them exactly when there are :func:`~.pending.mode_counts` of them. The
+    order is free (the arrays name modes by index); the scenario check compares it.
+    """
+    from cellplan.strategies.pending import mode_counts
+
+    if len(modes[0]) != 4 or any(modes[0][1:]):
+        raise fail("meta.modes: NR has 4 fields, the last three empty")
+    keys: list[PendingKey] = [(frozenset(), "")]
+    for i, m in enumerate(modes[1:], start=1):
+        carried = m[1:4]
+        if any(carried) and not all(carried):
+            raise fail(
+                f"meta.modes.{i}: a Q mode names the part, source and destination it "
+                "carries, or none of them"
+            )
+        waiting = m[4:]
+        bad = [w for w in waiting if len(w.split(",")) != 3 or not all(w.split(","))]
+        if bad:
+            raise fail(
+                f"meta.modes.{i}: waiting request {bad[0][:60]!r} is not 'part,source,destination'"
+            )
+        if len(set(waiting)) != len(waiting):
+            raise fail(f"meta.modes.{i}: a request waits twice")
+        key = (frozenset(waiting), ",".join(carried) if all(carried) else "")
+        if not key[0] and not key[1]:
+            raise fail(f"meta.modes.{i}: a Q mode with no open request (only NR has none)")
+        keys.append(key)
+    if len(set(keys)) != len(keys):
+        raise fail("meta.modes: a Q mode appears twice")
+    names = {w for key in keys for w in key[0]}
+    if any(key[1] not in names for key in keys[1:] if key[1]):
+        raise fail("meta.modes: a carried request that never waits")
+    k = max(len(key[0]) + bool(key[1]) for key in keys)
+    expected = sum(mode_counts(len(names), k))
+    if len(keys) != expected:
+        raise fail(
+            f"meta.modes: {len(keys)} modes; up to {k} open requests of {len(names)} types "
+            f"make {expected}"
+        )
+    return keys
+
+
+def _check_consistency(
+    meta: StrategyMeta,
+    a: dict,
+    sizes: dict[str, int],
+    fail: Any,
+    pending: list[PendingKey] | None = None,
+) -> None:
     from cellplan.strategies.model import corner_tables, stencil_tables, table_rows
 
     grid = meta.grid
@@ -279,12 +360,23 @@ def _check_consistency(meta: StrategyMeta, a: dict, sizes: dict[str, int], fail:
     sums = np.add.reduceat(a["branch_prob"], ptr[:-1])
     if not np.allclose(sums, 1.0, atol=1e-9):
         raise fail("branch_prob: the branches of a mode do not sum to 1")
-    R = sizes["R"]
-    nxt = a["fmp_next"]
-    expected_next = np.concatenate([[-1], np.arange(R) + 1 + R, np.zeros(R, np.int64)])
-    if not np.array_equal(nxt[: 1 + 2 * R], expected_next):
-        raise fail("fmp_next: the FMP successors do not follow the mode order")
-    _check_outcomes(a, R, M, fail)
+    R, n_options = sizes["R"], sizes["O"]
+    opt = a["opt_ptr"]
+    if opt[0] != 0 or opt[-1] != n_options or (np.diff(opt) < 0).any():
+        raise fail("opt_ptr: expected 0, non-decreasing, ending at the number of FMP options")
+    if pending is not None:
+        _check_options(meta, a, pending, fail)
+    else:
+        if not np.array_equal(opt, np.arange(M + 1)):
+            raise fail(
+                "opt_ptr: expected one FMP option per mode (0, 1, ..., M) in a model "
+                "without simultaneous requests"
+            )
+        nxt = a["fmp_next"]
+        expected_next = np.concatenate([[-1], np.arange(R) + 1 + R, np.zeros(R, np.int64)])
+        if not np.array_equal(nxt[: 1 + 2 * R], expected_next):
+            raise fail("fmp_next: the FMP successors do not follow the mode order")
+        _check_outcomes(a, R, M, fail)
     if len(meta.labels) != K:
         raise fail(f"meta.labels: expected {K} lists (one per move class), got {len(meta.labels)}")
     nact = a["nact"]
@@ -354,7 +446,62 @@ def _check_outcomes(a: dict, R: int, M: int, fail: Any) -> None:
             raise fail(f"out_layer: mode {m} has an FMP outcome the model cannot produce")
 
 
-def _check_scenario(meta: StrategyMeta, sizes: dict[str, int], scenario: Any, fail: Any) -> None:
+def _check_options(meta: StrategyMeta, a: dict, keys: list[PendingKey], fail: Any) -> None:
+    """The FMP options of simultaneous requests (Section VI-2, :mod:`.pending`).
+
+    NR has none; each option's outcomes are a distribution (at least one); ``fmp_next`` is
+    the first outcome of a mode's first option (-1 without options); an empty mode
+    ``(Q, none)`` picks distinct waiting requests (``(Q - r, r)``), a carrying mode
+    ``(Q, r)`` has at most one option, the delivery (``(Q, none)``).
+    """
+    opt = a["opt_ptr"]
+    ptr, layer, prob, cost = a["out_ptr"], a["out_layer"], a["out_prob"], a["out_cost"]
+    n_opt = np.diff(opt)
+    if n_opt[0] != 0:
+        raise fail("opt_ptr: NR has no FMP option")
+    if ptr[0] != 0 or ptr[-1] != len(layer) or (np.diff(ptr) < 1).any():
+        raise fail(
+            "out_ptr: expected 0, increasing (every FMP option has an outcome), ending at "
+            "the number of outcomes"
+        )
+    if not np.isfinite(cost).all():
+        raise fail("out_cost: not finite")
+    if len(ptr) > 1 and not np.allclose(np.add.reduceat(prob, ptr[:-1]), 1.0, atol=1e-9):
+        raise fail("out_prob: the outcomes of an FMP option do not sum to 1")
+    has = n_opt > 0
+    first = np.full(len(n_opt), -1, np.int64)
+    first[has] = layer[ptr[opt[:-1][has]]]
+    if not np.array_equal(a["fmp_next"], first):
+        raise fail(
+            "fmp_next: not the first outcome of the mode's first FMP option (-1 without one)"
+        )
+    index = {key: m for m, key in enumerate(keys)}
+    for m in range(1, len(keys)):
+        waiting, carried = keys[m]
+        if carried:
+            allowed = {index[(waiting, "")]}
+        else:
+            allowed = {index[(waiting - {w}, w)] for w in waiting}
+        if n_opt[m] > len(allowed):
+            label = mode_of(meta.modes[m]).label
+            raise fail(f"opt_ptr: mode {label} has {n_opt[m]} FMP options (at most {len(allowed)})")
+        outs = layer[ptr[opt[m]] : ptr[opt[m + 1]]].tolist()
+        firsts = layer[ptr[opt[m] : opt[m + 1]]].tolist()
+        if not set(outs) <= allowed or len(set(firsts)) != len(firsts):
+            label = mode_of(meta.modes[m]).label
+            raise fail(
+                f"out_layer: mode {label} has an FMP outcome the model cannot produce (a "
+                "pick of each waiting request once, or the delivery of the carried one)"
+            )
+
+
+def _check_scenario(
+    meta: StrategyMeta,
+    sizes: dict[str, int],
+    scenario: Any,
+    fail: Any,
+    pending: list[PendingKey] | None = None,
+) -> None:
     if meta.scenario_digest != scenario.digest():
         raise fail(
             f"this strategy was computed for a different scenario "
@@ -365,6 +512,9 @@ def _check_scenario(meta: StrategyMeta, sizes: dict[str, int], scenario: Any, fa
     if section is None:  # pragma: no cover - the digest already differs
         return
     requests = section.request_list(scenario)
+    if pending is not None or section.simultaneous():
+        _check_pending_scenario(meta, requests, section.max_pending, fail)
+        return
     expected = [("NR", "", "", "")]
     expected += [("W", p, s, d) for p, s, d, _ in requests]
     expected += [("C", p, s, d) for p, s, d, _ in requests]
@@ -373,3 +523,38 @@ def _check_scenario(meta: StrategyMeta, sizes: dict[str, int], scenario: Any, fa
             f"meta.modes: {len(meta.modes)} modes, the scenario's requests give "
             f"{len(expected)}; solve this scenario again"
         )
+
+
+def _check_pending_scenario(
+    meta: StrategyMeta, requests: list[tuple[str, str, str, float]], k: int, fail: Any
+) -> None:
+    """The modes are those :func:`~.pending.assemble_pending` builds for the scenario."""
+    from cellplan.strategies.model import Mode
+    from cellplan.strategies.pending import pending_modes
+
+    names = [f"{p},{s},{d}" for p, s, d, _ in requests]
+    expected = []
+    for q, r in pending_modes(len(requests), k):
+        carried = requests[r][:3] if r >= 0 else ("", "", "")
+        waiting = tuple(names[i] for i in q)
+        expected.append(Mode("Q", *carried, waiting=waiting).label if q or r >= 0 else "NR")
+    got = [mode_of(m).label for m in meta.modes]
+    if got != expected:
+        raise fail(
+            f"meta.modes: {len(got)} modes that differ from the {len(expected)} of the "
+            f"scenario's {len(requests)} requests with max_pending {k}; solve this scenario "
+            "again"
+        )
+
+
+def mode_of(fields: list[str]) -> Mode:
+    """The mode of a ``meta.modes`` entry: kind, part, source, destination, then for an X
+    mode its reject region and what follows, for a Q mode its waiting requests."""
+    from cellplan.strategies.model import Mode
+
+    kind, part, source, destination, *rest = fields
+    if kind == "Q":
+        return Mode(kind, part, source, destination, waiting=tuple(rest))
+    if kind == "X":
+        return Mode(kind, part, source, destination, reject=rest[0], after=rest[1])
+    return Mode(kind, part, source, destination)

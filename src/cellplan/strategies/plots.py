@@ -6,6 +6,7 @@ matplotlib is imported lazily through :mod:`cellplan.plots`.
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,7 @@ import numpy as np
 from cellplan import plots as base
 from cellplan import units
 from cellplan.strategies.simulate import Simulation
+from cellplan.strategies.stencils import fmp_option
 from cellplan.strategies.strategy import FMP, STAY, Strategy
 
 OTHER_AXIS = 99  # marker code: the optimal move changes only the axes not shown
@@ -74,7 +76,7 @@ def plot_mode(
         fig.colorbar(cs, ax=ax, shrink=0.8, label="relative cost-to-go (stages)")
     label = mdp.modes[mode].label
     where = "" if not rest else f" (slice at cells {rest} of the other axes)"
-    ax.set_title(f"cost-to-go, mode {label}{where}", fontsize=9)
+    ax.set_title(wrap_title(f"cost-to-go, mode {label}{where}", 60), fontsize=9)
     ax.set_xlabel(xl + (" (deg)" if angular else ""))
     ax.set_ylabel(yl + (" (deg)" if angular else ""))
     ax.set_aspect("equal" if not angular else "auto")
@@ -102,8 +104,8 @@ def plot_mode(
                 u = strategy.action(q, mode)
             except ValueError:
                 continue
-            if u == FMP or u == STAY:
-                marks.append((q[0], q[1], u))
+            if fmp_option(u) >= 0 or u == STAY:  # any FMP option (Section VI-2: a pick)
+                marks.append((q[0], q[1], FMP if u != STAY else STAY))
                 continue
             dq = strategy.move_vector(q, mode, u)
             if np.linalg.norm(dq[:2]) <= 1e-12:
@@ -141,7 +143,7 @@ def plot_mode(
         sym, color = symbols[u]
         ax2.plot(scale(x), scale(y), sym, color=color, ms=3)
     legend = "o: FMP, x: stay" + (", +: move along another axis" if len(mdp.shape) > 2 else "")
-    ax2.set_title(f"optimal actions, mode {label} ({legend})", fontsize=9)
+    ax2.set_title(wrap_title(f"optimal actions, mode {label} ({legend})", 60), fontsize=9)
     ax2.set_xlabel(xl + (" (deg)" if angular else ""))
     ax2.set_ylabel(yl + (" (deg)" if angular else ""))
     ax2.set_aspect("equal" if not angular else "auto")
@@ -150,10 +152,29 @@ def plot_mode(
 
 def mode_regions(mode: Any) -> list[str]:
     """The regions a frame highlights: the request's source and destination, and the reject
-    region of an X mode (Section VI-3)."""
+    region of an X mode (Section VI-3); with simultaneous requests (a Q mode, Section VI-2)
+    the sources of the waiting requests and the carried request's source and destination."""
     if mode.kind == "NR":
         return []
+    if mode.kind == "Q":
+        regions = [w.split(",")[1] for w in mode.waiting]
+        if mode.part:
+            regions += [mode.source, mode.destination]
+        return list(dict.fromkeys(regions))
     return [mode.source, mode.destination] + ([mode.reject] if mode.kind == "X" else [])
+
+
+def carried_part(mode: Any) -> str | None:
+    """The part the robot holds in a mode (drawn with it), or None."""
+    if mode.kind in ("C", "X") or (mode.kind == "Q" and mode.part):
+        return str(mode.part)
+    return None
+
+
+def wrap_title(text: str, width: int) -> str:
+    """A title on lines of at most ``width`` characters (a mode label of simultaneous
+    requests lists every waiting request); lines break at spaces only."""
+    return textwrap.fill(text, width, break_long_words=False, break_on_hyphens=False)
 
 
 def _frame(
@@ -162,12 +183,12 @@ def _frame(
     mode = strategy.mdp.modes[int(sim.modes[first])]
     highlight = mode_regions(mode)
     base.draw_workcell(ax, cell, highlight=highlight, labels=False)
-    carrying = mode.part if mode.kind in ("C", "X") else None
+    carrying = carried_part(mode)
     tool = cell.robot.tool_pose(sim.q[first : last + 1])[:, :2]
     ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.2)
     base.draw_robot(ax, cell, sim.q[first], carrying, alpha=0.25)
     base.draw_robot(ax, cell, sim.q[last], carrying)
-    ax.set_title(title, fontsize=8)
+    ax.set_title(title, fontsize=8 if "\n" not in title else 7)
     ax.set_xlabel("")
     ax.set_ylabel("")
 
@@ -198,19 +219,27 @@ def plot_frames(
     for i, (a, b) in enumerate(shown):
         fig, axes = base.new_figure(size=4.0)
         label = strategy.mdp.modes[int(sim.modes[a])].label
-        _frame(axes[0, 0], strategy, cell, sim, a, b, f"({i + 1}) stages {a}-{b}: {label}")
+        title = wrap_title(f"({i + 1}) stages {a}-{b}: {label}", 52)
+        _frame(axes[0, 0], strategy, cell, sim, a, b, title)
         paths.append(base.save_figure(fig, outdir / f"frame_{i + 1:03d}.png", dpi=80))
     xmin, ymin, xmax, ymax = cell.bounds
     aspect = (xmax - xmin) / (ymax - ymin)
     rows, cols = base.grid_shape(len(shown), aspect)
     panel = min(3.2, 13.0 / cols)  # panel width in inches; the page is about 13 wide
+    titles = [
+        wrap_title(
+            f"({i + 1}) {strategy.mdp.modes[int(sim.modes[a])].label}, stages {a}-{b}",
+            int(16 * panel),  # about the characters of a 7-point line across the panel
+        )
+        for i, (a, b) in enumerate(shown)
+    ]
+    lines = max([t.count("\n") + 1 for t in titles], default=1)
     fig, axes = base.new_figure(ncols=cols, nrows=rows, size=panel)
-    fig.set_size_inches(cols * panel, rows * (panel / aspect + 0.35))
+    fig.set_size_inches(cols * panel, rows * (panel / aspect + 0.35 + 0.12 * (lines - 1)))
     for ax in axes.ravel()[len(shown) :]:
         ax.set_axis_off()
     for i, (a, b) in enumerate(shown):
-        label = strategy.mdp.modes[int(sim.modes[a])].label
-        _frame(axes.ravel()[i], strategy, cell, sim, a, b, f"({i + 1}) {label}, stages {a}-{b}")
+        _frame(axes.ravel()[i], strategy, cell, sim, a, b, titles[i])
     if len(segs) > len(shown):
         fig.suptitle(
             f"the first {len(shown)} of {len(segs)} mode segments (all stages: trajectory.csv)",
@@ -244,9 +273,10 @@ def save_animation(
         base.draw_workcell(ax, cell, highlight=highlight, labels=False)
         tool = cell.robot.tool_pose(sim.q[max(0, k - 30) : k + 1])[:, :2]
         ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.0)
-        base.draw_robot(ax, cell, sim.q[k], mode.part if mode.kind in ("C", "X") else None)
+        base.draw_robot(ax, cell, sim.q[k], carried_part(mode))
         base.frame_counter(ax, f"stage {k:>{len(str(n - 1))}d} / {n - 1}")
-        ax.set_title(f"mode {mode.label}", fontsize=9)
+        title = wrap_title(f"mode {mode.label}", 56)
+        ax.set_title(title, fontsize=9 if "\n" not in title else 8)
         frames.append(base.figure_to_rgb(fig, size))
         plt.close(fig)
     return base.save_gif(frames, path, fps=8.0)

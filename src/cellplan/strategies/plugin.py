@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 
     from cellplan.core import ShowcaseItem
     from cellplan.setup import Setup
+    from cellplan.strategies.model import LayeredMDP
 
 
 def describe(setup: Setup) -> Mapping[str, str]:
@@ -65,6 +66,8 @@ def describe(setup: Setup) -> Mapping[str, str]:
             f"{mdp.n_modes}: {1 + 2 * mdp.n_requests} of Section III-A ({mdp.n_requests} "
             f"requests) + {kinds.count('X')} carrying a rejected part (Section VI-3)"
         )
+    if "Q" in kinds:
+        modes = pending_line(len(mdp.request_prob), sc.strategy.max_pending, mdp)
     failing = int(sum(np.diff(mdp.fmp_outcomes().ptr) > 1))
     lines = {"assembly modes": modes}
     if failing:
@@ -83,6 +86,19 @@ def describe(setup: Setup) -> Mapping[str, str]:
         "free / live (NR)": f"{free_nr:.3f} / {live_nr:.3f} of the grid (live: every request "
         "can be served from there)",
     }
+
+
+def pending_line(R: int, k: int, mdp: LayeredMDP) -> str:
+    """The modes of simultaneous requests (Section VI-2): how they split, and how many each
+    ``max_pending`` up to ``k`` would give (they grow as ``C(R, k)``)."""
+    from cellplan.strategies.pending import mode_counts
+
+    empty, carrying = mode_counts(R, k)
+    each = ", ".join(f"{i}: {sum(mode_counts(R, i)):,}" for i in range(1, k + 1))
+    return (
+        f"{mdp.n_modes:,} (Section VI-2: up to {k} open requests of {R} types: {empty:,} "
+        f"empty + {carrying:,} carrying; max_pending {each}); states: {int(mdp.live.sum()):,}"
+    )
 
 
 def showcase(folder: Path) -> list[ShowcaseItem]:

@@ -15,6 +15,7 @@ scenario whose digest differs raises :class:`~cellplan.errors.PersistenceError`.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -25,7 +26,7 @@ from cellplan import units
 from cellplan.errors import ArgumentError, PersistenceError, Problem, ScenarioError
 from cellplan.fileio import atomic_path
 from cellplan.strategies.bundles import Model, Outcomes
-from cellplan.strategies.fileformat import FORMAT, VERSION
+from cellplan.strategies.fileformat import FORMAT, VERSION, mode_of
 from cellplan.strategies.model import LayeredMDP, Mode
 from cellplan.strategies.motion import motion_ok
 from cellplan.strategies.points import action_values_at, query
@@ -104,16 +105,28 @@ class Strategy:
     def mode_index(self, text: str) -> int:
         """A mode from ``NR``, ``"1,1,1,W"`` (1-based indices in the scenario file's order,
         the paper's notation) or ``"<P1,S1,D1,W>"`` (names, as mode labels print; the X
-        modes of failures, Section VI-3, by their labels such as ``<P1,S1,D1,X:R1>``)."""
+        modes of failures, Section VI-3, by their labels such as ``<P1,S1,D1,X:R1>``).
+
+        With simultaneous requests (Section VI-2) a mode is named by its label as it
+        prints, ``"{P1,S1,D1; P1,S2,D1} + <P1,S1,D2>"`` (the waiting requests, then the
+        carried one); spaces, and the order of the waiting requests, do not matter.
+        """
         text = text.strip()
         if text.upper() == "NR":
             return 0
         for i, m in enumerate(self.modes):
             if m.label == text or m.label == f"<{text}>":
                 return i  # every label, the X modes of failures included
+        if text.startswith("{"):
+            return self._pending_index(text)
         items = [t.strip() for t in text.strip("<>").split(",")]
         if len(items) != 4 or items[3].upper() not in ("W", "C"):
-            raise PersistenceError([Problem("--mode", f"expected NR or 'p,s,d,W|C', got {text!r}")])
+            expected = (
+                "NR or a mode label such as '{P1,S1,D1} + <P1,S2,D1>'"
+                if any(m.kind == "Q" for m in self.modes)
+                else "NR or 'p,s,d,W|C'"
+            )
+            raise PersistenceError([Problem("--mode", f"expected {expected}, got {text!r}")])
         # The modes follow the scenario's request list, so first appearance is file order.
         parts = list(dict.fromkeys(m.part for m in self.modes[1:]))
         sources = list(dict.fromkeys(m.source for m in self.modes[1:]))
@@ -127,8 +140,33 @@ class Strategy:
         for i, m in enumerate(self.modes):
             if (m.part, m.source, m.destination, m.kind) == (*names, items[3].upper()):
                 return i
-        known = ", ".join(m.label for m in self.modes)
-        raise PersistenceError(
+        raise self._no_mode(text)
+
+    def _pending_index(self, text: str) -> int:
+        """A Q mode (simultaneous requests) from its label, spaces and order free."""
+        found = re.fullmatch(r"\{([^{}<>]*)\}(?:\+<([^{}<>]*)>)?", "".join(text.split()))
+        if found is None:
+            raise PersistenceError(
+                [
+                    Problem(
+                        "--mode",
+                        f"expected a mode label such as '{{P1,S1,D1}} + <P1,S2,D1>', got {text!r}",
+                    )
+                ]
+            )
+        key = (frozenset(w for w in found.group(1).split(";") if w), found.group(2) or "")
+        for i, m in enumerate(self.modes):
+            carried = f"{m.part},{m.source},{m.destination}" if m.part else ""
+            if m.kind in ("NR", "Q") and (frozenset(m.waiting), carried) == key:
+                return i
+        raise self._no_mode(text)
+
+    def _no_mode(self, text: str, shown: int = 12) -> PersistenceError:
+        labels = [m.label for m in self.modes]
+        known = ", ".join(labels[:shown])
+        if len(labels) > shown:
+            known += f", ... ({len(labels)} modes)"
+        return PersistenceError(
             [Problem("--mode", f"no mode {text!r} in this strategy (modes: {known})")]
         )
 
@@ -298,6 +336,8 @@ class Strategy:
         mdp = self.mdp
         arrays = {name: np.asarray(getattr(mdp, name)) for name in _ARRAY_FIELDS}
         arrays["values"] = self.values
+        # One layout for every model: the identity (one option per mode) without options.
+        arrays["opt_ptr"] = np.asarray(mdp.options, np.int64)
         out = mdp.fmp_outcomes()
         for name, attr in _OUTCOME_ARRAYS.items():
             arrays[name] = np.asarray(getattr(out, attr))
@@ -333,8 +373,11 @@ class Strategy:
         from cellplan.strategies.fileformat import read_strategy
 
         meta, arrays = read_strategy(path, scenario)
-        modes = [Mode(*m) for m in meta["modes"]]
+        modes = [mode_of(m) for m in meta["modes"]]
         kw = {name: arrays[name] for name in _ARRAY_FIELDS}
+        opt_ptr = arrays["opt_ptr"]
+        if np.array_equal(opt_ptr, np.arange(len(modes) + 1)):
+            opt_ptr = None  # one option per mode: the model is as it was built (is_simple)
         mdp = LayeredMDP(
             modes=modes,
             labels=[tuple(lab) for lab in meta["labels"]],
@@ -342,6 +385,7 @@ class Strategy:
             stage_time=float(meta["stage_time"]),
             arrival=float(meta["arrival"]),
             outcomes=Outcomes(**{attr: arrays[name] for name, attr in _OUTCOME_ARRAYS.items()}),
+            opt_ptr=opt_ptr,
             **kw,
         )
         # Optional fields absent from older files stay absent (the defaults apply).
@@ -351,9 +395,12 @@ class Strategy:
 
 def _mode_fields(mode: Mode) -> list[str]:
     """A mode as the strategy file stores it: kind, part, source, destination, and for X
-    modes the reject region and what follows the rejection."""
+    modes the reject region and what follows the rejection, for Q modes (simultaneous
+    requests, Section VI-2) the waiting requests."""
     fields = [mode.kind, mode.part, mode.source, mode.destination]
-    return [*fields, mode.reject, mode.after] if mode.kind == "X" else fields
+    if mode.kind == "X":
+        return [*fields, mode.reject, mode.after]
+    return [*fields, *mode.waiting] if mode.kind == "Q" else fields
 
 
 def best_action(vals: np.ndarray) -> int:

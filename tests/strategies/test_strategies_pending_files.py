@@ -1,0 +1,426 @@
+"""Strategy files, mode names, pictures and ``cellplan validate`` for simultaneous requests
+(Section VI-2 of the strategies paper).
+
+A model of simultaneous requests has FMP options (``opt_ptr``: which waiting request a
+pick serves), ``tf`` and the FMP outcomes by option, and Q modes (the waiting requests and
+the carried one). The checks here: a solved file round-trips exactly and a Section V file
+still loads as a model without options; tampered option arrays and mode metadata are
+refused with one line naming the array or field; Q modes are named on the command line by
+their labels; the pictures draw them; ``validate`` says how many modes each
+``max_pending`` gives.
+
+The scenario is the tiny cell with a second destination and three request types, so that
+the options (``O = 21``) and the modes (``M = 19``) differ in number.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from strategies_helpers import TINY
+from test_strategies_fileformat import _write, craft, solved_file
+
+from cellplan.api import loads
+from cellplan.errors import PersistenceError
+from cellplan.strategies.fileformat import read_strategy
+from cellplan.strategies.model import Mode
+from cellplan.strategies.pending import mode_counts, option_count
+from cellplan.strategies.plots import (
+    carried_part,
+    mode_regions,
+    plot_frames,
+    plot_mode,
+    save_animation,
+    wrap_title,
+)
+from cellplan.strategies.simulate import Simulation
+from cellplan.strategies.strategy import Strategy
+
+REQUESTS = [("P1", "S1", "D1"), ("P1", "S2", "D1"), ("P1", "S1", "D2")]
+
+
+def pending_text(max_pending: int = 2, cells: int = 12) -> str:
+    """The tiny cell with a destination D2 (top left) and three request types."""
+    listed = ", ".join(f"{{part: {p}, source: {s}, destination: {d}}}" for p, s, d in REQUESTS)
+    return (
+        TINY.replace("CELLS", str(cells)).replace(
+            "  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}",
+            "  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}\n"
+            "  D2: {components: [{type: box, min: [2, 25], max: [6, 28]}]}",
+        )
+        + f"  max_pending: {max_pending}\n  requests: [{listed}]\n"
+    )
+
+
+@pytest.fixture(scope="module")
+def pending_base(tmp_path_factory):
+    """A solved strategy file of simultaneous requests: (setup, path, arrays, meta)."""
+    return solved_file(loads(pending_text()), tmp_path_factory.mktemp("pbase"))
+
+
+@pytest.fixture(scope="module")
+def section_v_base(tmp_path_factory):
+    return solved_file("strategies_tiny", tmp_path_factory.mktemp("vbase"))
+
+
+def refused(
+    base: tuple,
+    folder: Path,
+    words: str,
+    arrays_change: Any = None,
+    meta_change: Any = None,
+    scenario: Any = "same",
+) -> str:
+    """The file with ``arrays_change``/``meta_change`` applied is refused with one line
+    naming the file and matching ``words``; returns the line."""
+    setup, _, arrays, meta = base
+    arrays = {k: v.copy() for k, v in arrays.items()}
+    meta = json.loads(json.dumps(meta))
+    if arrays_change is not None:
+        arrays_change(arrays)
+    if meta_change is not None:
+        meta_change(meta)
+    path = _write(folder / "bad.npz", arrays, meta, True)
+    with pytest.raises(PersistenceError, match=words) as caught:
+        Strategy.load(path, setup.scenario if scenario == "same" else scenario)
+    line = str(caught.value)
+    assert len(caught.value.problems) == 1 and "\n" not in line
+    assert line.startswith(str(path)), line
+    return line
+
+
+# --- round trip ---------------------------------------------------------------------------
+
+
+def test_the_scenario_has_more_options_than_modes(pending_base):
+    _, _, arrays, meta = pending_base
+    M = sum(mode_counts(3, 2))
+    assert len(meta["modes"]) == M == 19
+    assert arrays["tf"].shape[0] == option_count(3, 2) == 21
+    assert arrays["opt_ptr"].shape == (M + 1,) and arrays["out_ptr"].shape == (22,)
+    assert meta["version"] == 3
+
+
+def test_a_pending_strategy_round_trips_exactly(pending_base, tmp_path):
+    setup, path, _, _ = pending_base
+    loaded = Strategy.load(path, setup.scenario)
+    again = Strategy.load(loaded.save(tmp_path / "again.npz"), setup.scenario)
+    from cellplan.strategies.strategy import solve_scenario
+
+    fresh, _ = solve_scenario(setup.scenario, setup.workcell)
+    for strat in (loaded, again):
+        mdp = strat.mdp
+        assert not mdp.is_simple()
+        assert mdp.opt_ptr is not None
+        np.testing.assert_array_equal(mdp.opt_ptr, fresh.mdp.opt_ptr)
+        np.testing.assert_array_equal(strat.values, fresh.values)  # NaN off the live states
+        assert mdp.modes == fresh.mdp.modes
+        assert [m.label for m in mdp.modes] == [m.label for m in fresh.mdp.modes]
+        assert all(m.kind == "Q" for m in mdp.modes[1:])
+        for name in ("tf", "fmp_next", "cost", "live", "branch_ptr", "branch_layer", "free"):
+            np.testing.assert_array_equal(getattr(mdp, name), getattr(fresh.mdp, name))
+        for mine, theirs in zip(mdp.fmp_outcomes(), fresh.mdp.fmp_outcomes(), strict=True):
+            np.testing.assert_array_equal(mine, theirs)
+        assert strat.gain == fresh.gain
+    # The loaded strategy acts as the solved one at the live cell centres of every mode.
+    mdp = fresh.mdp
+    for m in range(mdp.n_modes):
+        for c in np.flatnonzero(mdp.live[m])[::3]:
+            q = mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
+            assert loaded.action(q, m) == fresh.action(q, m)
+
+
+def test_a_section_v_file_stores_the_identity_and_loads_without_options(section_v_base):
+    setup, path, arrays, meta = section_v_base
+    np.testing.assert_array_equal(arrays["opt_ptr"], np.arange(len(meta["modes"]) + 1))
+    strat = Strategy.load(path, setup.scenario)
+    assert strat.mdp.opt_ptr is None and strat.mdp.is_simple()
+    assert strat.mdp.tf.shape[0] == strat.mdp.n_modes
+
+
+# --- refusals ----------------------------------------------------------------------------
+
+
+def _set(name: str, index: int, value: Any) -> Any:
+    return lambda a: a[name].reshape(-1).__setitem__(index, value)
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        # opt_ptr = [0, 0, 1, 2, 3, 5, 7, ...]: option 3 of mode 4 moved before mode 3's
+        (_set("opt_ptr", 4, 1), r"opt_ptr: expected 0, non-decreasing, ending at the number"),
+        (_set("opt_ptr", -1, 20), r"opt_ptr: expected 0, non-decreasing, ending at"),
+        (_set("opt_ptr", 0, 1), r"opt_ptr: expected 0, non-decreasing"),
+        (_set("opt_ptr", -1, 22), r"opt_ptr: value 22 above 21"),
+        (_set("opt_ptr", 1, 1), r"opt_ptr: NR has no FMP option"),
+        (_set("out_layer", 0, 19), r"out_layer: value 19 above 18"),
+        (_set("out_layer", 0, -1), r"out_layer: value -1 below 0"),
+        # option 4 (the second pick of mode 4, {P1,S1,D1; P1,S2,D1}) leads to NR
+        (_set("out_layer", 4, 0), r"out_layer: mode \{P1,S1,D1; P1,S2,D1\} has an FMP outcome"),
+        # ... or picks the same request as the mode's first option
+        (
+            lambda a: a["out_layer"].__setitem__(4, a["out_layer"][3]),
+            r"out_layer: mode \{P1,S1,D1; P1,S2,D1\} has an FMP outcome the model cannot",
+        ),
+        (_set("out_prob", 5, 0.5), r"out_prob: the outcomes of an FMP option do not sum to 1"),
+        (_set("out_cost", 2, np.inf), r"out_cost: contains infinite values"),
+        (_set("fmp_next", 7, 1), r"fmp_next: not the first outcome of the mode's first FMP"),
+        (
+            lambda a: a.__setitem__("out_ptr", a["out_ptr"][:20]),
+            r"out_ptr: shape \(20,\), expected axis 0 \(O \+ 1\) to be 22",
+        ),
+        (
+            lambda a: a.__setitem__("tf", a["tf"][:19]),
+            r"opt_ptr: value 21 above 19",
+        ),
+    ],
+)
+def test_tampered_options_are_named(pending_base, tmp_path, change, words):
+    refused(pending_base, tmp_path, words, arrays_change=change)
+
+
+def _swap_requests(meta: dict) -> None:
+    """Requests 1 and 2 change names everywhere: a valid model, not the scenario's."""
+    a, b = ",".join(REQUESTS[0]), ",".join(REQUESTS[1])
+    for m in meta["modes"][1:]:
+        waiting = [{a: b, b: a}.get(w, w) for w in m[4:]]
+        carried = {a: b, b: a}.get(",".join(m[1:4]), ",".join(m[1:4]))
+        m[1:] = (carried.split(",") if m[1] else ["", "", ""]) + waiting
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        (
+            lambda meta: meta["modes"][4].__setitem__(4, "P1,S2,D2"),
+            r"meta.modes: 19 modes; up to 2 open requests of 4 types make 31",
+        ),
+        (
+            lambda meta: meta["modes"][4].__setitem__(4, "P1;S1;D1"),
+            r"meta.modes.4: waiting request 'P1;S1;D1' is not 'part,source,destination'",
+        ),
+        (
+            lambda meta: meta["modes"][4].__setitem__(5, meta["modes"][4][4]),
+            r"meta.modes.4: a request waits twice",
+        ),
+        (
+            lambda meta: meta["modes"][8].__setitem__(2, ""),
+            r"meta.modes.8: a Q mode names the part, source and destination it carries",
+        ),
+        (
+            lambda meta: meta["modes"][2].__setitem__(4, meta["modes"][1][4]),
+            r"meta.modes: a Q mode appears twice",
+        ),
+        (
+            lambda meta: meta["modes"][1].__delitem__(4),
+            r"meta.modes.1: a Q mode with no open request",
+        ),
+        (
+            lambda meta: meta["modes"][0].__setitem__(0, "W"),
+            r"meta.modes: expected NR, then the W modes",
+        ),
+        (lambda meta: meta.__setitem__("version", 2), r"version 2 \(an older cellplan\); solve"),
+        (lambda meta: meta.__setitem__("version", 1), r"version 1 \(an older cellplan\); solve"),
+    ],
+)
+def test_tampered_modes_are_named(pending_base, tmp_path, change, words):
+    refused(pending_base, tmp_path, words, meta_change=change)
+
+
+def test_renamed_requests_load_alone_but_not_with_the_scenario(pending_base, tmp_path):
+    """Swapping two request types' names everywhere gives a valid model of simultaneous
+    requests, not the scenario's: refused with it, accepted without it."""
+    setup, _, arrays, meta = pending_base
+    meta = json.loads(json.dumps(meta))
+    _swap_requests(meta)
+    path = _write(tmp_path / "swapped.npz", arrays, meta, True)
+    strat = Strategy.load(path)
+    assert strat.mode_index("{P1,S2,D1}") == 1  # the name the file now gives mode 1
+    with pytest.raises(PersistenceError, match=r"meta.modes: 19 modes that differ from the 19"):
+        Strategy.load(path, setup.scenario)
+
+
+class _SameDigest:
+    """A scenario that claims the file's digest (to reach the check after it)."""
+
+    def __init__(self, scenario: Any, digest: str) -> None:
+        self._scenario, self._digest = scenario, digest
+
+    def digest(self) -> str:
+        return self._digest
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._scenario, name)
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        (
+            pending_text(max_pending=3),
+            r"19 modes that differ from the 29 of the scenario's 3 requests with max_pending 3",
+        ),
+        (
+            pending_text().replace(", {part: P1, source: S1, destination: D2}", ""),
+            r"19 modes that differ from the 10 of the scenario's 2 requests with max_pending 2",
+        ),
+        # a Section V scenario: one request at a time
+        (TINY.replace("CELLS", "12"), r"differ from the 5 of the scenario's 2 requests with max"),
+    ],
+)
+def test_another_max_pending_or_request_list_says_solve_again(pending_base, text, words):
+    _, path, _, meta = pending_base
+    other = loads(text).scenario
+    with pytest.raises(PersistenceError, match=r"different scenario .*solve this scenario again"):
+        read_strategy(path, other)
+    with pytest.raises(PersistenceError, match=words + r".*solve this scenario again"):
+        read_strategy(path, _SameDigest(other, meta["scenario_digest"]))
+
+
+def test_a_section_v_file_with_options_is_refused(section_v_base, tmp_path):
+    words = r"opt_ptr: expected one FMP option per mode \(0, 1, ..., M\) in a model without"
+    refused(section_v_base, tmp_path, words, _set("opt_ptr", 1, 0))
+    line = refused(section_v_base, tmp_path, r"version 2 \(an older", None, _set_version(2))
+    assert line.endswith("solve the scenario again to write version 3")
+
+
+def _set_version(v: int) -> Any:
+    return lambda meta: meta.__setitem__("version", v)
+
+
+@settings(
+    max_examples=80,
+    derandomize=True,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+@given(data=st.data())
+def test_crafted_pending_files_are_refused_cleanly_or_safe_to_query(data, pending_base, tmp_path):
+    """Crafted files (as for Section V): refused with one line, or every mode answers
+    ``action`` at every cell centre without crashing the kernels."""
+    kind, path = craft(data, pending_base, tmp_path)
+    setup = pending_base[0]
+    try:
+        strat = Strategy.load(path, setup.scenario)
+    except PersistenceError as exc:
+        assert len(exc.problems) == 1 and "\n" not in str(exc), (kind, exc)
+        return
+    mdp = strat.mdp
+    for m in range(mdp.n_modes):
+        for c in np.flatnonzero(mdp.live[m])[::5]:
+            idx = np.array(np.unravel_index(c, tuple(mdp.shape)))
+            strat.action(mdp.lower + (idx + 0.5) * mdp.spacing, m)
+
+
+# --- mode names, pictures, validate ----------------------------------------------------------
+
+
+def test_every_q_label_names_its_mode(pending_base):
+    setup, path, _, _ = pending_base
+    strat = Strategy.load(path, setup.scenario)
+    for i, mode in enumerate(strat.modes):
+        assert strat.mode_index(mode.label) == i
+        assert strat.mode_index(f"  {mode.label}\t") == i
+        assert strat.mode_index("".join(mode.label.split())) == i
+        if len(mode.waiting) > 1:  # the waiting requests form a set
+            turned = Mode("Q", mode.part, mode.source, mode.destination, waiting=mode.waiting[::-1])
+            assert strat.mode_index(turned.label) == i
+    assert strat.mode_index("{}") == 0 == strat.mode_index("NR")
+    with pytest.raises(PersistenceError, match=r"no mode '\{P1,S9,D1\}' in this strategy"):
+        strat.mode_index("{P1,S9,D1}")
+    with pytest.raises(PersistenceError, match=r"\(19 modes\)"):
+        strat.mode_index("{P1,S1,D1} + <P1,S1,D9>")
+    with pytest.raises(PersistenceError, match=r"expected a mode label such as"):
+        strat.mode_index("{P1,S1,D1")
+    with pytest.raises(PersistenceError, match=r"expected NR or a mode label such as"):
+        strat.mode_index("P1,S1,D1")
+
+
+def test_plot_mode_draws_a_q_mode(cellplan, pending_base, tmp_path):
+    _, path, _, _ = pending_base
+    yaml = tmp_path / "pending.yaml"
+    yaml.write_text(pending_text())
+    out = tmp_path / "q.png"
+    label = "{P1,S2,D1} + <P1,S1,D2>"
+    r = cellplan("plot", str(yaml), "--strategy", str(path), "--mode", f" {label} ", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert out.stat().st_size > 0
+    bad = tmp_path / "bad.png"
+    r = cellplan("plot", str(yaml), "--strategy", str(path), "--mode", "{P1,S9,D1}", "-o", str(bad))
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--mode" in lines[0] and "no mode '{P1,S9,D1}'" in lines[0]
+    assert not bad.exists()
+
+
+@pytest.mark.parametrize("code", [-2, -4, -5])
+def test_plot_mode_marks_every_fmp_option_as_fmp(pending_base, tmp_path, monkeypatch, code):
+    """A policy that picks (FMP option 0, 1 or 2: codes -2, -4, -5) everywhere is drawn as
+    FMP marks at every sampled live cell, whichever option it picks."""
+    import matplotlib.axes
+
+    setup, path, _, _ = pending_base
+    strat = Strategy.load(path, setup.scenario)
+    m = strat.mode_index("{P1,S1,D1; P1,S2,D1}")
+    drawn: list[tuple] = []
+    real = matplotlib.axes.Axes.plot
+
+    def record(self, *args, **kwargs):
+        drawn.append(args)
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", record)
+    monkeypatch.setattr(Strategy, "action", lambda self, q, mode, forbid_fmp=False: code)
+    plot_mode(strat, setup.workcell, m, tmp_path / "m.png", arrows=12)
+    marks = [a[2] for a in drawn if len(a) == 3]
+    assert marks and set(marks) == {"o"}
+    assert len(marks) == int(strat.mdp.live[m].sum())  # 12 x 12 grid, every cell sampled
+
+
+def test_frames_and_gif_draw_q_modes(pending_base, tmp_path):
+    setup, path, _, _ = pending_base
+    strat = Strategy.load(path, setup.scenario)
+    labels = ["NR", "{P1,S1,D1}", "{P1,S1,D1; P1,S2,D1}", "{P1,S2,D1} + <P1,S1,D1>", "NR"]
+    modes = np.repeat([strat.mode_index(x) for x in labels], 4)
+    n = len(modes)
+    q = np.column_stack([np.linspace(5.0, 25.0, n), np.full(n, 8.0)])
+    sim = Simulation(q, modes, np.zeros(n - 1, np.int64), np.zeros(n - 1))
+    paths = plot_frames(strat, setup.workcell, sim, tmp_path / "frames")
+    assert len(paths) == 6 and all(p.stat().st_size > 0 for p in paths)
+    gif = save_animation(strat, setup.workcell, sim, tmp_path / "run.gif", max_frames=6)
+    assert gif.stat().st_size > 0
+
+
+def test_q_modes_highlight_waiting_sources_and_the_carried_request():
+    both = Mode("Q", waiting=("P1,S1,D1", "P1,S2,D1"))
+    assert mode_regions(both) == ["S1", "S2"] and carried_part(both) is None
+    carrying = Mode("Q", "P1", "S1", "D2", waiting=("P1,S2,D1",))
+    assert mode_regions(carrying) == ["S2", "S1", "D2"] and carried_part(carrying) == "P1"
+    assert carried_part(Mode("C", "P1", "S1", "D1")) == "P1"
+    assert carried_part(Mode("W", "P1", "S1", "D1")) is None
+    long = "(1) " + Mode("Q", "P1", "S1", "D2", waiting=("P1,S1,D1",) * 4).label
+    wrapped = wrap_title(long, 30)
+    assert all(len(line) <= 30 for line in wrapped.splitlines())
+    assert wrapped.replace("\n", " ") == long
+
+
+def test_validate_counts_the_modes_of_each_max_pending(cellplan, tmp_path):
+    path = tmp_path / "pending.yaml"
+    path.write_text(pending_text(max_pending=3))
+    r = cellplan("validate", str(path))
+    assert r.returncode == 0, r.stderr
+    line = next(x for x in r.stdout.splitlines() if "assembly modes:" in x)
+    expected = (
+        "assembly modes: 29 (Section VI-2: up to 3 open requests of 3 types: 8 empty + 21 "
+        "carrying; max_pending 1: 7, 2: 19, 3: 29); states: "
+    )
+    assert expected in line
+    states = int(line.split("states: ")[1].replace(",", ""))
+    assert 0 < states <= 29 * 12 * 12
