@@ -19,13 +19,14 @@ from test_strategies_solver import sparse_rvi
 
 from cellplan.api import load
 from cellplan.strategies.model import build_model
-from cellplan.strategies.pending import mode_counts, pending_modes
+from cellplan.strategies.pending import pending_modes
 from cellplan.strategies.pending_sim import (
     PENDING_POLICIES,
     Rules,
     simulate_pending,
     single_request_model,
 )
+from cellplan.strategies.section import mode_counts
 from cellplan.strategies.solver import solve
 from cellplan.strategies.strategy import Strategy
 

@@ -30,7 +30,7 @@ from cellplan.api import loads
 from cellplan.errors import PersistenceError
 from cellplan.strategies.fileformat import read_strategy
 from cellplan.strategies.model import Mode
-from cellplan.strategies.pending import mode_counts, option_count
+from cellplan.strategies.pending import option_count
 from cellplan.strategies.plots import (
     carried_part,
     mode_regions,
@@ -39,6 +39,7 @@ from cellplan.strategies.plots import (
     save_animation,
     wrap_title,
 )
+from cellplan.strategies.section import mode_counts
 from cellplan.strategies.simulate import Simulation
 from cellplan.strategies.strategy import Strategy
 

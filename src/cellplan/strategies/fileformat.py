@@ -280,8 +280,9 @@ def _parse_meta(text: str, fail: Any) -> StrategyMeta:
 
 
 #: A mode of simultaneous requests (Section VI-2): the waiting requests and the carried
-#: one (``"part,source,destination"``, ``""`` when empty); NR is ``(frozenset(), "")``.
-PendingKey = tuple[frozenset[str], str]
+#: one (``"part,source,destination"``, ``""`` when empty); the waiting requests are a
+#: multiset, sorted (two requests of one type may wait). NR is ``((), "")``.
+PendingKey = tuple[tuple[str, ...], str]
 
 
 def _pending_keys(modes: list[list[str]], fail: Any) -> list[PendingKey]:
@@ -289,14 +290,14 @@ def _pending_keys(modes: list[list[str]], fail: Any) -> list[PendingKey]:
 
     They must be every mode ``(Q, r)`` of ``R`` request types (those the modes name) and at
     most ``k`` open requests (the most any mode holds), once each: a set of distinct valid
-    modes is all of them exactly when there are :func:`~.pending.mode_counts` of them. The
+    modes is all of them exactly when there are :func:`~.section.mode_counts` of them. The
     order is free (the arrays name modes by index); the scenario check compares it.
     """
-    from cellplan.strategies.pending import mode_counts
+    from cellplan.strategies.section import mode_counts
 
     if len(modes[0]) != 4 or any(modes[0][1:]):
         raise fail("meta.modes: NR has 4 fields, the last three empty")
-    keys: list[PendingKey] = [(frozenset(), "")]
+    keys: list[PendingKey] = [((), "")]
     for i, m in enumerate(modes[1:], start=1):
         carried = m[1:4]
         if any(carried) and not all(carried):
@@ -310,9 +311,7 @@ def _pending_keys(modes: list[list[str]], fail: Any) -> list[PendingKey]:
             raise fail(
                 f"meta.modes.{i}: waiting request {bad[0][:60]!r} is not 'part,source,destination'"
             )
-        if len(set(waiting)) != len(waiting):
-            raise fail(f"meta.modes.{i}: a request waits twice")
-        key = (frozenset(waiting), ",".join(carried) if all(carried) else "")
+        key = (tuple(sorted(waiting)), ",".join(carried) if all(carried) else "")
         if not key[0] and not key[1]:
             raise fail(f"meta.modes.{i}: a Q mode with no open request (only NR has none)")
         keys.append(key)
@@ -451,7 +450,7 @@ def _check_options(meta: StrategyMeta, a: dict, keys: list[PendingKey], fail: An
 
     NR has none; each option's outcomes are a distribution (at least one); ``fmp_next`` is
     the first outcome of a mode's first option (-1 without options); an empty mode
-    ``(Q, none)`` picks distinct waiting requests (``(Q - r, r)``), a carrying mode
+    ``(Q, none)`` picks each waiting request type once (``(Q - r, r)``), a carrying mode
     ``(Q, r)`` has at most one option, the delivery (``(Q, none)``).
     """
     opt = a["opt_ptr"]
@@ -481,7 +480,7 @@ def _check_options(meta: StrategyMeta, a: dict, keys: list[PendingKey], fail: An
         if carried:
             allowed = {index[(waiting, "")]}
         else:
-            allowed = {index[(waiting - {w}, w)] for w in waiting}
+            allowed = {index[(_without(waiting, w), w)] for w in set(waiting)}
         if n_opt[m] > len(allowed):
             label = mode_of(meta.modes[m]).label
             raise fail(f"opt_ptr: mode {label} has {n_opt[m]} FMP options (at most {len(allowed)})")
@@ -493,6 +492,13 @@ def _check_options(meta: StrategyMeta, a: dict, keys: list[PendingKey], fail: An
                 f"out_layer: mode {label} has an FMP outcome the model cannot produce (a "
                 "pick of each waiting request once, or the delivery of the carried one)"
             )
+
+
+def _without(waiting: tuple[str, ...], w: str) -> tuple[str, ...]:
+    """The multiset ``waiting`` less one ``w``."""
+    rest = list(waiting)
+    rest.remove(w)
+    return tuple(rest)
 
 
 def _check_scenario(

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from itertools import combinations_with_replacement
-from math import comb
 
 import numpy as np
 
@@ -68,10 +67,9 @@ def pending_modes(R: int, k: int) -> list[tuple[tuple[int, ...], int]]:
     return out
 
 
-def mode_counts(R: int, k: int) -> tuple[int, int]:
-    """``(empty, carrying)`` mode counts: the multisets of at most ``k`` of ``R`` types,
-    ``C(R + k, k)``, and ``R`` times those of at most ``k - 1``, ``R C(R + k - 1, k - 1)``."""
-    return comb(R + k, k), R * comb(R + k - 1, k - 1) if k > 0 else 0
+def option_count(R: int, k: int) -> int:
+    """FMP options: one per waiting request type in each empty mode, one per carrying mode."""
+    return sum(len(set(q)) if r < 0 else 1 for q, r in pending_modes(R, k))
 
 
 def assemble_pending(

@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from cellplan.strategies.model import NR, LayeredMDP, Mode, compute_live
-from cellplan.strategies.points import action_values_at, fmp_options_at
 from cellplan.strategies.simulate import Request, Simulation
 from cellplan.strategies.stencils import fmp_code
 from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
@@ -146,9 +145,6 @@ class Rules:
         self.index = {
             (m.waiting, m.part, m.source, m.destination): i for i, m in enumerate(mdp.modes)
         }
-        self.h = np.nan_to_num(strategy.values, nan=0.0)
-        self.model = mdp.kernel_args()
-        self.out = np.empty(2 + mdp.disp.shape[1])
 
     def mode_of(self, waiting: list[int], carried: int) -> int:
         """The model's mode of these waiting request types and the carried one (-1)."""
@@ -159,19 +155,12 @@ class Rules:
         return self.index[(names, p, s, d)]
 
     def optimal(self, q: np.ndarray, m: int) -> int:
-        """The best action of (9) at ``q`` in mode ``m``: a move, stay or an FMP code."""
-        mdp = self.strategy.mdp
-        out = self.out
-        action_values_at(q, m, self.h, mdp.live, 0.0, False, self.model, out)
-        nopt = int(mdp.options[m + 1] - mdp.options[m])
-        j, fval = fmp_options_at(q, m, self.h, mdp.live, np.ones(nopt, np.bool_), self.model)
-        motions = out[1:]
-        if j >= 0 and not (np.nanmin(motions, initial=np.inf) < fval):
-            return int(fmp_code(j))
-        if np.all(np.isnan(motions)):
+        """The best action of (9) at ``q`` in mode ``m``: a move, stay or an FMP code
+        (the strategy's own query, :meth:`Strategy.action`); stay where none is available."""
+        try:
+            return self.strategy.action(q, m)
+        except ValueError:
             return STAY
-        i = int(np.nanargmin(motions))
-        return STAY if i == 0 else i - 1
 
     def serve(self, q: np.ndarray, target: int, carrying: bool) -> int:
         """The Section V strategy's action for request ``target`` alone (FMP, stay, move)."""

@@ -91,7 +91,7 @@ def describe(setup: Setup) -> Mapping[str, str]:
 def pending_line(R: int, k: int, mdp: LayeredMDP) -> str:
     """The modes of simultaneous requests (Section VI-2): how they split, and how many each
     ``max_pending`` up to ``k`` would give (they grow as ``C(R, k)``)."""
-    from cellplan.strategies.pending import mode_counts
+    from cellplan.strategies.section import mode_counts
 
     empty, carrying = mode_counts(R, k)
     each = ", ".join(f"{i}: {sum(mode_counts(R, i)):,}" for i in range(1, k + 1))

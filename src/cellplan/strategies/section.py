@@ -163,6 +163,16 @@ MAX_NOISE_OUTCOMES = 16
 MAX_PENDING = 8
 #: Most modes of a model with simultaneous requests (each is a layer of the grid).
 MAX_PENDING_MODES = 20_000
+
+
+def mode_counts(R: int, k: int) -> tuple[int, int]:
+    """Modes of simultaneous requests (Section VI-2), ``(empty, carrying)``: the multisets of
+    at most ``k`` of ``R`` request types, ``C(R + k, k)``, and ``R`` times those of at most
+    ``k - 1``, ``R C(R + k - 1, k - 1)`` (:func:`cellplan.strategies.pending.pending_modes`
+    lists them)."""
+    return math.comb(R + k, k), R * math.comb(R + k - 1, k - 1) if k > 0 else 0
+
+
 """Most outcomes of the noise model (each is a stencil per move in the model's tables)."""
 
 
@@ -385,8 +395,6 @@ class StrategySection(StrictModel):
 
     def _check_pending(self, scenario: Scenario) -> list[Problem]:
         """One line per mistake in ``max_pending`` and ``urgency`` (Section VI-2)."""
-        from cellplan.strategies.pending import mode_counts
-
         problems = []
         for part in self.urgency:
             if part not in scenario.parts:

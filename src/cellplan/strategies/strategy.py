@@ -29,9 +29,9 @@ from cellplan.strategies.bundles import Model, Outcomes
 from cellplan.strategies.fileformat import FORMAT, VERSION, mode_of
 from cellplan.strategies.model import LayeredMDP, Mode
 from cellplan.strategies.motion import motion_ok
-from cellplan.strategies.points import action_values_at, query
+from cellplan.strategies.points import action_values_at, fmp_options_at, query
 from cellplan.strategies.solver import SolveResult
-from cellplan.strategies.stencils import MAX_DIM, displacement, wrap
+from cellplan.strategies.stencils import MAX_DIM, displacement, fmp_code, wrap
 
 FMP = -2
 STAY = -1
@@ -154,10 +154,10 @@ class Strategy:
                     )
                 ]
             )
-        key = (frozenset(w for w in found.group(1).split(";") if w), found.group(2) or "")
+        key = (tuple(sorted(w for w in found.group(1).split(";") if w)), found.group(2) or "")
         for i, m in enumerate(self.modes):
             carried = f"{m.part},{m.source},{m.destination}" if m.part else ""
-            if m.kind in ("NR", "Q") and (frozenset(m.waiting), carried) == key:
+            if m.kind in ("NR", "Q") and (tuple(sorted(m.waiting)), carried) == key:
                 return i
         raise self._no_mode(text)
 
@@ -252,7 +252,9 @@ class Strategy:
         return self
 
     def action(self, q: np.ndarray, mode: int, forbid_fmp: bool = False) -> int:
-        """The optimal action at ``(q, mode)``: ``FMP`` (-2), ``STAY`` (-1) or a move index.
+        """The optimal action at ``(q, mode)``: ``FMP`` (-2), ``STAY`` (-1) or a move index;
+        with FMP options (simultaneous requests, Section VI-2) option ``j >= 1`` is
+        ``-3 - j`` (:func:`~cellplan.strategies.stencils.fmp_option` decodes it).
 
         One compiled evaluation of equation (9) (about ten microseconds). With a workcell
         :meth:`attach` ed, an FMP is returned only where the exact region test allows it.
@@ -263,6 +265,8 @@ class Strategy:
         if out is None:
             out = np.empty(2 + mdp.disp.shape[1])
             self.__dict__["_out"] = out
+        if mdp.opt_ptr is not None:
+            return self._best_option_or_motion(np.ascontiguousarray(q, dtype=float), mode, out)
         u = query(
             np.ascontiguousarray(q, dtype=float),
             mode,
@@ -282,6 +286,26 @@ class Strategy:
             if not test(point, mode)[0]:
                 return self.action(q, mode, forbid_fmp=True)
         return int(u)
+
+    def _best_option_or_motion(self, q: np.ndarray, mode: int, out: np.ndarray) -> int:
+        """:meth:`action` for a model with FMP options (simultaneous requests, Section VI-2):
+        the best of the motions, stay and every FMP option the grid cell of ``q`` allows
+        (FMP first on a tie). Returns ``fmp_code(j)`` for option ``j``. The exact region
+        test is not applied: an option's region depends on the request it serves."""
+        mdp = self.mdp
+        action_values_at(q, mode, self._h0, mdp.live, 0.0, False, self._model, out)
+        nopt = int(mdp.options[mode + 1] - mdp.options[mode])
+        allowed = np.ones(nopt, np.bool_)
+        j, fval = fmp_options_at(q, mode, self._h0, mdp.live, allowed, self._model)
+        motions = out[1:]
+        if j >= 0 and not (np.nanmin(motions, initial=np.inf) < fval):
+            return int(fmp_code(j))
+        if np.all(np.isnan(motions)):
+            raise ValueError(
+                "no action is available here (the state is outside the strategy's domain)"
+            )
+        i = int(np.nanargmin(motions))
+        return STAY if i == 0 else i - 1
 
     def cell_centre(self, q: np.ndarray) -> np.ndarray:
         """Centre of the grid cell containing ``q``."""
