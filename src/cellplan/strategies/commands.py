@@ -162,7 +162,11 @@ def simulate_command(
         "simulation"
     ),
     policy: Annotated[
-        str | None, typer.Option(help="optimal, reactive or home (default optimal)")
+        str | None,
+        typer.Option(
+            help="optimal, reactive or home (default optimal); with simultaneous requests "
+            "optimal, fcfs, nearest or reactive"
+        ),
     ] = None,
     max_wait: Annotated[
         float | None,
@@ -227,8 +231,13 @@ def simulate_command(
         f"{int(m['served'])} requests served, mean waiting time {m['mean_wait']:.2f} "
         f"(delivered) / {m['mean_wait_all']:.2f} (all, open ones at their age), loss per "
         f"stage {m['loss_per_stage']:.3f} (gain {strat.gain:.3f}), idle fraction "
-        f"{m['idle_fraction']:.2f}; wrote {output}"
+        f"{m['idle_fraction']:.2f}"
     )
+    if "mean_open" in m:  # simultaneous requests (Section VI-2)
+        summary += (
+            f", {m['mean_open']:.2f} requests open on average, {int(m['turned_away'])} turned away"
+        )
+    summary += f"; wrote {output}"
     finish(result, as_json, summary, outputs)
 
 
@@ -236,7 +245,11 @@ def plot_command(
     scenario: ScenarioArg,
     strategy: StrategyOpt,
     mode: Annotated[
-        str, typer.Option(help="mode: NR, 'p,s,d,W|C' (1-based indices or names)")
+        str,
+        typer.Option(
+            help="mode: NR, 'p,s,d,W|C' (1-based indices or names), or a label as it prints "
+            "(e.g. '{P1,S1,D1; P2,S2,D1} + <P1,S1,D2>')"
+        ),
     ] = "NR",
     output: Annotated[Path, typer.Option("-o", "--output", help="image file")] = Path(
         "strategy.png"
