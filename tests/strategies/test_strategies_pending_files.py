@@ -9,8 +9,12 @@ refused with one line naming the array or field; Q modes are named on the comman
 their labels; the pictures draw them; ``validate`` says how many modes each
 ``max_pending`` gives.
 
-The scenario is the tiny cell with a second destination and three request types, so that
-the options (``O = 21``) and the modes (``M = 19``) differ in number.
+The scenario is the tiny cell with a second destination and three request types and
+``max_pending: 2``, so that the options (``O = 24``) and the modes (``M = 22``) differ in
+number. The waiting requests of a mode are a multiset (two requests of one type may wait
+at once); the numbers below come from the model (:func:`~.section.mode_counts`,
+:func:`~.pending.option_count`), and the modes are named by their labels, whose index in
+the file is that of :func:`~.pending.pending_modes`.
 """
 
 from __future__ import annotations
@@ -28,9 +32,9 @@ from test_strategies_fileformat import _write, craft, solved_file
 
 from cellplan.api import loads
 from cellplan.errors import PersistenceError
-from cellplan.strategies.fileformat import read_strategy
+from cellplan.strategies.fileformat import mode_of, read_strategy
 from cellplan.strategies.model import Mode
-from cellplan.strategies.pending import option_count
+from cellplan.strategies.pending import option_count, pending_modes
 from cellplan.strategies.plots import (
     carried_part,
     mode_regions,
@@ -44,6 +48,26 @@ from cellplan.strategies.simulate import Simulation
 from cellplan.strategies.strategy import Strategy
 
 REQUESTS = [("P1", "S1", "D1"), ("P1", "S2", "D1"), ("P1", "S1", "D2")]
+#: The scenario's modes and FMP options (three request types, at most two open at once).
+M = sum(mode_counts(len(REQUESTS), 2))
+OPTIONS = option_count(len(REQUESTS), 2)
+
+
+def label_of(q: tuple[int, ...], r: int) -> str:
+    """The label of the mode ``(Q, r)`` of :func:`~.pending.pending_modes` (indices into
+    ``REQUESTS``)."""
+    if not q and r < 0:
+        return "NR"
+    carried = REQUESTS[r] if r >= 0 else ("", "", "")
+    return Mode("Q", *carried, waiting=tuple(",".join(REQUESTS[i]) for i in q)).label
+
+
+#: The modes' labels in file order.
+LABELS = [label_of(q, r) for q, r in pending_modes(len(REQUESTS), 2)]
+#: Modes the tamperings below use.
+BOTH = LABELS.index("{P1,S1,D1; P1,S2,D1}")  # two types wait: two FMP options (picks)
+TWICE = LABELS.index("{P1,S1,D1; P1,S1,D1}")  # one type waits twice: one FMP option
+CARRYING = LABELS.index("{P1,S1,D1} + <P1,S1,D1>")
 
 
 def pending_text(max_pending: int = 2, cells: int = 12) -> str:
@@ -101,10 +125,13 @@ def refused(
 
 def test_the_scenario_has_more_options_than_modes(pending_base):
     _, _, arrays, meta = pending_base
-    M = sum(mode_counts(3, 2))
-    assert len(meta["modes"]) == M == 19
-    assert arrays["tf"].shape[0] == option_count(3, 2) == 21
-    assert arrays["opt_ptr"].shape == (M + 1,) and arrays["out_ptr"].shape == (22,)
+    # NR, 3 + 6 empty modes (multisets of 1 and 2 of the 3 types), 3 x (1 + 3) carrying
+    assert M == len(pending_modes(3, 2)) == 1 + 3 + 6 + 12 == 22
+    # one pick per waiting type: 3 single, 3 twice-one-type, 3 x 2 two-type; 12 deliveries
+    assert OPTIONS == 3 + 3 + 3 * 2 + 12 == 24
+    assert [mode_of(m).label for m in meta["modes"]] == LABELS
+    assert arrays["tf"].shape[0] == OPTIONS
+    assert arrays["opt_ptr"].shape == (M + 1,) and arrays["out_ptr"].shape == (OPTIONS + 1,)
     assert meta["version"] == 3
 
 
@@ -152,34 +179,68 @@ def _set(name: str, index: int, value: Any) -> Any:
     return lambda a: a[name].reshape(-1).__setitem__(index, value)
 
 
+def _pick(a: dict, mode: int, option: int) -> int:
+    """The index in ``out_layer`` of the first outcome of a mode's ``option``-th FMP option."""
+    return int(a["out_ptr"][a["opt_ptr"][mode] + option])
+
+
+def _set_pick(mode: int, option: int, value: Any) -> Any:
+    """Sets the first outcome of a mode's ``option``-th FMP option (``value(a)``)."""
+    return lambda a: a["out_layer"].__setitem__(_pick(a, mode, option), value(a))
+
+
+def _pick_both_of_twice(a: dict) -> None:
+    """The one pick of ``{P1,S1,D1; P1,S1,D1}`` leads to ``{} + <P1,S1,D1>``: both requests
+    leave the queue, where the model leaves the other one waiting."""
+    both_gone = LABELS.index("{} + <P1,S1,D1>")
+    a["out_layer"][_pick(a, TWICE, 0)] = both_gone
+    a["fmp_next"][TWICE] = both_gone
+
+
 @pytest.mark.parametrize(
     ("change", "words"),
     [
-        # opt_ptr = [0, 0, 1, 2, 3, 5, 7, ...]: option 3 of mode 4 moved before mode 3's
-        (_set("opt_ptr", 4, 1), r"opt_ptr: expected 0, non-decreasing, ending at the number"),
-        (_set("opt_ptr", -1, 20), r"opt_ptr: expected 0, non-decreasing, ending at"),
+        # the options of {P1,S1,D1; P1,S2,D1} start before those of the mode before it
+        (
+            lambda a: a["opt_ptr"].__setitem__(BOTH, a["opt_ptr"][BOTH - 1] - 1),
+            r"opt_ptr: expected 0, non-decreasing, ending at the number",
+        ),
+        (_set("opt_ptr", -1, OPTIONS - 1), r"opt_ptr: expected 0, non-decreasing, ending at"),
         (_set("opt_ptr", 0, 1), r"opt_ptr: expected 0, non-decreasing"),
-        (_set("opt_ptr", -1, 22), r"opt_ptr: value 22 above 21"),
+        (_set("opt_ptr", -1, OPTIONS + 1), rf"opt_ptr: value {OPTIONS + 1} above {OPTIONS}"),
         (_set("opt_ptr", 1, 1), r"opt_ptr: NR has no FMP option"),
-        (_set("out_layer", 0, 19), r"out_layer: value 19 above 18"),
+        (_set("out_layer", 0, M), rf"out_layer: value {M} above {M - 1}"),
         (_set("out_layer", 0, -1), r"out_layer: value -1 below 0"),
-        # option 4 (the second pick of mode 4, {P1,S1,D1; P1,S2,D1}) leads to NR
-        (_set("out_layer", 4, 0), r"out_layer: mode \{P1,S1,D1; P1,S2,D1\} has an FMP outcome"),
+        # the second pick of {P1,S1,D1; P1,S2,D1} (not its first: fmp_next) leads to NR
+        (
+            _set_pick(BOTH, 1, lambda a: 0),
+            r"out_layer: mode \{P1,S1,D1; P1,S2,D1\} has an FMP outcome",
+        ),
         # ... or picks the same request as the mode's first option
         (
-            lambda a: a["out_layer"].__setitem__(4, a["out_layer"][3]),
+            _set_pick(BOTH, 1, lambda a: a["out_layer"][_pick(a, BOTH, 0)]),
             r"out_layer: mode \{P1,S1,D1; P1,S2,D1\} has an FMP outcome the model cannot",
+        ),
+        # the pick of {P1,S1,D1; P1,S1,D1} takes both requests (fmp_next agrees with it)
+        (
+            _pick_both_of_twice,
+            r"out_layer: mode \{P1,S1,D1; P1,S1,D1\} has an FMP outcome the model cannot",
         ),
         (_set("out_prob", 5, 0.5), r"out_prob: the outcomes of an FMP option do not sum to 1"),
         (_set("out_cost", 2, np.inf), r"out_cost: contains infinite values"),
-        (_set("fmp_next", 7, 1), r"fmp_next: not the first outcome of the mode's first FMP"),
+        # fmp_next names the second pick of {P1,S1,D1; P1,S2,D1}, not its first
         (
-            lambda a: a.__setitem__("out_ptr", a["out_ptr"][:20]),
-            r"out_ptr: shape \(20,\), expected axis 0 \(O \+ 1\) to be 22",
+            lambda a: a["fmp_next"].__setitem__(BOTH, a["out_layer"][_pick(a, BOTH, 1)]),
+            r"fmp_next: not the first outcome of the mode's first FMP",
         ),
         (
-            lambda a: a.__setitem__("tf", a["tf"][:19]),
-            r"opt_ptr: value 21 above 19",
+            lambda a: a.__setitem__("out_ptr", a["out_ptr"][:20]),
+            rf"out_ptr: shape \(20,\), expected axis 0 \(O \+ 1\) to be {OPTIONS + 1}",
+        ),
+        # fewer rows of tf (M - 1, the fewest FMP options a file may have) than options
+        (
+            lambda a: a.__setitem__("tf", a["tf"][: M - 1]),
+            rf"opt_ptr: value {OPTIONS} above {M - 1}",
         ),
     ],
 )
@@ -199,21 +260,30 @@ def _swap_requests(meta: dict) -> None:
 @pytest.mark.parametrize(
     ("change", "words"),
     [
+        # a fourth request type, in one mode only
         (
-            lambda meta: meta["modes"][4].__setitem__(4, "P1,S2,D2"),
-            r"meta.modes: 19 modes; up to 2 open requests of 4 types make 31",
+            lambda meta: meta["modes"][BOTH].__setitem__(4, "P1,S2,D2"),
+            rf"meta.modes: {M} modes; up to 2 open requests of 4 types make "
+            rf"{sum(mode_counts(4, 2))}",
         ),
         (
-            lambda meta: meta["modes"][4].__setitem__(4, "P1;S1;D1"),
-            r"meta.modes.4: waiting request 'P1;S1;D1' is not 'part,source,destination'",
+            lambda meta: meta["modes"][BOTH].__setitem__(4, "P1;S1;D1"),
+            rf"meta.modes.{BOTH}: waiting request 'P1;S1;D1' is not 'part,source,destination'",
+        ),
+        # a request type may wait twice, but a third time is a mode of max_pending 3
+        (
+            lambda meta: meta["modes"][TWICE].append("P1,S1,D1"),
+            rf"meta.modes: {M} modes; up to 3 open requests of 3 types make "
+            rf"{sum(mode_counts(3, 3))}",
+        ),
+        # {P1,S1,D1; P1,S2,D1} becomes a second {P1,S1,D1; P1,S1,D1}
+        (
+            lambda meta: meta["modes"][BOTH].__setitem__(5, "P1,S1,D1"),
+            r"meta.modes: a Q mode appears twice",
         ),
         (
-            lambda meta: meta["modes"][4].__setitem__(5, meta["modes"][4][4]),
-            r"meta.modes.4: a request waits twice",
-        ),
-        (
-            lambda meta: meta["modes"][8].__setitem__(2, ""),
-            r"meta.modes.8: a Q mode names the part, source and destination it carries",
+            lambda meta: meta["modes"][CARRYING].__setitem__(2, ""),
+            rf"meta.modes.{CARRYING}: a Q mode names the part, source and destination it carries",
         ),
         (
             lambda meta: meta["modes"][2].__setitem__(4, meta["modes"][1][4]),
@@ -244,7 +314,7 @@ def test_renamed_requests_load_alone_but_not_with_the_scenario(pending_base, tmp
     path = _write(tmp_path / "swapped.npz", arrays, meta, True)
     strat = Strategy.load(path)
     assert strat.mode_index("{P1,S2,D1}") == 1  # the name the file now gives mode 1
-    with pytest.raises(PersistenceError, match=r"meta.modes: 19 modes that differ from the 19"):
+    with pytest.raises(PersistenceError, match=rf"meta.modes: {M} modes that differ from the {M}"):
         Strategy.load(path, setup.scenario)
 
 
@@ -266,14 +336,19 @@ class _SameDigest:
     [
         (
             pending_text(max_pending=3),
-            r"19 modes that differ from the 29 of the scenario's 3 requests with max_pending 3",
+            rf"{M} modes that differ from the {sum(mode_counts(3, 3))} of the scenario's 3 "
+            "requests with max_pending 3",
         ),
         (
             pending_text().replace(", {part: P1, source: S1, destination: D2}", ""),
-            r"19 modes that differ from the 10 of the scenario's 2 requests with max_pending 2",
+            rf"{M} modes that differ from the {sum(mode_counts(2, 2))} of the scenario's 2 "
+            "requests with max_pending 2",
         ),
         # a Section V scenario: one request at a time
-        (TINY.replace("CELLS", "12"), r"differ from the 5 of the scenario's 2 requests with max"),
+        (
+            TINY.replace("CELLS", "12"),
+            rf"differ from the {sum(mode_counts(2, 1))} of the scenario's 2 requests with max",
+        ),
     ],
 )
 def test_another_max_pending_or_request_list_says_solve_again(pending_base, text, words):
@@ -330,18 +405,48 @@ def test_every_q_label_names_its_mode(pending_base):
         assert strat.mode_index(mode.label) == i
         assert strat.mode_index(f"  {mode.label}\t") == i
         assert strat.mode_index("".join(mode.label.split())) == i
-        if len(mode.waiting) > 1:  # the waiting requests form a set
+        if len(mode.waiting) > 1:  # the waiting requests form a multiset: order is free
             turned = Mode("Q", mode.part, mode.source, mode.destination, waiting=mode.waiting[::-1])
             assert strat.mode_index(turned.label) == i
     assert strat.mode_index("{}") == 0 == strat.mode_index("NR")
     with pytest.raises(PersistenceError, match=r"no mode '\{P1,S9,D1\}' in this strategy"):
         strat.mode_index("{P1,S9,D1}")
-    with pytest.raises(PersistenceError, match=r"\(19 modes\)"):
+    with pytest.raises(PersistenceError, match=rf"\({M} modes\)"):
         strat.mode_index("{P1,S1,D1} + <P1,S1,D9>")
     with pytest.raises(PersistenceError, match=r"expected a mode label such as"):
         strat.mode_index("{P1,S1,D1")
     with pytest.raises(PersistenceError, match=r"expected NR or a mode label such as"):
         strat.mode_index("P1,S1,D1")
+
+
+def test_a_request_type_waiting_twice_round_trips_and_is_named(pending_base, tmp_path):
+    """Two requests of one type may wait at once (the waiting requests are a multiset): the
+    mode {P1,S1,D1; P1,S1,D1} is written with the request twice, read back as it was, and
+    named by its label, apart from {P1,S1,D1}; its one FMP option picks one of the two."""
+    setup, path, arrays, meta = pending_base
+    twice = "{P1,S1,D1; P1,S1,D1}"
+    assert meta["modes"][TWICE] == ["Q", "", "", "", "P1,S1,D1", "P1,S1,D1"]
+    loaded = Strategy.load(path, setup.scenario)
+    again_path = loaded.save(tmp_path / "again.npz")
+    again = Strategy.load(again_path, setup.scenario)
+    with np.load(again_path, allow_pickle=False) as data:
+        assert json.loads(str(data["meta"]))["modes"] == meta["modes"]
+        for name in ("opt_ptr", "out_ptr", "out_layer", "fmp_next", "live", "tf"):
+            np.testing.assert_array_equal(data[name], arrays[name])
+    for strat in (loaded, again):
+        mode = strat.modes[TWICE]
+        assert mode.waiting == ("P1,S1,D1", "P1,S1,D1") and mode.label == twice
+        assert strat.mode_index(twice) == TWICE == strat.mode_index(" {P1,S1,D1;P1,S1,D1} ")
+        assert strat.mode_index("{P1,S1,D1}") == LABELS.index("{P1,S1,D1}") != TWICE
+        assert strat.mode_index("{P1,S1,D1} + <P1,S1,D1>") == CARRYING
+        mdp = strat.mdp
+        assert mdp.opt_ptr is not None
+        assert mdp.opt_ptr[TWICE + 1] - mdp.opt_ptr[TWICE] == 1
+        assert mdp.fmp_next[TWICE] == CARRYING  # one P1,S1,D1 carried, the other waits
+        np.testing.assert_array_equal(strat.values[TWICE], loaded.values[TWICE])
+    for label in ("{P1,S1,D1; P1,S1,D1; P1,S1,D1}", "{P1,S1,D1; P1,S1,D1} + <P1,S1,D1>"):
+        with pytest.raises(PersistenceError, match=r"no mode '\{P1,S1,D1; P1,S1,D1"):
+            loaded.mode_index(label)  # three open requests: more than max_pending
 
 
 def test_plot_mode_draws_a_q_mode(cellplan, pending_base, tmp_path):
@@ -418,10 +523,16 @@ def test_validate_counts_the_modes_of_each_max_pending(cellplan, tmp_path):
     r = cellplan("validate", str(path))
     assert r.returncode == 0, r.stderr
     line = next(x for x in r.stdout.splitlines() if "assembly modes:" in x)
+    # the modes pending_modes lists; of max_pending 3: 20 empty (multisets of at most 3
+    # of the 3 types: 1 + 3 + 6 + 10) and 3 x 10 carrying (at most 2 waiting)
+    each = [len(pending_modes(3, k)) for k in (1, 2, 3)]
+    empty = sum(carried < 0 for _, carried in pending_modes(3, 3))
+    assert (empty, each[2] - empty) == mode_counts(3, 3) == (20, 30)
     expected = (
-        "assembly modes: 29 (Section VI-2: up to 3 open requests of 3 types: 8 empty + 21 "
-        "carrying; max_pending 1: 7, 2: 19, 3: 29); states: "
+        f"assembly modes: {each[2]} (Section VI-2: up to 3 open requests of 3 types: {empty} "
+        f"empty + {each[2] - empty} carrying; max_pending 1: {each[0]}, 2: {each[1]}, "
+        f"3: {each[2]}); states: "
     )
     assert expected in line
     states = int(line.split("states: ")[1].replace(",", ""))
-    assert 0 < states <= 29 * 12 * 12
+    assert 0 < states <= each[2] * 12 * 12
