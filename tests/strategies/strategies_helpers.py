@@ -71,3 +71,15 @@ def tiny_failures(
         )
     sc = loads_scenario(text + f"  failures:\n    - {spec}\n" + extra)
     return sc, Workcell.from_scenario(sc)
+
+
+def assert_validate_names(cellplan, tmp_path, text: str, expected: str) -> None:
+    """``cellplan validate`` on ``text`` exits 2 with a line starting ``error: expected``
+    and no traceback (the scenario-key tests of each Section VI extension)."""
+    path = tmp_path / "s.yaml"
+    path.write_text(text)
+    r = cellplan("validate", str(path))
+    assert r.returncode == 2, r.stdout
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert any(line.startswith("error: " + expected) for line in lines), lines
+    assert "Traceback" not in r.stderr

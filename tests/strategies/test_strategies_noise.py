@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from strategies_helpers import TINY, tiny
+from strategies_helpers import TINY, assert_validate_names, tiny
 
 from cellplan.registry import scenario_path
 from cellplan.scenario import loads_scenario
@@ -54,13 +54,7 @@ MISTAKES = {
 
 @pytest.mark.parametrize("text", list(MISTAKES))
 def test_each_noise_mistake_is_one_line_naming_the_field(cellplan, tmp_path, text):
-    path = tmp_path / "s.yaml"
-    path.write_text(BASE + text)
-    r = cellplan("validate", str(path))
-    assert r.returncode == 2, r.stdout
-    lines = [line for line in r.stderr.splitlines() if line.strip()]
-    assert any(line.startswith("error: " + MISTAKES[text]) for line in lines), lines
-    assert "Traceback" not in r.stderr
+    assert_validate_names(cellplan, tmp_path, BASE + text, MISTAKES[text])
 
 
 def test_motion_frame_is_refused_for_an_arm(cellplan, tmp_path):

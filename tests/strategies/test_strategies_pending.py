@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from strategies_helpers import TINY, tiny
+from strategies_helpers import TINY, assert_validate_names, tiny
 from test_strategies_solver import sparse_rvi
 
 from cellplan.api import load
@@ -175,13 +175,7 @@ MISTAKES = {
 
 @pytest.mark.parametrize("text", list(MISTAKES))
 def test_each_pending_mistake_is_one_line_naming_the_field(cellplan, tmp_path, text):
-    path = tmp_path / "s.yaml"
-    path.write_text(TINY.replace("CELLS", "12") + text)
-    r = cellplan("validate", str(path))
-    assert r.returncode == 2, r.stdout
-    lines = [line for line in r.stderr.splitlines() if line.strip()]
-    assert any(line.startswith("error: " + MISTAKES[text]) for line in lines), lines
-    assert "Traceback" not in r.stderr
+    assert_validate_names(cellplan, tmp_path, TINY.replace("CELLS", "12") + text, MISTAKES[text])
 
 
 def test_too_many_modes_are_refused_before_building(cellplan, tmp_path):
