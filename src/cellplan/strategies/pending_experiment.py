@@ -44,6 +44,13 @@ def _solved(cells: str) -> Any:
     return strategy, Rules(strategy)
 
 
+def _urgency() -> dict[str, float]:
+    """The bundled scenario's urgency per part (the legend names it)."""
+    from cellplan.api import load
+
+    return dict(load(PROBLEM).scenario.strategy.urgency)
+
+
 def make_runs(runs: int, quick: bool) -> list[RunSpec]:
     """One run per seed (each runs every policy on the seed's stream of requests)."""
     cells = QUICK_CELLS if quick else CELLS
@@ -154,6 +161,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     ax.set_ylabel("loss per stage (weighted open requests)")
     ax.legend(fontsize=8)
     ax = axes[0, 1]
+    urgency = _urgency()
     width = 0.8 / max(1, len(parts))
     for j, part in enumerate(parts):
         means, halves = [], []
@@ -162,7 +170,8 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             means.append(m)
             halves.append(0.0 if not np.isfinite(h) else h)
         x = np.arange(len(PENDING_POLICIES)) + (j - (len(parts) - 1) / 2) * width
-        ax.bar(x, means, width, yerr=halves, capsize=3, label=f"part {part}")
+        weight = urgency.get(part, 1.0)
+        ax.bar(x, means, width, yerr=halves, capsize=3, label=f"part {part} (urgency {weight:g})")
     ax.set_xticks(range(len(PENDING_POLICIES)), list(PENDING_POLICIES))
     ax.set_ylabel("mean wait per delivered request (stages)")
     ax.legend(fontsize=8)
