@@ -229,3 +229,24 @@ def test_solve_simulate_and_gif_on_the_command_line(cellplan, tmp_path):
     r = cellplan("simulate", str(path), "--strategy", str(tmp_path / "q.npz"), "--policy", "home")
     assert r.returncode == 2
     assert "policy: must be one of optimal, fcfs, nearest, reactive" in r.stderr
+
+
+def test_with_the_workcell_every_fmp_passes_the_exact_region_test():
+    # simulate() with the workcell confirms each pick at its request's source and each
+    # delivery at the carried request's destination, as the Section V simulator does.
+    from cellplan.strategies.simulate import simulate
+
+    sc, cell = pending(2, 16)
+    strategy = solved(sc, cell)
+    for policy in ("optimal", "fcfs"):
+        sim = simulate(strategy, 1500, 3, policy=policy, cell=cell, regions="contact")
+        fmp = np.flatnonzero((sim.actions <= -2) & (sim.actions != -3))
+        assert len(fmp) > 20
+        for k in fmp:
+            mode = strategy.mdp.modes[int(sim.modes[k])]
+            q = sim.q[k][None, :]
+            if mode.part:
+                assert cell.in_region(q, mode.destination, "contact", None, mode.part)[0]
+            else:
+                sources = {w.split(",")[1] for w in mode.waiting}
+                assert any(cell.in_region(q, s, "contact", None, None)[0] for s in sources)

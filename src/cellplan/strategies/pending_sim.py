@@ -10,7 +10,8 @@ turned away (counted); none arrives during an FMP.
 Policies (:data:`PENDING_POLICIES`):
 
 * ``optimal``: the solved strategy, one step of equation (9) at the real configuration
-  (every move, stay, and every FMP option the robot's grid cell allows, the best taken);
+  (every move, stay, and every FMP option the robot's grid cell allows, the best taken;
+  with a workcell an FMP must also pass the exact region test of the request it serves);
   the pick decides which open request is served.
 * ``fcfs``: first come, first served. The robot serves the oldest waiting request with
   the Section V strategy of that request alone (the W and C layers of the same model
@@ -154,18 +155,19 @@ class Rules:
         p, s, d = _triple(self.names[carried])
         return self.index[(names, p, s, d)]
 
-    def optimal(self, q: np.ndarray, m: int) -> int:
+    def optimal(self, q: np.ndarray, m: int, forbid_fmp: bool = False) -> int:
         """The best action of (9) at ``q`` in mode ``m``: a move, stay or an FMP code
         (the strategy's own query, :meth:`Strategy.action`); stay where none is available."""
         try:
-            return self.strategy.action(q, m)
+            return self.strategy.action(q, m, forbid_fmp)
         except ValueError:
             return STAY
 
-    def serve(self, q: np.ndarray, target: int, carrying: bool) -> int:
+    def serve(self, q: np.ndarray, target: int, carrying: bool, forbid_fmp: bool = False) -> int:
         """The Section V strategy's action for request ``target`` alone (FMP, stay, move)."""
         layer = 1 + target + (self.R if carrying else 0)
-        return best_action(self.single.action_values(q, layer))
+        allowed = False if forbid_fmp else None  # None: where the grid cell allows it
+        return best_action(self.single.action_values(q, layer, fmp_allowed=allowed))
 
     def idle(self, q: np.ndarray) -> int:
         """Where the Section V strategy goes while no request is open."""
@@ -185,9 +187,17 @@ def simulate_pending(
     policy: str = "optimal",
     start: np.ndarray | None = None,
     rules: Rules | None = None,
+    cell: Any = None,
+    regions: str = "contact",
     progress: Callable[[float, float, str], Any] | None = None,
 ) -> PendingSimulation:
     """Run ``policy`` for ``stages`` stages from NR at ``start`` (module docstring).
+
+    With a workcell (``cell``), every FMP is confirmed by its exact region test
+    (:meth:`~cellplan.workcell.Workcell.in_region`, ``regions`` as in the scenario): the
+    source of the request a pick serves, the destination of the carried one; a refused
+    FMP falls back to the best motion (an ``fmp_refused`` event). Without one, FMP follows
+    the grid cell.
 
     Every request's waiting time counts each stage (and each FMP's fine-motion time) from
     its arrival until its delivery; the loss of a stage is that of the model (the weighted
@@ -218,6 +228,7 @@ def simulate_pending(
     requests: list[Request] = []
     events: list[tuple[int, str, str]] = []
     turned = 0
+    refused = 0
     m = 0
     qs[0], ms[0] = q, m
     opt = mdp.options
@@ -226,20 +237,33 @@ def simulate_pending(
         if progress is not None and k % every == 0:
             progress(float(k), float(stages), f"stage {k:,} of {stages:,}")
         c = strategy.cell_of(q)
-        if policy == "optimal":
-            u = rules.optimal(q, m)
-        elif carried is not None:
-            u = rules.serve(q, carried_type, True)
-            u = fmp_code(0) if u == FMP else u
-        elif waiting:
-            if target not in waiting_type:
-                target = _choose(policy, q, waiting_type, rules)
-            u = rules.serve(q, target, False)
-            if u == FMP:
-                u = fmp_code(sorted(set(waiting_type)).index(target))
-        else:
-            u = STAY if policy == "reactive" else rules.idle(q)
-        j = -1 if u >= STAY else (0 if u == FMP else -3 - u)
+        forbid = False
+        while True:
+            if policy == "optimal":
+                u = rules.optimal(q, m, forbid)
+            elif carried is not None:
+                u = rules.serve(q, carried_type, True, forbid)
+                u = fmp_code(0) if u == FMP else u
+            elif waiting:
+                if target not in waiting_type:
+                    target = _choose(policy, q, waiting_type, rules)
+                u = rules.serve(q, target, False, forbid)
+                if u == FMP:
+                    u = fmp_code(sorted(set(waiting_type)).index(target))
+            else:
+                u = STAY if policy == "reactive" else rules.idle(q)
+            j = -1 if u >= STAY else (0 if u == FMP else -3 - u)
+            if j < 0 or cell is None or forbid:
+                break
+            if carried is not None:
+                where, part = carried.destination, carried.part
+            else:
+                where, part = _triple(rules.names[sorted(set(waiting_type))[j]])[1], None
+            if cell.in_region(q[None, :], where, regions, None, part)[0]:
+                break
+            forbid = True  # the grid cell allows it, the exact test does not
+            refused += 1
+            events.append((k, "fmp_refused", mdp.modes[m].label))
         if j >= 0 and not np.isfinite(mdp.tf[opt[m] + j, c]):
             j, u = -1, STAY  # a baseline's FMP the grid cell does not allow
         open_now = len(waiting) + (carried is not None)
@@ -297,6 +321,7 @@ def simulate_pending(
         open_counts=counts,
         durations=durations,
         turned_away=turned,
+        fmp_refused=refused,
         arrivals=int(arrive.sum()),
     )
 

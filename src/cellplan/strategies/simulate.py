@@ -251,13 +251,20 @@ def simulate(
 
     A model of simultaneous requests (Section VI-2) runs in
     :func:`cellplan.strategies.pending_sim.simulate_pending` instead (its policies are
-    ``optimal``, ``fcfs``, ``nearest`` and ``reactive``; FMP follows the grid cell).
+    ``optimal``, ``fcfs``, ``nearest`` and ``reactive``).
     """
     if strategy.mdp.opt_ptr is not None:
         from cellplan.strategies.pending_sim import simulate_pending
 
         return simulate_pending(
-            strategy, stages, seed, policy=policy, start=start, progress=progress
+            strategy,
+            stages,
+            seed,
+            policy=policy,
+            start=start,
+            cell=cell,
+            regions=regions,
+            progress=progress,
         )
     if policy not in POLICIES:
         raise ValueError(f"policy must be one of {POLICIES}, not {policy!r}")

@@ -266,7 +266,8 @@ class Strategy:
             out = np.empty(2 + mdp.disp.shape[1])
             self.__dict__["_out"] = out
         if mdp.opt_ptr is not None:
-            return self._best_option_or_motion(np.ascontiguousarray(q, dtype=float), mode, out)
+            q = np.ascontiguousarray(q, dtype=float)
+            return self._best_option_or_motion(q, mode, out, forbid_fmp)
         u = query(
             np.ascontiguousarray(q, dtype=float),
             mode,
@@ -287,7 +288,9 @@ class Strategy:
                 return self.action(q, mode, forbid_fmp=True)
         return int(u)
 
-    def _best_option_or_motion(self, q: np.ndarray, mode: int, out: np.ndarray) -> int:
+    def _best_option_or_motion(
+        self, q: np.ndarray, mode: int, out: np.ndarray, forbid_fmp: bool = False
+    ) -> int:
         """:meth:`action` for a model with FMP options (simultaneous requests, Section VI-2):
         the best of the motions, stay and every FMP option the grid cell of ``q`` allows
         (FMP first on a tie). Returns ``fmp_code(j)`` for option ``j``. The exact region
@@ -295,7 +298,7 @@ class Strategy:
         mdp = self.mdp
         action_values_at(q, mode, self._h0, mdp.live, 0.0, False, self._model, out)
         nopt = int(mdp.options[mode + 1] - mdp.options[mode])
-        allowed = np.ones(nopt, np.bool_)
+        allowed = np.full(nopt, not forbid_fmp, np.bool_)
         j, fval = fmp_options_at(q, mode, self._h0, mdp.live, allowed, self._model)
         motions = out[1:]
         if j >= 0 and not (np.nanmin(motions, initial=np.inf) < fval):
