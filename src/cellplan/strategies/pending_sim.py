@@ -164,14 +164,15 @@ class Rules:
             return STAY
 
     def serve(self, q: np.ndarray, target: int, carrying: bool, forbid_fmp: bool = False) -> int:
-        """The Section V strategy's action for request ``target`` alone (FMP, stay, move)."""
+        """The Section V strategy's action for request ``target`` alone (FMP, stay, move);
+        stay where none is available (the run's verdict then names the request waiting)."""
         layer = 1 + target + (self.R if carrying else 0)
         allowed = False if forbid_fmp else None  # None: where the grid cell allows it
-        return best_action(self.single.action_values(q, layer, fmp_allowed=allowed))
+        return _or_stay(self.single.action_values(q, layer, fmp_allowed=allowed))
 
     def idle(self, q: np.ndarray) -> int:
         """Where the Section V strategy goes while no request is open."""
-        return best_action(self.single.action_values(q, 0))
+        return _or_stay(self.single.action_values(q, 0))
 
     def finish_time(self, q: np.ndarray, r: int) -> float:
         """The Section V value of request ``r`` waiting, at ``q`` (time to serve it alone)."""
@@ -332,6 +333,11 @@ def _choose(policy: str, q: np.ndarray, waiting_type: list[int], rules: Rules) -
         times = [rules.finish_time(q, r) for r in waiting_type]
         return waiting_type[int(np.argmin(times))]
     return waiting_type[0]
+
+
+def _or_stay(values: np.ndarray) -> int:
+    """:func:`~cellplan.strategies.strategy.best_action`, or stay where every action is NaN."""
+    return STAY if np.all(np.isnan(values)) else best_action(values)
 
 
 def _triple(name: str) -> tuple[str, str, str]:
