@@ -250,3 +250,28 @@ def test_with_the_workcell_every_fmp_passes_the_exact_region_test():
             else:
                 sources = {w.split(",")[1] for w in mode.waiting}
                 assert any(cell.in_region(q, s, "contact", None, None)[0] for s in sources)
+
+
+def test_the_memory_estimate_counts_the_modes_and_options_of_simultaneous_requests():
+    # The planner refuses a grid that cannot fit before allocating; for simultaneous
+    # requests the estimate must count their modes and FMP options, and policy iteration.
+    import gc
+    import tracemalloc
+
+    from cellplan.strategies.model import estimate_memory
+    from cellplan.strategies.strategy import solve_scenario
+
+    sc, cell = pending(3, 40)
+    solve_scenario(sc, cell)  # compile first
+    gc.collect()
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        strategy, _ = solve_scenario(sc, cell)
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    est = estimate_memory(sc, cell)
+    assert est.modes == strategy.mdp.n_modes == sum(mode_counts(2, 3))
+    assert est.method == "policy"
+    assert 0.5 <= peak / est.total <= 1.35, (peak, dict(est.terms))

@@ -1061,7 +1061,9 @@ def estimate_memory(
     rejected parts), ``K`` move classes (at most NR, one per source and one per carried
     (part, source)), ``A`` actions (with their noisy landings), ``d`` axes:
 
-    * model (:class:`LayeredMDP`, alive throughout): ``tf`` float64 ``(M, N)``, ``live``
+    * model (:class:`LayeredMDP`, alive throughout): ``tf`` float64 ``(O, N)`` (``O`` FMP
+      options: ``M`` but with simultaneous requests, whose ``M`` and ``O`` follow
+      ``max_pending``, :func:`~cellplan.strategies.section.mode_counts`), ``live``
       bool ``(M, N)``, ``free`` and ``interior`` bool ``(K, N)``, ``valid`` int64 ``(K, N)``;
     * building (:func:`build_model`): the geometry's bitmaps (bool: NR, one per source,
       two per (part, source), one per (part, destination)) and fine-motion fields
@@ -1113,12 +1115,20 @@ def estimate_memory(
     PS = len({(p, s) for p, s, *_ in requests})
     PD = len({(p, dd) for p, _, dd, _ in requests})
     K = min(M, 1 + S + PS)
+    n_opt = M  # FMP options: one per mode but with simultaneous requests
+    if sec.simultaneous():
+        from cellplan.strategies.pending import option_count
+        from cellplan.strategies.section import mode_counts
+
+        M = sum(mode_counts(R, sec.max_pending))
+        n_opt = option_count(R, sec.max_pending)
+        K = min(M, 2 ** min(S, 20) + PS)  # a class per set of sources, per (part, source)
     empty, carrying = action_sets(sec, robot, parts)
     A = max([empty.disp.shape[0], *(a.disp.shape[0] for a in carrying.values())])
     heading = empty.heading_axis
     T = shape[heading] if heading >= 0 else 1
     terms = {
-        "model": N * (8 * M + M + K + K + 8 * K),
+        "model": N * (8 * n_opt + M + K + K + 8 * K),
         "building": max(
             N * ((1 + S + 2 * PS + PD) + 8 * (PS + PD) + 8 * (2 * d + 3) + 2 * K + 8 * (d + 1)),
             N * (1 + S + 2 * PS + PD) + _bitmap_peak(cell, shape, parts),
@@ -1128,14 +1138,22 @@ def estimate_memory(
         "policy": 100 * M * N + (33 + 44 + 24) * policy_places(requests, sec, N, d),
     }
     chosen = sec.solver.method if method is None else method
-    # auto picks policy iteration for failure modes and noisy motion (solver.solve).
-    policy = chosen == "policy" or (chosen == "auto" and bool(sec.failures or sec.noise))
+    # auto picks policy iteration for the Section VI models (solver.solve).
+    policy = chosen == "policy" or (
+        chosen == "auto" and bool(sec.failures or sec.noise or sec.simultaneous())
+    )
     return MemoryEstimate(N, M, K, A, terms, "policy" if policy else "structured")
 
 
 def policy_places(requests: Sequence[Any], sec: Any, N: int, d: int) -> int:
     """Room for the rows of a policy's matrix (:func:`estimate_memory`): ``2^d N sum_m B_m``."""
     R = len(requests)
+    landings = len(sec.noise.outcomes) if sec.noise is not None else 1
+    if sec.simultaneous():  # every mode: itself and at most one arrival per request type
+        from cellplan.strategies.section import mode_counts
+
+        modes = sum(mode_counts(R, sec.max_pending))
+        return (1 << d) * landings * N * modes * (1 + R)
     branches = 1 + R  # NR: itself and one per request
     for change, same in ((sec.source_change, (0, 2)), (sec.destination_change, (0, 1))):
         for p, s, dd, _ in requests:
@@ -1153,5 +1171,4 @@ def policy_places(requests: Sequence[Any], sec: Any, N: int, d: int) -> int:
             )
             branches += 1 + others
     branches += sec.reject_modes(requests)  # an X mode (Section VI-3): itself only
-    landings = len(sec.noise.outcomes) if sec.noise is not None else 1
     return (1 << d) * landings * N * branches
