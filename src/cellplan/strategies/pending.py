@@ -67,6 +67,16 @@ def pending_modes(R: int, k: int) -> list[tuple[tuple[int, ...], int]]:
     return out
 
 
+ModeKey = tuple[tuple[str, ...], str, str, str]
+
+
+def mode_keys(mdp: LayeredMDP) -> dict[ModeKey, int]:
+    """Each mode's index by ``(waiting, part, source, destination)``: the waiting requests
+    as ``"part,source,destination"`` in the model's order, then the carried request (``""``
+    when none); NR is ``((), "", "", "")``."""
+    return {(m.waiting, m.part, m.source, m.destination): i for i, m in enumerate(mdp.modes)}
+
+
 def option_count(R: int, k: int) -> int:
     """FMP options: one per waiting request type in each empty mode, one per carrying mode."""
     return sum(len(set(q)) if r < 0 else 1 for q, r in pending_modes(R, k))
@@ -205,7 +215,7 @@ def pending_problems(
     the Section V modes ``W`` and ``C`` of ``r``; the messages are those of
     :func:`cellplan.strategies.model.live_problems`.
     """
-    index = {(m.waiting, m.part, m.source, m.destination): i for i, m in enumerate(mdp.modes)}
+    index = mode_keys(mdp)
     problems = []
     if not mdp.live[0].any():
         problems.append(Problem("strategy", "no configuration in NR can serve every request"))

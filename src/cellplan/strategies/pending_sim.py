@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from cellplan.strategies.model import NR, LayeredMDP, Mode, compute_live
+from cellplan.strategies.pending import mode_keys
 from cellplan.strategies.simulate import Request, Simulation
 from cellplan.strategies.stencils import fmp_code
 from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
@@ -72,7 +73,7 @@ def single_request_model(mdp: LayeredMDP) -> LayeredMDP:
     # pending_modes puts the modes ({r}, none) right after NR, in request order.
     names = [mdp.modes[1 + r].waiting[0] for r in range(R)]
     triples = [_triple(name) for name in names]
-    by_key = {(m.waiting, m.part, m.source, m.destination): i for i, m in enumerate(mdp.modes)}
+    by_key = mode_keys(mdp)
     w_layers = [by_key[((name,), "", "", "")] for name in names]
     c_layers = [by_key[((), p, s, d)] for p, s, d in triples]
     keep = [0, *w_layers, *c_layers]
@@ -143,9 +144,7 @@ class Rules:
         self.single = single
         self.R = len(mdp.request_prob)
         self.names = [f"{m.part},{m.source},{m.destination}" for m in single.modes[1 : 1 + self.R]]
-        self.index = {
-            (m.waiting, m.part, m.source, m.destination): i for i, m in enumerate(mdp.modes)
-        }
+        self.index = mode_keys(mdp)
 
     def mode_of(self, waiting: list[int], carried: int) -> int:
         """The model's mode of these waiting request types and the carried one (-1)."""
