@@ -309,6 +309,7 @@ class Workcell:
         kind: RegionTest = "contact",
         component: int | None = None,
         carrying: str | None = None,
+        offset: tuple[float, float] | None = None,
     ) -> BoolArray:
         """``(N,)``: contact with or enclosure in a source or destination region.
 
@@ -316,11 +317,17 @@ class Workcell:
         the end-effector point (and carried part), as the strategies paper does
         for problems 5-6. Contact means touching; enclosure means entirely inside
         one component (touching its boundary from inside does not count).
-        ``component`` restricts the test to one component.
+        ``component`` restricts the test to one component. ``offset`` moves the region
+        by ``(dx, dy)`` (a region on a conveyor belt, Section VI-1 of the strategies paper).
         """
         region = self.region(name)
         q = self.configurations(q)
         bodies, poses = self._region_bodies(q, carrying)
+        if offset is not None:
+            # Moving the region by d is moving every posed body by -d.
+            poses = poses.copy()
+            poses[..., 0] -= offset[0]
+            poses[..., 1] -= offset[1]
         indices = range(len(region.components)) if component is None else [component]
         out = np.zeros(len(q), bool)
         for i in indices:

@@ -103,8 +103,9 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
                         w,
                     )
                 else:
-                    if nxt >= 0:
-                        continue  # staying never finishes a request
+                    # Staying finishes a request only through another layer (a time-varying
+                    # model's next phase, Section VI-1): in a stationary layer its branch to
+                    # itself reads ``target``, which does not hold ``c`` here.
                     n = 1
                     idx[0] = c
                     w[0] = 1.0

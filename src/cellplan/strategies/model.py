@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -60,9 +60,13 @@ class Mode:
     # Q (simultaneous requests, Section VI-2): the open requests not yet picked up, as
     # "part,source,destination"; part, source and destination name the carried request.
     waiting: tuple[str, ...] = ()
+    # The phase of the period in a time-varying model (Section VI-1); -1: stationary.
+    phase: int = -1
 
     @property
     def label(self) -> str:
+        if self.phase >= 0:
+            return f"{replace(self, phase=-1).label}@{self.phase}"
         if self.kind == NR:
             return NR
         if self.kind == "Q":
@@ -137,6 +141,10 @@ class LayeredMDP:
     # (M + 1,) FMP options of each mode (simultaneous requests, Section VI-2): ``tf`` and
     # the outcomes are then per option, ``(O, N)``; None: one option per mode, ``o = m``.
     opt_ptr: np.ndarray | None = None
+    # Time-varying models (Section VI-1): the stages of the period (the layers are
+    # ``phase * (n_modes // period) + mode``) and the velocity of each region on a belt.
+    period: int = 1
+    belts: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def n_cells(self) -> int:
@@ -148,7 +156,17 @@ class LayeredMDP:
 
     @property
     def n_requests(self) -> int:
-        return sum(1 for m in self.modes if m.kind == "W")
+        return sum(1 for m in self.modes if m.kind == "W" and m.phase <= 0)
+
+    @property
+    def modes_per_phase(self) -> int:
+        """The assembly modes of one phase (all of them in a stationary model)."""
+        return self.n_modes // self.period
+
+    def layer(self, mode: int, phase: int = 0) -> int:
+        """The layer of ``mode`` (an index among the first :attr:`modes_per_phase`) at
+        ``phase`` of the period (taken modulo the period; Section VI-1)."""
+        return (phase % self.period) * self.modes_per_phase + mode
 
     def w_layer(self, r: int) -> int:
         return 1 + r
@@ -217,7 +235,7 @@ class LayeredMDP:
         carrying layer, a move's landing stencil is one table row); other models are solved
         by policy iteration. A model with FMP options (Section VI-2) is not simple either.
         """
-        if len(self.noise_prob) > 1 or self.opt_ptr is not None:
+        if len(self.noise_prob) > 1 or self.opt_ptr is not None or self.period > 1:
             return False
         if self.outcomes is None:
             return True
@@ -249,6 +267,34 @@ class Geometry:
     drop: Mapping[tuple[str, str], np.ndarray]  # cells where FMP drops part p at destination d
     tf_pick: Mapping[tuple[str, str], np.ndarray]  # fine-motion time field (per cell)
     tf_drop: Mapping[tuple[str, str], np.ndarray]
+
+
+def request_fields(
+    geometry: Geometry, requests: Sequence[tuple[str, str, str, float]]
+) -> np.ndarray:
+    """``(2R + 1, N)``: the fine-motion time ``t_f`` of the FMP of NR (none), of each W
+    mode (the pick) and of each C mode (the delivery), ``inf`` where it is not allowed.
+
+    A pick needs a configuration in the source region that is free both while waiting
+    and while carrying the part; a delivery one in the destination region free both
+    while carrying and in NR (equations (1)-(3)).
+    """
+    R = len(requests)
+    tf = np.full((1 + 2 * R, geometry.free_nr.size), np.inf)
+    for r, (p, s, d, _) in enumerate(requests):
+        pick = (
+            geometry.pick[(p, s)].ravel()
+            & geometry.free_w[s].ravel()
+            & geometry.free_c[(p, s)].ravel()
+        )
+        tf[1 + r, pick] = geometry.tf_pick[(p, s)].ravel()[pick]
+        drop = (
+            geometry.drop[(p, d)].ravel()
+            & geometry.free_c[(p, s)].ravel()
+            & geometry.free_nr.ravel()
+        )
+        tf[1 + R + r, drop] = geometry.tf_drop[(p, d)].ravel()[drop]
+    return tf
 
 
 def assemble(
@@ -302,24 +348,13 @@ def assemble(
     fmp_next = np.full(M, -1, np.int64)
     tf = np.full((M, ncell), np.inf)
     vcls[0] = move_class(geometry.free_nr.ravel(), actions_empty)
-    for r, (p, s, d, _) in enumerate(requests):
+    for r, (p, s, _d, _) in enumerate(requests):
         w, c = 1 + r, 1 + R + r
         vcls[w] = move_class(geometry.free_w[s].ravel(), actions_empty)
         vcls[c] = move_class(geometry.free_c[(p, s)].ravel(), actions_carrying[p])
         fmp_next[w] = c
         fmp_next[c] = 0
-        pick = (
-            geometry.pick[(p, s)].ravel()
-            & geometry.free_w[s].ravel()
-            & geometry.free_c[(p, s)].ravel()
-        )
-        tf[w, pick] = geometry.tf_pick[(p, s)].ravel()[pick]
-        drop = (
-            geometry.drop[(p, d)].ravel()
-            & geometry.free_c[(p, s)].ravel()
-            & geometry.free_nr.ravel()
-        )
-        tf[c, drop] = geometry.tf_drop[(p, d)].ravel()[drop]
+    tf[: 1 + 2 * R] = request_fields(geometry, requests)
 
     for (r, reject, _after), x in x_index.items():
         assert failures is not None
@@ -857,8 +892,13 @@ def build_model(
     requests = sec.request_list(scenario)
     parts = sorted({p for p, *_ in requests})
     sources = sorted({s for _, s, *_ in requests})
-    others = cell.sources_except
-    free_nr = free_bitmap(cell, grid, None, "all")
+    # Regions on a belt are never obstacles (Section VI-1; strategies/periodic.py).
+    belts = sec.belts if sec.time_varying() else {}
+
+    def others(source: str | None) -> list[str]:
+        return [s for s in cell.sources_except(source) if s not in belts]
+
+    free_nr = free_bitmap(cell, grid, None, others(None))
     free_w = {s: free_bitmap(cell, grid, None, others(s)) for s in sources}
     free_c = {
         (p, s): free_bitmap(cell, grid, p, others(s))
@@ -896,6 +936,8 @@ def build_model(
             drop[(p, d)] = in_region(d, p)
             tf_drop[(p, d)] = tf_of(d)
     geometry = Geometry(free_nr, free_w, free_c, pick, drop, tf_pick, tf_drop)
+    if sec.time_varying():
+        return _periodic_model(scenario, cell, grid, requests, geometry, start)
     if sec.simultaneous():
         from cellplan.strategies.bundles import Grid as KernelGrid
         from cellplan.strategies.pending import assemble_pending, pending_problems
@@ -965,6 +1007,70 @@ def build_model(
         failures=failures,
     )
     return _checked(mdp, live_problems(mdp), start)
+
+
+def _periodic_model(
+    scenario: Any,
+    cell: Any,
+    grid: Any,
+    requests: list[tuple[str, str, str, float]],
+    geometry: Geometry,
+    start: Sequence[float] | np.ndarray | None,
+) -> LayeredMDP:
+    """The time-varying model of a scenario (Section VI-1, :mod:`.periodic`): the Section
+    V model on ``geometry`` at phase 0, and the pick and delivery regions at every phase."""
+    from cellplan.strategies.periodic import assemble_periodic, belt_offset, periodic_problems
+
+    sec = scenario.strategy
+    T = sec.period
+    parts = sorted({p for p, *_ in requests})
+    empty, carrying = action_sets(sec, robot=cell.robot, parts=parts)
+    base = assemble(
+        shape=grid.shape,
+        lower=grid.lower,
+        upper=grid.upper,
+        periodic=grid.periodic,
+        requests=requests,
+        geometry=geometry,
+        actions_empty=empty,
+        actions_carrying=carrying,
+        stage_time=sec.stage_time,
+        arrival=sec.arrival.per_stage(sec.stage_time),
+    )
+    velocity = {name: (float(b.velocity[0]), float(b.velocity[1])) for name, b in sec.belts.items()}
+    pts = grid.points()
+    kind = sec.regions
+
+    def moved(name: str, carrying: str | None, t: int) -> np.ndarray:
+        offset = belt_offset(velocity[name], t, sec.stage_time)
+        return cell.in_region(pts, name, kind, None, carrying, offset)
+
+    fields = np.empty((T, base.n_modes, base.n_cells))
+    for t in range(T):
+        pick = dict(geometry.pick)
+        drop = dict(geometry.drop)
+        if t > 0:
+            for p, s in pick:
+                if s in velocity:
+                    pick[(p, s)] = moved(s, None, t)
+            for p, d in drop:
+                if d in velocity:
+                    drop[(p, d)] = moved(d, p, t)
+        fields[t] = request_fields(replace(geometry, pick=pick, drop=drop), requests)
+
+    def stages(region: str) -> int:
+        spec = sec.fine_motion_regions.get(region, sec.fine_motion)
+        return int(round(float(spec.time) / sec.stage_time))
+
+    fmp_stages = [0] + [stages(s) for _, s, _, _ in requests] + [stages(d) for *_, d, _ in requests]
+    mdp = assemble_periodic(
+        base,
+        fields=fields,
+        arrival=sec.arrival_by_phase(),
+        fmp_stages=fmp_stages,
+        belts=velocity,
+    )
+    return _checked(mdp, periodic_problems(mdp), start)
 
 
 def _checked(

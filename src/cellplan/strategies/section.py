@@ -165,6 +165,14 @@ MAX_PENDING = 8
 MAX_PENDING_MODES = 20_000
 
 
+#: Most stages in the period of a time-varying model (Section VI-1).
+MAX_PERIOD = 1000
+#: Most layers (modes times phases) of a time-varying model: each is a grid of values.
+MAX_PERIODIC_LAYERS = 20_000
+#: An arrival profile: a factor per phase of the period.
+Profile = Annotated[list[NonNegativeFloat], Field(max_length=MAX_PERIOD)]
+
+
 def mode_counts(R: int, k: int) -> tuple[int, int]:
     """Modes of simultaneous requests (Section VI-2), ``(empty, carrying)``: the multisets of
     at most ``k`` of ``R`` request types, ``C(R + k, k)``, and ``R`` times those of at most
@@ -174,6 +182,19 @@ def mode_counts(R: int, k: int) -> tuple[int, int]:
 
 
 """Most outcomes of the noise model (each is a stencil per move in the model's tables)."""
+
+
+class BeltSpec(StrictModel):
+    """A source or destination on a conveyor belt (Section VI-1, Fig. 16).
+
+    The region moves with constant ``velocity``: at phase ``t`` of the period it lies at
+    its scenario position plus ``velocity * t * stage_time``; at the end of each period the
+    next part comes in at the scenario position again (a part every ``period`` stages).
+    """
+
+    velocity: Vec2 = Field(
+        description="workcell units per unit time, [vx, vy]", examples=[[2.0, 0.0]]
+    )
 
 
 class NoiseSpec(StrictModel):
@@ -279,6 +300,30 @@ class StrategySection(StrictModel):
         default_factory=dict,
         description="per part: weight of its open requests in the loss (Section VI-2; default 1)",
     )
+
+    period: Annotated[int, Field(ge=1, le=MAX_PERIOD)] = Field(
+        default=1,
+        description="stages per period of a time-varying model (Section VI-1); 1: stationary",
+    )
+    arrival_profile: Profile | None = Field(
+        default=None,
+        description="per phase of the period, a factor on the arrival probability "
+        "(Section VI-1; one value per stage of the period)",
+    )
+    belts: dict[Name, BeltSpec] = Field(
+        default_factory=dict,
+        description="sources and destinations that move on a conveyor belt (Section VI-1)",
+    )
+
+    def time_varying(self) -> bool:
+        """Whether the model is periodic in time (Section VI-1)."""
+        return self.period > 1 or bool(self.belts) or self.arrival_profile is not None
+
+    def arrival_by_phase(self) -> list[float]:
+        """The arrival probability per stage at each phase of the period (Section VI-1)."""
+        base = self.arrival.per_stage(self.stage_time)
+        profile = self.arrival_profile or [1.0] * self.period
+        return [base * w for w in profile]
 
     def simultaneous(self) -> bool:
         """Whether the model is that of simultaneous requests (Section VI-2)."""
@@ -387,6 +432,7 @@ class StrategySection(StrictModel):
         problems.extend(self._check_failures(scenario))
         problems.extend(self._check_noise(scenario))
         problems.extend(self._check_pending(scenario))
+        problems.extend(self._check_time_varying(scenario))
         if self.destination_change is not None and not problems:
             problems.extend(self._check_changes(scenario, "destination"))
         if self.source_change is not None and not problems:
@@ -423,6 +469,101 @@ class StrategySection(StrictModel):
                         "strategy.max_pending",
                         f"{self.max_pending} open requests of {R} types make {M:,} modes (at "
                         f"most {MAX_PENDING_MODES:,}); lower it or list fewer requests",
+                    )
+                )
+        return problems
+
+    def _check_time_varying(self, scenario: Scenario) -> list[Problem]:
+        """One line per mistake in ``period``, ``arrival_profile`` and ``belts`` (Section VI-1)."""
+        if not self.time_varying():
+            return []
+        problems = []
+        T = self.period
+        if T < 2:
+            problems.append(
+                Problem(
+                    "strategy.period",
+                    "belts and arrival_profile need a period of at least 2 stages",
+                )
+            )
+        for key, given in (
+            ("failures", bool(self.failures)),
+            ("noise", self.noise is not None),
+            ("max_pending", self.simultaneous()),
+            ("destination_change", self.destination_change is not None),
+            ("source_change", self.source_change is not None),
+        ):
+            if given:
+                problems.append(
+                    Problem(
+                        f"strategy.{key}",
+                        "cannot be combined with a time-varying model (period, belts, "
+                        "arrival_profile) yet",
+                    )
+                )
+        for where, spec in [("fine_motion", self.fine_motion)] + [
+            (f"fine_motion_regions.{r}", f) for r, f in self.fine_motion_regions.items()
+        ]:
+            if spec.point is not None and spec.rate > 0:
+                problems.append(
+                    Problem(
+                        f"strategy.{where}",
+                        "a time-varying model needs a constant fine-motion time (no point and "
+                        "rate): an FMP advances the phase by its time",
+                    )
+                )
+        profile = self.arrival_profile
+        if profile is not None:
+            base = self.arrival.per_stage(self.stage_time)
+            if len(profile) != T:
+                problems.append(
+                    Problem(
+                        "strategy.arrival_profile",
+                        f"has {len(profile)} values; the period has {T} stages",
+                    )
+                )
+            elif not any(w * base > 0 for w in profile):
+                problems.append(
+                    Problem("strategy.arrival_profile", "no request ever arrives (all zero)")
+                )
+            for t, w in enumerate(profile):
+                if w * base > 1.0:
+                    problems.append(
+                        Problem(
+                            f"strategy.arrival_profile[{t}]",
+                            f"{w:g} times the arrival probability {base:g} is {w * base:g}, "
+                            "above 1",
+                        )
+                    )
+        b = scenario.workcell.bounds
+        for name, belt in self.belts.items():
+            where = f"strategy.belts.{name}"
+            region = scenario.sources.get(name) or scenario.destinations.get(name)
+            if region is None:
+                problems.append(Problem(where, f"unknown source or destination {name!r}"))
+                continue
+            x0, y0, x1, y1 = _components_box(region)
+            travel = (T - 1) * self.stage_time
+            dx, dy = belt.velocity[0] * travel, belt.velocity[1] * travel
+            lo_x, hi_x = x0 + min(dx, 0.0), x1 + max(dx, 0.0)
+            lo_y, hi_y = y0 + min(dy, 0.0), y1 + max(dy, 0.0)
+            if lo_x < b.xmin or hi_x > b.xmax or lo_y < b.ymin or hi_y > b.ymax:
+                problems.append(
+                    Problem(
+                        f"{where}.velocity",
+                        f"the belt carries {name} outside the workcell: over the period it "
+                        f"sweeps x {lo_x:g} to {hi_x:g}, y {lo_y:g} to {hi_y:g}; the workcell "
+                        f"is x {b.xmin:g} to {b.xmax:g}, y {b.ymin:g} to {b.ymax:g}",
+                    )
+                )
+        if scenario.parts and scenario.sources and scenario.destinations and not problems:
+            layers = T * (2 * len(self.request_list(scenario)) + 1)
+            if layers > MAX_PERIODIC_LAYERS:
+                problems.append(
+                    Problem(
+                        "strategy.period",
+                        f"{T} phases of {layers // T:,} modes make {layers:,} layers (at most "
+                        f"{MAX_PERIODIC_LAYERS:,}); shorten the period or list fewer requests",
                     )
                 )
         return problems
@@ -628,6 +769,17 @@ class StrategySection(StrictModel):
                 )
             ]
         return []
+
+
+def _components_box(region: object) -> tuple[float, float, float, float]:
+    """The bounding box of a region spec's components (workcell units)."""
+    boxes = [c.to_shapely().bounds for c in region.components]  # type: ignore[attr-defined]
+    return (
+        min(b[0] for b in boxes),
+        min(b[1] for b in boxes),
+        max(b[2] for b in boxes),
+        max(b[3] for b in boxes),
+    )
 
 
 def _dimension(robot: object) -> int:

@@ -40,7 +40,17 @@ _ARRAY_FIELDS = [
     f.name
     for f in fields(LayeredMDP)
     if f.name
-    not in ("modes", "labels", "heading_axis", "stage_time", "arrival", "outcomes", "opt_ptr")
+    not in (
+        "modes",
+        "labels",
+        "heading_axis",
+        "stage_time",
+        "arrival",
+        "outcomes",
+        "opt_ptr",
+        "period",
+        "belts",
+    )
 ]
 #: The FMP outcome arrays of a strategy file (:class:`~.bundles.Outcomes`, by field).
 _OUTCOME_ARRAYS = {"out_ptr": "ptr", "out_layer": "layer", "out_prob": "prob", "out_cost": "cost"}
