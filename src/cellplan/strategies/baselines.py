@@ -26,6 +26,8 @@ def per_request_values(mdp: LayeredMDP, tol: float = 1e-9, max_sweeps: int = 100
     Layer NR is 0 (a delivery ends the cost); each C layer is the expected time to deliver
     (stages plus t_f), each W layer the time to pick up and then deliver.
     """
+    if mdp.period > 1:
+        return _over_phases(mdp, tol, max_sweeps)
     h = np.where(mdp.live, 0.0, np.nan)
     D = np.zeros(h.shape)
     work = np.where(mdp.live, 0.0, 0.0)
@@ -40,6 +42,36 @@ def per_request_values(mdp: LayeredMDP, tol: float = 1e-9, max_sweeps: int = 100
     if not mdp.is_simple():
         h = _with_failures(mdp, h, tol, max_sweeps)
     return h
+
+
+def _over_phases(mdp: LayeredMDP, tol: float, max_passes: int) -> np.ndarray:
+    """:func:`per_request_values` of a time-varying model (Section VI-1).
+
+    A W or C layer's moves lead to the next phase, so no layer is solved on its own:
+    Gauss-Seidel passes sweep every request layer once, phases backwards (C before W),
+    until a pass changes no value by more than ``tol``; each pass carries the time to
+    finish one period further back.
+    """
+    M = mdp.modes_per_phase
+    request = [m for m in range(M) if mdp.fmp_next[m] >= 0]
+    order = [
+        t * M + m
+        for t in reversed(range(mdp.period))
+        for m in sorted(request, key=lambda m: mdp.modes[m].kind != "C")
+    ]
+    work = np.where(mdp.live, 0.0, 0.0)
+    for m in order:
+        work[m][mdp.live[m]] = np.inf
+    D = np.zeros(work.shape)
+    args = mdp.kernel_args()
+    d = len(mdp.shape)
+    for s in range(max_passes):
+        change = max(
+            kernels.sweep_layer(m, s % (1 << d), work, D, 0.0, False, False, args) for m in order
+        )
+        if change < tol:
+            break
+    return np.where(mdp.live, work, np.nan)
 
 
 def _request_layers(mdp: LayeredMDP) -> list[int]:

@@ -64,10 +64,13 @@ def default_depth(mdp: LayeredMDP, budget: int = LEAF_BUDGET) -> int:
     With ``A`` motions per stage (a motion is never followed by its inverse) there are
     ``A (A - 1)^(D - 1)`` sequences of ``D`` stages: 5 stages for the rotating robot's 4
     motions, 2 for 16 headings, 3 for an arm's 6 joint steps. With noisy motion (Section
-    VI-4) it is 1: rule (9) with the expectation over the landings.
+    VI-4) it is 1: rule (9) with the expectation over the landings; so it is in a
+    time-varying model (Section VI-1), whose every motion leads to the next phase's layer.
     """
     if len(mdp.noise_prob) > 1:
         return 1  # the lookahead follows commanded landings; noisy moves land elsewhere
+    if mdp.period > 1:
+        return 1  # the lookahead stays in one layer; a time-varying model's next is the next phase
     na = int(mdp.nact.max())
     depth = 1
     while na * max(na - 1, 1) ** depth <= budget and depth < MAX_DEPTH:

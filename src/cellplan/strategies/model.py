@@ -1060,7 +1060,7 @@ def _periodic_model(
 
     def stages(region: str) -> int:
         spec = sec.fine_motion_regions.get(region, sec.fine_motion)
-        return int(round(float(spec.time) / sec.stage_time))
+        return int(np.floor(float(spec.time) / sec.stage_time + 0.5))  # half up
 
     fmp_stages = [0] + [stages(s) for _, s, _, _ in requests] + [stages(d) for *_, d, _ in requests]
     mdp = assemble_periodic(

@@ -22,8 +22,9 @@ MDP on the product (mode, phase). The choices where the paper is silent
   on a belt is not an obstacle in any mode (the belt runs under the robot's working
   plane); the stationary sources stay obstacles as in equations (1)-(3).
 * **Fine motions take time.** An FMP with fine-motion time ``t_f`` advances the phase by
-  ``round(t_f / stage_time)`` stages (the scenario checks refuse a fine-motion time that
-  varies over a region in a time-varying model), and costs ``t_f`` as in equation (7).
+  ``t_f / stage_time`` stages rounded half up, and costs ``t_f`` as in equation (7) (the
+  scenario checks refuse a fine-motion time that varies over a region in a time-varying
+  model).
 * **Memory.** The values of every phase are stored: ``T`` times the stationary model's
   ``(2R + 1) N`` values (and its fine-motion fields and live states); the move classes
   and their tables are shared by every phase. The scenario checks refuse more than

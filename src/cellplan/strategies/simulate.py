@@ -33,6 +33,7 @@ from cellplan import units
 from cellplan.core import Progress, Result, Status
 from cellplan.strategies.baselines import home_values, per_request_values
 from cellplan.strategies.execution import Executor
+from cellplan.strategies.model import NR
 from cellplan.strategies.planners import MAX_STAGES
 from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
 from cellplan.trajectory import Event, Trajectory
@@ -75,6 +76,9 @@ class Simulation:
     FMP the exact region test refused), ``source_change`` / ``destination_change``, and with
     failure modes (Section VI-3) ``fmp_failed`` (a failed pick or delivery: retried, or the
     part rejected) and ``reject`` (the rejected part dropped in the reject region)."""
+    # The modes of one phase of a time-varying model (Section VI-1), whose ``modes`` are
+    # layers ``phase * modes_per_phase + mode``; 0: a stationary model.
+    modes_per_phase: int = 0
 
     def metrics(self) -> dict[str, float]:
         """Loss per stage, waiting time per request (delivered only and all), counts.
@@ -100,7 +104,7 @@ class Simulation:
             "mean_wait_all": float(np.mean(waits)) if waits else nan,
             "open_requests": float(len(still)),
             "open_wait": float(np.sum(still)),
-            "idle_fraction": float(np.mean(self.modes[:-1] == 0)) if stages else nan,
+            "idle_fraction": float(np.mean(self.base_modes()[:-1] == 0)) if stages else nan,
             "loss_per_stage": float(self.losses.mean()) if stages else nan,
             "fmp_refused": float(self.fmp_refused),
             "corrections": float(self.corrections),
@@ -108,12 +112,17 @@ class Simulation:
             "fmp_failures": float(sum(r.failures for r in self.requests)),
         }
 
+    def base_modes(self) -> np.ndarray:
+        """The assembly mode of every sample, without the phase of a time-varying model."""
+        return self.modes % self.modes_per_phase if self.modes_per_phase else self.modes
+
     def segments(self) -> list[tuple[int, int]]:
         """``(first, last)`` stage of every maximal run of one mode (one frame each, Fig. 9)."""
         out = []
         start = 0
-        for k in range(1, len(self.modes)):
-            if self.modes[k] != self.modes[k - 1]:
+        modes = self.base_modes()
+        for k in range(1, len(modes)):
+            if modes[k] != modes[k - 1]:
                 out.append((start, k))
                 start = k
         out.append((start, len(self.modes) - 1))
@@ -182,7 +191,7 @@ class _Policies:
         """The executor behind a policy in a mode (None: the baselines' idle rules)."""
         if policy == "optimal":
             return self.optimal
-        return None if mode == 0 else self.request
+        return None if self.s.mdp.modes[mode].kind == NR else self.request
 
     def values(self, policy: str, q: np.ndarray, mode: int, fmp_allowed: bool | None) -> np.ndarray:
         ex = self.executor(policy, mode)
@@ -270,6 +279,8 @@ def simulate(
         raise ValueError(f"policy must be one of {POLICIES}, not {policy!r}")
     rng = np.random.default_rng(seed)
     mdp = strategy.mdp
+    M = mdp.modes_per_phase
+    idle = [mode.kind == NR for mode in mdp.modes]
     out = mdp.fmp_outcomes()
     test = region_test(strategy, cell, regions) if cell is not None else None
     rules = _Policies(strategy, home, learn, test)
@@ -285,7 +296,7 @@ def simulate(
     events: list[tuple[int, str, str]] = []
     current: Request | None = None
     refused = 0
-    if m != 0:
+    if not idle[m]:
         mode = mdp.modes[m]
         current = Request(mode.part, mode.source, mode.destination, 0)
         requests.append(current)
@@ -299,7 +310,7 @@ def simulate(
         fmp_allowed = None
         if (
             cell is not None
-            and m != 0
+            and not idle[m]
             and np.isfinite(mdp.tf[m, strategy.cell_of(q)])
             and test is not None
             and not test(q[None, :], m)[0]
@@ -312,7 +323,7 @@ def simulate(
             events.append((k, "fmp_refused", mdp.modes[m].label))
         u = rules.action(policy, q, m, fmp_allowed)
         # Loss (7).
-        if m == 0:
+        if idle[m]:
             loss = 0.0
         elif u == FMP:
             loss = float(mdp.tf[m, strategy.cell_of(q)])
@@ -365,9 +376,9 @@ def simulate(
             probs = mdp.branch_prob[b0:b1]
             pick = int(np.searchsorted(np.cumsum(probs), rng.random() * probs.sum(), side="right"))
             m_next = int(mdp.branch_layer[b0 + min(pick, b1 - b0 - 1)])
-            if m_next != m:
+            if m_next % M != m % M:  # the phase of a time-varying model aside
                 mode = mdp.modes[m_next]
-                if m == 0:
+                if idle[m]:
                     current = Request(mode.part, mode.source, mode.destination, k + 1)
                     requests.append(current)
                     events.append((k + 1, "request", _request_detail(current)))
@@ -390,7 +401,19 @@ def simulate(
         acts[k], losses[k] = u, loss
         qs[k + 1], ms[k + 1] = q, m
     fixes, raised = rules.corrections
-    return Simulation(qs, ms, acts, losses, requests, policy, refused, fixes, raised, events)
+    return Simulation(
+        qs,
+        ms,
+        acts,
+        losses,
+        requests,
+        policy,
+        refused,
+        fixes,
+        raised,
+        events,
+        modes_per_phase=M if mdp.period > 1 else 0,
+    )
 
 
 def _request_detail(r: Request) -> str:
@@ -414,19 +437,24 @@ def region_test(
 
     W modes test the source (empty robot), C modes the destination with the carried part,
     X modes (a rejected part, Section VI-3) the reject region with the part
-    (:meth:`~cellplan.workcell.Workcell.in_region`).
+    (:meth:`~cellplan.workcell.Workcell.in_region`). In a time-varying model (Section VI-1)
+    a region on a belt is tested where it is at the layer's phase.
     """
-    modes = strategy.mdp.modes
+    from cellplan.strategies.periodic import region_offset
+
+    mdp = strategy.mdp
+    modes = mdp.modes
 
     def test(points: np.ndarray, m: int) -> np.ndarray:
         mode = modes[m]
         if mode.kind == "W":
-            hit = cell.in_region(points, mode.source, regions, None, None)
+            region, part = mode.source, None
         elif mode.kind == "X":
-            hit = cell.in_region(points, mode.reject, regions, None, mode.part)
+            region, part = mode.reject, mode.part
         else:
-            hit = cell.in_region(points, mode.destination, regions, None, mode.part)
-        return np.asarray(hit, dtype=bool)
+            region, part = mode.destination, mode.part
+        offset = region_offset(mdp, region, m)
+        return np.asarray(cell.in_region(points, region, regions, None, part, offset), dtype=bool)
 
     return test
 
