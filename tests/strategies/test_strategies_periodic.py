@@ -202,3 +202,14 @@ def test_an_idle_robot_moves_toward_the_sources_before_requests_arrive(conveyor)
 )
 def test_scenario_mistakes_are_one_line_each(cellplan, tmp_path, extra, expected):
     assert_validate_names(cellplan, tmp_path, TINY.replace("CELLS", "12") + extra, expected)
+
+
+def test_quick_conveyor_experiment_reports_three_claims(tmp_path):
+    from cellplan.strategies.conveyor_experiment import EXPERIMENT
+
+    rows = [EXPERIMENT.run(s) for s in EXPERIMENT.make_runs(2, True)]
+    for r in rows:
+        assert r["optimal_distance"] < r["reactive_distance"]
+    piece = EXPERIMENT.report(rows, tmp_path)
+    assert len(piece.claims) == 3 and all(p.exists() for p in piece.figures)
+    assert all(c.n == 2 and c.reproduced is None for c in piece.claims)  # too few seeds

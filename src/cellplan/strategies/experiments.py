@@ -435,12 +435,18 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
 
 
 def _section_vi() -> list[Experiment]:
-    from cellplan.strategies import failure_experiment, noise_experiment, pending_experiment
+    from cellplan.strategies import (
+        conveyor_experiment,
+        failure_experiment,
+        noise_experiment,
+        pending_experiment,
+    )
 
     return [
         failure_experiment.EXPERIMENT,
         noise_experiment.EXPERIMENT,
         pending_experiment.EXPERIMENT,
+        conveyor_experiment.EXPERIMENT,
     ]
 
 
