@@ -213,3 +213,17 @@ def test_quick_conveyor_experiment_reports_three_claims(tmp_path):
     piece = EXPERIMENT.report(rows, tmp_path)
     assert len(piece.claims) == 3 and all(p.exists() for p in piece.figures)
     assert all(c.n == 2 and c.reproduced is None for c in piece.claims)  # too few seeds
+
+
+def test_solver_methods_that_cannot_solve_a_period_say_so():
+    sc, cell = belt(10)
+    mdp = build_model(sc, cell)
+    with pytest.raises(ValueError, match="structured solver needs the Section V model"):
+        solve(mdp, "structured")
+    # Undamped relative value iteration cycles with the period; damped, it converges to
+    # policy iteration's gain.
+    with pytest.raises(ValueError, match="cycles with the period"):
+        solve(mdp, "general")
+    damped = solve(mdp, "general", 1e-8, 20000, damping=0.5)
+    assert damped.status is Status.SOLVED
+    assert damped.gain == pytest.approx(solve(mdp, "policy", 1e-8).gain, abs=1e-7)

@@ -676,15 +676,23 @@ def solve_structured(
     return result
 
 
-def method_problem(mdp: LayeredMDP, method: str) -> str | None:
-    """Why ``method`` cannot solve ``mdp`` (one line), or None when it can."""
+def method_problem(mdp: LayeredMDP, method: str, damping: float = 1.0) -> str | None:
+    """Why ``method`` (with ``damping``, for ``general``) cannot solve ``mdp`` (one line),
+    or None when it can."""
     if method not in METHODS:
         return f"unknown solver method {method!r} (one of {', '.join(METHODS)})"
     if method == "structured" and not mdp.is_simple():
         return (
-            "the structured solver needs every fine motion to succeed with certainty and "
-            "every move to land where commanded (Section V); this model has failure modes "
-            "or noisy motion: use auto or policy"
+            "the structured solver needs the Section V model (every fine motion succeeds "
+            "with certainty, every move lands where commanded, one FMP per mode, no "
+            "period); this model has failure modes, noisy motion, simultaneous requests or "
+            "a period: use auto or policy"
+        )
+    if method == "general" and mdp.period > 1 and damping >= 1.0:
+        return (
+            "relative value iteration (general) cycles with the period of a time-varying "
+            "model (every stage advances the phase): set strategy.solver.damping below 1, "
+            "or use auto or policy"
         )
     return None
 
@@ -707,7 +715,7 @@ def solve(
     ``threads``: worker threads (default :func:`cellplan.strategies.threads.default_threads`;
     problems below :data:`~cellplan.strategies.threads.SERIAL_BELOW` states run serially).
     """
-    problem = method_problem(mdp, method)
+    problem = method_problem(mdp, method, damping)
     if problem is not None:
         raise ValueError(problem)
     if method == "auto":

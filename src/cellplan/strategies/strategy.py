@@ -474,7 +474,7 @@ def solve_scenario(
     mdp = build_model(scenario, cell, cells, start=start)
     if not snap:
         mdp = forbid_snapping(mdp)
-    problem = method_problem(mdp, method or sec.solver.method)
+    problem = method_problem(mdp, method or sec.solver.method, sec.solver.damping)
     if problem is not None:
         if method is not None:
             raise ArgumentError([Problem("method", problem)])
