@@ -227,3 +227,37 @@ def test_solver_methods_that_cannot_solve_a_period_say_so():
     damped = solve(mdp, "general", 1e-8, 20000, damping=0.5)
     assert damped.status is Status.SOLVED
     assert damped.gain == pytest.approx(solve(mdp, "policy", 1e-8).gain, abs=1e-7)
+
+
+# A closed ring of walls round a pocket of free space at the top left.
+RING = """    ring_s: {type: box, min: [1, 17], max: [11, 18]}
+    ring_n: {type: box, min: [1, 28], max: [11, 29]}
+    ring_w: {type: box, min: [0, 17], max: [1, 29]}
+    ring_e: {type: box, min: [10, 17], max: [11, 29]}
+"""
+
+
+def test_a_pocket_the_robot_can_never_leave_is_not_live():
+    # A waiting robot in the pocket could stay there for ever, phase after phase: the
+    # greatest fixed point of the stationary computation keeps those states (checked
+    # below, so the test can tell the two apart); the least one over the phases does not.
+    from cellplan.strategies.model import _live_pass
+    from cellplan.strategies.transitions import forbid_snapping
+
+    middle = "    middle: {type: box, min: [12, 12], max: [18, 16]}\n"
+    text = TINY.replace("CELLS", "15").replace(middle, middle + RING) + BELT
+    sc = loads_scenario(text)
+    mdp = build_model(sc, Workcell.from_scenario(sc))
+    centres = mdp.lower + (np.indices(tuple(mdp.shape)).reshape(2, -1).T + 0.5) * mdp.spacing
+    pocket = (centres[:, 0] > 1) & (centres[:, 0] < 10) & (centres[:, 1] > 18)
+    pocket &= centres[:, 1] < 28
+    assert mdp.free[mdp.vcls[0], pocket].any()
+    assert not mdp.live[:, pocket].any()
+    greatest = mdp.free[mdp.vcls].copy()
+    while _live_pass(mdp, greatest, mdp.tf < np.inf):
+        pass
+    assert greatest[:, pocket].any()
+    # Removing the snapping moves recomputes the live states the same way.
+    strict = forbid_snapping(mdp)
+    assert strict.period == mdp.period and not strict.live[:, pocket].any()
+    assert solve(strict, "auto").status is Status.SOLVED

@@ -670,8 +670,14 @@ def compute_live(mdp: LayeredMDP) -> None:
     """Restrict ``mdp.live`` to the states that can finish their request (in place).
 
     Repeats :func:`_live_pass` until nothing changes, remembering each layer's inputs so
-    that a later pass skips the layers whose inputs did not change.
+    that a later pass skips the layers whose inputs did not change. A time-varying model
+    (Section VI-1) has its own: :func:`cellplan.strategies.periodic.periodic_live`.
     """
+    if mdp.period > 1:
+        from cellplan.strategies.periodic import periodic_live
+
+        periodic_live(mdp)
+        return
     fmp_ok = mdp.tf < np.inf
     settled: list[tuple[Any, ...] | None] = [None] * mdp.n_modes
     for _ in range(100):
@@ -746,7 +752,12 @@ def _live_pass(
 
 
 def live_problems(mdp: LayeredMDP) -> list[Problem]:
-    """One problem per request that can never be served (checked before solving)."""
+    """One problem per request that can never be served (checked before solving); for a
+    time-varying model, :func:`cellplan.strategies.periodic.periodic_problems`."""
+    if mdp.period > 1:
+        from cellplan.strategies.periodic import periodic_problems
+
+        return periodic_problems(mdp)
     problems = []
     R = mdp.n_requests
     if not mdp.live[0].any():
@@ -1019,7 +1030,7 @@ def _periodic_model(
 ) -> LayeredMDP:
     """The time-varying model of a scenario (Section VI-1, :mod:`.periodic`): the Section
     V model on ``geometry`` at phase 0, and the pick and delivery regions at every phase."""
-    from cellplan.strategies.periodic import assemble_periodic, belt_offset, periodic_problems
+    from cellplan.strategies.periodic import assemble_periodic, belt_offset
 
     sec = scenario.strategy
     T = sec.period
@@ -1070,7 +1081,7 @@ def _periodic_model(
         fmp_stages=fmp_stages,
         belts=velocity,
     )
-    return _checked(mdp, periodic_problems(mdp), start)
+    return _checked(mdp, live_problems(mdp), start)
 
 
 def _checked(
