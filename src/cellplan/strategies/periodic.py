@@ -144,7 +144,7 @@ def assemble_periodic(
         branch_layer=np.asarray(layers, np.int64),
         branch_prob=np.asarray(bprob, float),
         live=base.free[vcls].copy(),
-        arrival=float(np.mean(arrival)),
+        arrival=float(np.mean(arrival)),  # a summary: NR's branches hold each phase's
         outcomes=None,
         opt_ptr=None,
         period=T,
