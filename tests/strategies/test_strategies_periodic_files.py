@@ -581,6 +581,43 @@ def test_plot_mode_draws_the_belt_region_where_it_is_at_the_phase(tv_base, tmp_p
     assert s2_0 == s2_4 == [24.0, 24.0]
 
 
+def test_frames_and_gif_draw_the_belt_region_where_it_is_at_each_stage(
+    tv_base, tmp_path, monkeypatch
+):
+    """A run through the phases: each frame and GIF picture draws the workcell with S1
+    moved by its belt's offset at the stage's phase (S2, on no belt, never moves)."""
+    import cellplan.plots
+    from cellplan.strategies.plots import plot_frames, save_animation
+    from cellplan.strategies.simulate import Simulation
+
+    setup, path, _, _ = tv_base
+    strat = Strategy.load(path, setup.scenario)
+    seen: list[tuple[float, float]] = []
+    draw = cellplan.plots.draw_workcell
+
+    def record(ax, cell, highlight=(), labels=True, offsets=None):
+        seen.append((offsets or {}).get("S1", (0.0, 0.0)))
+        assert "S2" not in (offsets or {})
+        draw(ax, cell, highlight, labels, offsets)
+        xs = [p.get_path().vertices[:, 0] for p in ax.patches]
+        assert any(x.min() == pytest.approx(2.0 + seen[-1][0]) for x in xs)  # S1's left edge
+
+    monkeypatch.setattr(cellplan.plots, "draw_workcell", record)
+    layers = [
+        strat.mode_index("NR", 3),
+        strat.mode_index("1,1,1,W", 4),
+        strat.mode_index("1,1,1,W@5"),
+    ]
+    q = np.array([[15.0, 8.0], [12.0, 8.0], [12.0, 6.0]])
+    sim = Simulation(q, np.array(layers), np.zeros(2, np.int64), np.zeros(2))
+    assert sim.segments() == [(0, 1), (1, 2), (2, 2)]  # each drawn at its last stage
+    plot_frames(strat, setup.workcell, sim, tmp_path / "frames")
+    assert seen == [(8.0, 0.0), (10.0, 0.0), (10.0, 0.0)] * 2  # the frames, then the grid
+    seen.clear()
+    save_animation(strat, setup.workcell, sim, tmp_path / "run.gif", max_frames=3)
+    assert seen == [(6.0, 0.0), (8.0, 0.0), (10.0, 0.0)]
+
+
 def test_validate_counts_the_layers_of_the_period(cellplan, tmp_path):
     path = tmp_path / "belt.yaml"
     path.write_text(belt_text())
