@@ -516,8 +516,8 @@ def test_plot_takes_a_phase_and_refuses_a_wrong_one_in_one_line(
     yaml = tmp_path / "belt.yaml"
     yaml.write_text(belt_text())
     out = tmp_path / "w3.png"
-    r = cellplan("plot", str(yaml), "--strategy", str(path), "--mode", "1,1,1,W", "--phase", "3",
-                 "-o", str(out))  # fmt: skip
+    args = ("--strategy", str(path), "--mode", "1,1,1,W", "--phase", "3", "-o", str(out))
+    r = cellplan("plot", str(yaml), *args)
     assert r.returncode == 0, r.stderr
     assert out.stat().st_size > 0
     for args, words in (
