@@ -628,3 +628,12 @@ def test_validate_counts_the_layers_of_the_period(cellplan, tmp_path):
         f"assembly modes: {PER_PHASE} x {PERIOD} phases = {M} layers (Section VI-1: period "
         f"{PERIOD} stages, belt S1)"
     )
+
+
+def test_validate_counts_the_layers_of_the_bundled_conveyor(cellplan):
+    r = cellplan("validate", "strategies_conveyor")
+    assert r.returncode == 0, r.stderr
+    line = next(x for x in r.stdout.splitlines() if "assembly modes:" in x)
+    assert line.strip() == (
+        "assembly modes: 7 x 20 phases = 140 layers (Section VI-1: period 20 stages, belt S1)"
+    )
