@@ -28,6 +28,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from strategies_helpers import TINY
 from test_strategies_fileformat import _write, craft, solved_file
+from test_strategies_pending_files import _SameDigest, refused
 
 from cellplan.api import loads
 from cellplan.errors import PersistenceError
@@ -61,33 +62,8 @@ def tv_base(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def section_v_base(tmp_path_factory):
+    """A solved strategy file of the stationary tiny cell (Section V)."""
     return solved_file("strategies_tiny", tmp_path_factory.mktemp("vbase"))
-
-
-def refused(
-    base: tuple,
-    folder: Path,
-    words: str,
-    arrays_change: Any = None,
-    meta_change: Any = None,
-    scenario: Any = "same",
-) -> str:
-    """The file with ``arrays_change``/``meta_change`` applied is refused with one line
-    naming the file and matching ``words``; returns the line."""
-    setup, _, arrays, meta = base
-    arrays = {k: v.copy() for k, v in arrays.items()}
-    meta = json.loads(json.dumps(meta))
-    if arrays_change is not None:
-        arrays_change(arrays)
-    if meta_change is not None:
-        meta_change(meta)
-    path = _write(folder / "bad.npz", arrays, meta, True)
-    with pytest.raises(PersistenceError, match=words) as caught:
-        Strategy.load(path, setup.scenario if scenario == "same" else scenario)
-    line = str(caught.value)
-    assert len(caught.value.problems) == 1 and "\n" not in line
-    assert line.startswith(str(path)), line
-    return line
 
 
 def centres(strat: Strategy, layer: int, every: int = 1) -> list[np.ndarray]:
@@ -308,19 +284,6 @@ def test_the_same_fmp_shift_at_every_phase_is_a_valid_model(tv_base, tmp_path):
     for layer in range(M):
         for q in centres(strat, layer, 7):
             strat.action(q, layer)
-
-
-class _SameDigest:
-    """A scenario that claims the file's digest (to reach the checks after it)."""
-
-    def __init__(self, scenario: Any, digest: str) -> None:
-        self._scenario, self._digest = scenario, digest
-
-    def digest(self) -> str:
-        return self._digest
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._scenario, name)
 
 
 @pytest.mark.parametrize(
