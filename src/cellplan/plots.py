@@ -9,7 +9,7 @@ atomically.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -222,8 +222,15 @@ def draw_workcell(
     cell: Workcell,
     highlight: Sequence[str] = (),
     labels: bool = True,
+    offsets: Mapping[str, tuple[float, float]] | None = None,
 ) -> None:
-    """Bounds, obstacles, sources and destinations; ``highlight``ed regions are shaded darker."""
+    """Bounds, obstacles, sources and destinations; ``highlight``ed regions are shaded darker.
+
+    ``offsets`` moves regions by ``(dx, dy)``, by name (a region on a conveyor belt).
+    """
+    from shapely import affinity
+
+    offsets = offsets or {}
     xmin, ymin, xmax, ymax = cell.bounds
     ax.add_patch(_rect(xmin, ymin, xmax, ymax))
     for name, geom in cell.obstacle_geometries.items():
@@ -237,6 +244,8 @@ def draw_workcell(
         for name, region in regions.items():
             on = name in highlight
             for geom in region.geometries:
+                if name in offsets:
+                    geom = affinity.translate(geom, *offsets[name])
                 draw_geometry(
                     ax,
                     geom,

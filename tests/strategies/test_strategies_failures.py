@@ -229,12 +229,12 @@ def test_tampered_outcomes_are_named(failure_base, tmp_path, field, index, value
     assert_refused(failure_base, tmp_path, change, words)
 
 
-@pytest.mark.parametrize("version", [1, 2])
+@pytest.mark.parametrize("version", [1, 2, 3])
 def test_an_older_version_is_refused_with_a_line_that_says_so(failure_base, tmp_path, version):
     setup, _, arrays, meta = failure_base
     meta = dict(meta, version=version)
     path = _write(tmp_path / "old.npz", arrays, meta, True)
-    words = rf"version {version} \(an older cellplan\); solve the scenario again to write version 3"
+    words = rf"version {version} \(an older cellplan\); solve the scenario again to write version 4"
     with pytest.raises(PersistenceError, match=words):
         Strategy.load(path, setup.scenario)
 

@@ -132,7 +132,7 @@ def test_the_scenario_has_more_options_than_modes(pending_base):
     assert [mode_of(m).label for m in meta["modes"]] == LABELS
     assert arrays["tf"].shape[0] == OPTIONS
     assert arrays["opt_ptr"].shape == (M + 1,) and arrays["out_ptr"].shape == (OPTIONS + 1,)
-    assert meta["version"] == 3
+    assert meta["version"] == 4
 
 
 def test_a_pending_strategy_round_trips_exactly(pending_base, tmp_path):
@@ -364,7 +364,7 @@ def test_a_section_v_file_with_options_is_refused(section_v_base, tmp_path):
     words = r"opt_ptr: expected one FMP option per mode \(0, 1, ..., M\) in a model without"
     refused(section_v_base, tmp_path, words, _set("opt_ptr", 1, 0))
     line = refused(section_v_base, tmp_path, r"version 2 \(an older", None, _set_version(2))
-    assert line.endswith("solve the scenario again to write version 3")
+    assert line.endswith("solve the scenario again to write version 4")
 
 
 def _set_version(v: int) -> Any:

@@ -248,23 +248,32 @@ def plot_command(
         str,
         typer.Option(
             help="mode: NR, 'p,s,d,W|C' (1-based indices or names), or a label as it prints "
-            "(e.g. '{P1,S1,D1; P2,S2,D1} + <P1,S1,D2>')"
+            "(e.g. '{P1,S1,D1; P2,S2,D1} + <P1,S1,D2>', or '<P1,S1,D1,W>@3' at phase 3 of a "
+            "time-varying strategy)"
         ),
     ] = "NR",
+    phase: Annotated[
+        int | None,
+        typer.Option(
+            help="phase of the period of a time-varying strategy (Section VI-1), 0 to the "
+            "period - 1 (default 0; a stationary strategy has phase 0 only)"
+        ),
+    ] = None,
     output: Annotated[Path, typer.Option("-o", "--output", help="image file")] = Path(
         "strategy.png"
     ),
 ) -> None:
-    """Draw the cost-to-go contours and the optimal actions of one mode (Fig. 8)."""
+    """Draw the cost-to-go contours and the optimal actions of one mode (Fig. 8), at one
+    phase of a time-varying strategy."""
     from cellplan.strategies import plots
 
     _check_suffix(output, (".png", ".svg", ".pdf"), "--output")
     setup = _load(scenario)
     strat = _load_strategy(strategy, setup)
     try:
-        m = strat.mode_index(mode)
-    except CellplanError as exc:  # names the option already
-        raise ArgumentError(str(exc).split(": ", 1)[-1], "--mode") from None
+        m = strat.mode_index(mode, phase)
+    except CellplanError as exc:  # names the option (--mode or --phase) already
+        raise ArgumentError(list(exc.problems)) from None
     cell = setup.workcell
     plots.plot_mode(strat, cell, m, output, fixed=cell.robot.start)
     stdout().print(f"wrote {output}", markup=False)

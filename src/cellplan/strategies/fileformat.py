@@ -11,9 +11,10 @@ that no array reaches a compiled kernel unless every index it holds is in range:
 * sizes: ``d`` axes, ``N`` cells (product of ``grid.shape``), ``M`` modes (``2R + 1``
   for ``R`` requests, plus the X modes of failures; or NR and the Q modes of
   simultaneous requests), ``R`` request types, ``T`` heading slices, ``C = 2 ** d``
-  stencil corners, from the metadata; ``K`` move classes, ``A`` actions per class, ``B``
-  branches, ``O`` FMP options and ``G`` FMP outcomes, from the arrays (``K <= M``,
-  ``A <= 62``, ``M <= B <= M * M``, ``M - 1 <= O, G <= M * M``);
+  stencil corners, ``P`` stages of the period, from the metadata; ``K`` move classes,
+  ``A`` actions per class, ``B`` branches, ``O`` FMP options and ``G`` FMP outcomes, from
+  the arrays (``K <= M``, ``A <= 62``, ``M <= B <= M * M``, ``M - 1 <= O <= M * M``,
+  ``M - P <= G <= M * M``);
 * the grid arrays equal the metadata's grid; the spacing is ``(upper - lower) / shape``;
 * the stencil tables (``offs``, ``fr``, ``coff``, ``cw``, ``interior``) equal the tables
   recomputed from ``disp`` and the grid, so every flat offset a kernel adds stays inside
@@ -25,8 +26,15 @@ that no array reaches a compiled kernel unless every index it holds is in range:
   successors follow the mode order NR, W, C, X; Section VI-2: a pick of a waiting
   request or the delivery of the carried one); the live states are free, the cost-to-go
   is finite on the live states and NaN elsewhere;
+* time-varying models (Section VI-1, :mod:`.periodic`): ``meta.period`` ``P`` divides the
+  ``M`` modes into ``P`` phases of ``M / P`` (the layer of mode ``m`` at phase ``t`` is
+  ``t * M / P + m``); every phase repeats the modes of phase 0, ``meta.phases`` gives each
+  layer's phase (``-1`` in a stationary model, whose period is 1), each branch leads to the
+  next phase, each FMP to its mode's successor at a phase shift that is the same at every
+  phase, and ``meta.belts`` names sources or destinations of the modes, with finite
+  velocities;
 * with a scenario: its digest and its request list (the modes; with simultaneous
-  requests, also ``max_pending``).
+  requests, also ``max_pending``; with a period, also the period and the belts).
 
 Every problem is one :class:`~cellplan.errors.PersistenceError` line naming the file and
 the array or metadata field (the CLI exits 2).
@@ -46,17 +54,18 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from cellplan.arrayfile import ArraySpec, read_arrays
 from cellplan.errors import PersistenceError, Problem
 from cellplan.schema import CELLS_RANGE
-from cellplan.strategies.section import MAX_NOISE_OUTCOMES, MAX_PENDING
+from cellplan.strategies.section import MAX_NOISE_OUTCOMES, MAX_PENDING, MAX_PERIOD
 from cellplan.strategies.stencils import MAX_DIM
 
 if TYPE_CHECKING:
     from cellplan.strategies.model import Mode
 
 FORMAT = "cellplan-strategy"
-VERSION = 3
+VERSION = 4
 """Version 2 (failure modes, Section VI-3) added the FMP outcome arrays and the X modes;
-version 3 (simultaneous requests, Section VI-2) adds the FMP options ``opt_ptr`` (``tf``
-and the outcomes by option) and the Q modes."""
+version 3 (simultaneous requests, Section VI-2) the FMP options ``opt_ptr`` (``tf`` and the
+outcomes by option) and the Q modes; version 4 (time-varying models, Section VI-1) adds
+``meta.period``, ``meta.phases`` and ``meta.belts``."""
 #: Actions per move class: the valid-move bitmask is one int64 per cell.
 MAX_ACTIONS = 62
 #: Most grid cells of a strategy (a product of axes: checked before any size is used).
@@ -87,7 +96,7 @@ class StrategyMeta(_Strict):
     """The metadata string ``meta`` of a strategy file (JSON)."""
 
     format: Literal["cellplan-strategy"]
-    version: Literal[3]
+    version: Literal[4]
     scenario_digest: Annotated[str, Field(max_length=128)]
     scenario_name: Name
     gain: Finite
@@ -117,6 +126,13 @@ class StrategyMeta(_Strict):
     )
     labels: list[list[Name]]
     grid: GridMeta
+    # Time-varying models (Section VI-1): the stages of the period, each mode's phase (-1
+    # in a stationary model), and the velocity [vx, vy] of each region on a belt.
+    period: Annotated[int, Field(ge=1, le=MAX_PERIOD)]
+    phases: list[Annotated[int, Field(ge=-1, lt=MAX_PERIOD)]] = Field(max_length=100_001)
+    belts: dict[Name, Annotated[list[Finite], Field(min_length=2, max_length=2)]] = Field(
+        max_length=1000
+    )
 
 
 #: The arrays of a strategy file, in reading order (an array that first meets a size read
@@ -161,7 +177,7 @@ SIZE_LIMITS: dict[str, tuple[int | str, int | str]] = {
     "A": (1, MAX_ACTIONS * (1 + MAX_NOISE_OUTCOMES)),  # moves, then their noisy landings
     "B": ("M", "M * M"),
     "O": ("M - 1", "M * M"),
-    "G": ("M - 1", "M * M"),
+    "G": ("M - P", "M * M"),  # NR has no FMP at any of the P phases
     "J": (1, MAX_NOISE_OUTCOMES),
 }
 
@@ -191,22 +207,26 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
         if not all(lo < hi for lo, hi in zip(grid.lower, grid.upper, strict=True)):
             raise fail("meta.grid: lower must be below upper on every axis")
         M = len(meta.modes)
-        kinds = [m[0] for m in meta.modes]
-        if kinds[0] == "NR" and M > 1 and set(kinds[1:]) == {"Q"}:
+        first = meta.modes[: _phase_layout(meta, fail)]  # the modes of phase 0
+        kinds = [m[0] for m in first]
+        if kinds[0] == "NR" and len(first) > 1 and set(kinds[1:]) == {"Q"}:
+            if meta.period > 1:
+                raise fail("meta.period: a model of simultaneous requests has period 1")
             found["pending"] = _pending_keys(meta.modes, fail)
             R = len({w for key in found["pending"] for w in key[0]})
         else:
             R = kinds.count("W")
-            X = M - 1 - 2 * R
+            X = len(first) - 1 - 2 * R
             if X < 0 or kinds != ["NR"] + ["W"] * R + ["C"] * R + ["X"] * X:
                 raise fail(
                     "meta.modes: expected NR, then the W modes, then the C modes, then the X "
                     "modes (or NR, then the Q modes of simultaneous requests)"
                 )
-            if any(len(m) != (6 if m[0] == "X" else 4) for m in meta.modes):
+            if any(len(m) != (6 if m[0] == "X" else 4) for m in first):
                 raise fail("meta.modes: X modes have 6 fields, the others 4")
-            if any(m[5] not in ("fetch", "request") for m in meta.modes[1 + 2 * R :]):
+            if any(m[5] not in ("fetch", "request") for m in first[1 + 2 * R :]):
                 raise fail("meta.modes: an X mode must end in 'fetch' or 'request'")
+        _check_belts(meta, first, fail)
         h = meta.heading_axis
         if h >= d or (h >= 0 and (d < 3 or h < 2)):
             raise fail(f"meta.heading_axis: {h} is not an angle axis of a {d}-axis grid")
@@ -222,6 +242,7 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
             N=n_cells,
             M=M,
             R=R,
+            P=meta.period,
             T=grid.shape[h] if h >= 0 else 1,
         )
         for key, (lo, hi) in SIZE_LIMITS.items():
@@ -277,6 +298,52 @@ def _parse_meta(text: str, fail: Any) -> StrategyMeta:
         loc = ".".join(str(p) for p in err["loc"])
         return_msg = " ".join(str(err["msg"]).split())[:160]
         raise fail(f"meta.{loc}: {return_msg}") from None
+
+
+def _phase_layout(meta: StrategyMeta, fail: Any) -> int:
+    """The modes per phase of a (possibly time-varying, Section VI-1) model, checked: the
+    period divides the modes, every phase repeats the modes of phase 0, and each layer's
+    phase is that of the layout ``t * (M / period) + m`` (-1 throughout with period 1)."""
+    T, M = meta.period, len(meta.modes)
+    if len(meta.phases) != M:
+        raise fail(f"meta.phases: {len(meta.phases)} values; expected {M}, one per mode")
+    if M % T:
+        raise fail(
+            f"meta.period: {T} stages do not divide the {M} modes (the modes are the period's "
+            "phases times the modes of one phase)"
+        )
+    per_phase = M // T
+    expected = np.arange(M) // per_phase if T > 1 else np.full(M, -1)
+    wrong = np.flatnonzero(np.asarray(meta.phases) != expected)
+    if len(wrong):
+        i = int(wrong[0])
+        raise fail(
+            f"meta.phases.{i}: {meta.phases[i]}; expected {int(expected[i])} (the layer of "
+            f"mode m at phase t is t * {per_phase} + m{'' if T > 1 else '; -1: no period'})"
+        )
+    for i in range(per_phase, M):
+        if meta.modes[i] != meta.modes[i % per_phase]:
+            raise fail(
+                f"meta.modes.{i}: differs from mode {i % per_phase}, its copy at phase 0 "
+                "(every phase has the modes of phase 0)"
+            )
+    return per_phase
+
+
+def _check_belts(meta: StrategyMeta, modes: list[list[str]], fail: Any) -> None:
+    """The belts of a time-varying model move sources or destinations of its modes."""
+    if meta.belts and meta.period == 1:
+        raise fail("meta.belts: a stationary model (period 1) has no belts")
+    regions = {m[2] for m in modes} | {m[3] for m in modes}
+    travel = (meta.period - 1) * meta.stage_time
+    for name, velocity in meta.belts.items():
+        if not name or name not in regions:
+            raise fail(f"meta.belts.{name[:60]}: not a source or destination of the modes")
+        if not all(math.isfinite(v * travel) for v in velocity):
+            raise fail(
+                f"meta.belts.{name}: a velocity of {max(map(abs, velocity)):g} carries the "
+                "region beyond any finite position within the period"
+            )
 
 
 #: A mode of simultaneous requests (Section VI-2): the waiting requests and the carried
@@ -359,6 +426,15 @@ def _check_consistency(
     sums = np.add.reduceat(a["branch_prob"], ptr[:-1])
     if not np.allclose(sums, 1.0, atol=1e-9):
         raise fail("branch_prob: the branches of a mode do not sum to 1")
+    T = meta.period
+    per_phase = M // T
+    if T > 1:
+        phase = np.repeat(np.arange(M) // per_phase, np.diff(ptr))
+        if (a["branch_layer"] // per_phase != (phase + 1) % T).any():
+            raise fail(
+                "branch_layer: a branch that does not lead to the next phase (every stage "
+                "of a time-varying model advances the phase by one)"
+            )
     R, n_options = sizes["R"], sizes["O"]
     opt = a["opt_ptr"]
     if opt[0] != 0 or opt[-1] != n_options or (np.diff(opt) < 0).any():
@@ -371,11 +447,22 @@ def _check_consistency(
                 "opt_ptr: expected one FMP option per mode (0, 1, ..., M) in a model "
                 "without simultaneous requests"
             )
-        nxt = a["fmp_next"]
+        # Each phase's NR, W and C modes (the X modes' FMP: _check_outcomes).
+        nxt = a["fmp_next"].reshape(T, per_phase)[:, : 1 + 2 * R]
         expected_next = np.concatenate([[-1], np.arange(R) + 1 + R, np.zeros(R, np.int64)])
-        if not np.array_equal(nxt[: 1 + 2 * R], expected_next):
+        if not (
+            (nxt[:, 0] == -1).all()
+            and (nxt[:, 1:] >= 0).all()
+            and (nxt[:, 1:] % per_phase == expected_next[1:]).all()
+        ):
             raise fail("fmp_next: the FMP successors do not follow the mode order")
-        _check_outcomes(a, R, M, fail)
+        shift = (nxt[:, 1:] // per_phase - np.arange(T)[:, None]) % T
+        if (shift != shift[0]).any():
+            raise fail(
+                "fmp_next: the FMP of a mode advances the phase by different stages at "
+                "different phases"
+            )
+        _check_outcomes(a, R, M, per_phase, fail)
     if len(meta.labels) != K:
         raise fail(f"meta.labels: expected {K} lists (one per move class), got {len(meta.labels)}")
     nact = a["nact"]
@@ -414,35 +501,41 @@ def _check_consistency(
         raise fail("values: not finite at a live state")
     if not np.isnan(values[~live]).all():
         raise fail("values: expected NaN off the live states")
-    if not live[0].any():
+    if not live[::per_phase].any():  # NR at every phase
         raise fail("live: no live state in NR")
     del M, N
 
 
-def _check_outcomes(a: dict, R: int, M: int, fail: Any) -> None:
-    """The FMP outcomes follow the model's rules (Section V, and VI-3 for failures)."""
+def _check_outcomes(a: dict, R: int, M: int, per_phase: int, fail: Any) -> None:
+    """The FMP outcomes follow the model's rules (Section V, and VI-3 for failures), at
+    every phase of a time-varying model (Section VI-1: ``per_phase`` modes a phase; the
+    successor's mode is its layer modulo ``per_phase``, at any phase)."""
     ptr, layer, prob, cost = a["out_ptr"], a["out_layer"], a["out_prob"], a["out_cost"]
     G = len(layer)
     counts = np.diff(ptr)
     if ptr[0] != 0 or ptr[-1] != G or (counts < 0).any():
         raise fail("out_ptr: expected 0, non-decreasing, ending at the number of outcomes")
-    if counts[0] != 0 or (counts[1:] < 1).any():
+    nr = np.arange(M) % per_phase == 0
+    if (counts[nr] != 0).any() or (counts[~nr] < 1).any():
         raise fail("out_ptr: NR has no FMP and every other mode has at least one outcome")
     if not np.isfinite(cost).all():
         raise fail("out_cost: not finite")
-    sums = np.add.reduceat(prob, ptr[1:-1])
+    starts = ptr[:-1][~nr]  # NR's outcomes are empty: these split the outcomes by mode
+    sums = np.add.reduceat(prob, starts)
     if not np.allclose(sums, 1.0, atol=1e-9):
         raise fail("out_prob: the FMP outcomes of a mode do not sum to 1")
-    if not np.array_equal(layer[ptr[1:-1]], a["fmp_next"][1:]):
+    if not np.array_equal(layer[starts], a["fmp_next"][~nr]):
         raise fail("out_layer: the first outcome of a mode's FMP is not its fmp_next")
-    for m in range(1, M):
-        rest = layer[ptr[m] + 1 : ptr[m + 1]]
-        if m <= 2 * R:
-            ok = ((rest == m) | (rest > 2 * R)).all()  # retry in place, or reject (X)
+    base = layer % per_phase
+    for ell in np.flatnonzero(~nr):
+        m = ell % per_phase
+        if m <= 2 * R:  # retry in place, or reject (X)
+            rest = base[ptr[ell] + 1 : ptr[ell + 1]]
+            ok = ((rest == m) | (rest > 2 * R)).all()
         else:
-            ok = ((layer[ptr[m] : ptr[m + 1]] >= 1) & (layer[ptr[m] : ptr[m + 1]] <= R)).all()
+            ok = ((base[ptr[ell] : ptr[ell + 1]] >= 1) & (base[ptr[ell] : ptr[ell + 1]] <= R)).all()
         if not ok:
-            raise fail(f"out_layer: mode {m} has an FMP outcome the model cannot produce")
+            raise fail(f"out_layer: mode {ell} has an FMP outcome the model cannot produce")
 
 
 def _check_options(meta: StrategyMeta, a: dict, keys: list[PendingKey], fail: Any) -> None:
@@ -521,12 +614,25 @@ def _check_scenario(
     if pending is not None or section.simultaneous():
         _check_pending_scenario(meta, requests, section.max_pending, fail)
         return
+    T = section.period
+    if meta.period != T:
+        raise fail(
+            f"meta.period: {meta.period} stages, the scenario's period is {T}; solve this "
+            "scenario again"
+        )
+    belts = {name: [float(v) for v in b.velocity] for name, b in section.belts.items()}
+    if meta.belts != belts:
+        raise fail(
+            f"meta.belts: {sorted(meta.belts)[:5]} differ from the scenario's belts "
+            f"{sorted(belts)[:5]} or their velocities; solve this scenario again"
+        )
     expected = [("NR", "", "", "")]
     expected += [("W", p, s, d) for p, s, d, _ in requests]
     expected += [("C", p, s, d) for p, s, d, _ in requests]
-    if [tuple(m) for m in meta.modes if m[0] != "X"] != expected:
+    first = meta.modes[: len(meta.modes) // T]
+    if [tuple(m) for m in first if m[0] != "X"] != expected:
         raise fail(
-            f"meta.modes: {len(meta.modes)} modes, the scenario's requests give "
+            f"meta.modes: {len(first)} modes, the scenario's requests give "
             f"{len(expected)}; solve this scenario again"
         )
 

@@ -1144,6 +1144,11 @@ def action_sets(
     return empty, carrying
 
 
+#: SuperLU's fill of a time-varying model's recurrent class, per place of the policy's
+#: matrix and per cell on the grid's longest axis (:func:`estimate_memory`).
+PERIODIC_FILL = 0.25
+
+
 @dataclass(frozen=True)
 class MemoryEstimate:
     """Bytes a solve will hold at its peak, from the arrays it allocates (count x dtype).
@@ -1214,7 +1219,18 @@ def estimate_memory(
       while the next is assembled; plus the SuperLU factors of the recurrent class
       (12 bytes per entry; up to ``2 Z`` entries: 1.2 ``Z`` measured on problem 1).
       Measured against ``tracemalloc`` (which does not see SuperLU's own allocations) on
-      problem 1: 15.0 MB against 15.4 MB at 50 x 50, 60.1 against 62.5 at 100 x 100.
+      problem 1: 15.0 MB against 15.4 MB at 50 x 50, 60.1 against 62.5 at 100 x 100;
+    * a time-varying model (Section VI-1, :mod:`.periodic`) has the layers of every phase
+      of its period ``P``: ``M`` and ``O`` are ``P`` times those of one phase (the move
+      classes are shared) and so are the places ``Z``; the building step adds the phase-0
+      model, one phase's fields, a moved region's test and four bool ``(M, N)`` of the
+      live-state pass over the phases; ``auto`` solves it by policy iteration, whose
+      recurrent class is then a ring of layers through the phases: SuperLU's fill grows
+      with the grid, bounded by :data:`PERIODIC_FILL` places per cell of the longest axis
+      (measured 0.03 to 0.23 on the tiny cell with a belt, periods 6 to 20, 24 x 24 to
+      80 x 80, and on ``strategies_conveyor``); tracemalloc's peak over the estimate:
+      0.51 at 40 x 40 and 0.28 at 60 x 60 on ``strategies_conveyor``, 0.52 to 1.10 on the
+      tiny cell.
 
     The test ``test_memory_estimate_matches_measured_allocations`` compares it with the
     peak measured by ``tracemalloc``.
@@ -1240,24 +1256,40 @@ def estimate_memory(
         M = sum(mode_counts(R, sec.max_pending))
         n_opt = option_count(R, sec.max_pending)
         K = min(M, 2 ** min(S, 20) + PS)  # a class per set of sources, per (part, source)
+    # A time-varying model (Section VI-1): the layers of every phase, classes shared.
+    P = sec.period if sec.time_varying() else 1
+    per_phase = M
+    M, n_opt = P * M, P * n_opt
     empty, carrying = action_sets(sec, robot, parts)
     A = max([empty.disp.shape[0], *(a.disp.shape[0] for a in carrying.values())])
     heading = empty.heading_axis
     T = shape[heading] if heading >= 0 else 1
+    bitmaps = 1 + S + 2 * PS + PD
+    places = P * policy_places(requests, sec, N, d)
+    # SuperLU's factors of the recurrent class: about 1.2 places on a stationary model (2
+    # counted); over a period the class is a ring of layers and its fill grows with the
+    # grid, measured up to PERIODIC_FILL * (cells on the longest axis) places.
+    lu_fill = places * (2 if P == 1 else max(2.0, PERIODIC_FILL * max(shape)))
+    building = N * (bitmaps + 8 * (PS + PD) + 8 * (2 * d + 3) + 2 * K + 8 * (d + 1))
+    if P > 1:
+        # The phase-0 model (its tf float64, live bool (M0, N)), the phases' fields (the
+        # model's tf, counted there), one phase's fields and a moved region's test
+        # (float64 (M0, N) and the posed bodies, float64 (N, 4 d)), and the live-state
+        # pass over the phases (four bool (M, N): candidates, FMP cells, the pass and
+        # the model's copy).
+        building += N * (9 * per_phase + 8 * per_phase + 32 * d + 4 * M)
     terms = {
         "model": N * (8 * n_opt + M + K + K + 8 * K),
-        "building": max(
-            N * ((1 + S + 2 * PS + PD) + 8 * (PS + PD) + 8 * (2 * d + 3) + 2 * K + 8 * (d + 1)),
-            N * (1 + S + 2 * PS + PD) + _bitmap_peak(cell, shape, parts),
-        ),
+        "building": max(building, N * bitmaps + _bitmap_peak(cell, shape, parts)),
         "solver": N * (18 * M + 16 * (A + 1) + 8 * M + 24 * M + 16 * M + M + 8 * M + 24 * M),
         "tables": K * A * T * (16 * d + 16 * 2**d),
-        "policy": 100 * M * N + (33 + 44 + 24) * policy_places(requests, sec, N, d),
+        "policy": 100 * M * N + (33 + 44) * places + 12 * lu_fill,
     }
     chosen = sec.solver.method if method is None else method
     # auto picks policy iteration for the Section VI models (solver.solve).
     policy = chosen == "policy" or (
-        chosen == "auto" and bool(sec.failures or sec.noise or sec.simultaneous())
+        chosen == "auto"
+        and bool(sec.failures or sec.noise or sec.simultaneous() or sec.time_varying())
     )
     return MemoryEstimate(N, M, K, A, terms, "policy" if policy else "structured")
 

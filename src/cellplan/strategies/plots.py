@@ -7,6 +7,7 @@ matplotlib is imported lazily through :mod:`cellplan.plots`.
 from __future__ import annotations
 
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +58,10 @@ def plot_mode(
     """Fig. 8 for one mode: level sets of the cost-to-go and the optimal actions.
 
     For 3-D C-spaces both panels show the slice through ``fixed`` (default: the middle) on
-    the remaining axes.
+    the remaining axes. In a time-varying model (Section VI-1) ``mode`` is a layer (a mode
+    at a phase): the titles give the phase, and where the plotted axes are the workcell's
+    x and y both panels outline the sources and destinations where they lie at that phase
+    (a region on a conveyor belt moved by :func:`~.periodic.region_offset`).
     """
     mdp = strategy.mdp
     fig, axes = base.new_figure(ncols=2, size=5.0)
@@ -74,7 +78,7 @@ def plot_mode(
         cs = ax.contourf(X, Y, masked, levels=24, cmap="viridis")
         ax.contour(X, Y, masked, levels=24, colors="white", linewidths=0.3)
         fig.colorbar(cs, ax=ax, shrink=0.8, label="relative cost-to-go (stages)")
-    label = mdp.modes[mode].label
+    label = layer_title(strategy, mode)
     where = "" if not rest else f" (slice at cells {rest} of the other axes)"
     ax.set_title(wrap_title(f"cost-to-go, mode {label}{where}", 60), fontsize=9)
     ax.set_xlabel(xl + (" (deg)" if angular else ""))
@@ -147,7 +151,63 @@ def plot_mode(
     ax2.set_xlabel(xl + (" (deg)" if angular else ""))
     ax2.set_ylabel(yl + (" (deg)" if angular else ""))
     ax2.set_aspect("equal" if not angular else "auto")
+    if mdp.period > 1 and tuple(cell.robot.axis_names[:2]) == ("x", "y"):
+        for panel in (ax, ax2):
+            draw_regions_at(panel, strategy, cell, mode)
     return base.save_figure(fig, path)
+
+
+def layer_title(strategy: Strategy, layer: int) -> str:
+    """How a title names a layer: its mode's label, and in a time-varying model (Section
+    VI-1) its phase of the period."""
+    mdp = strategy.mdp
+    mode = mdp.modes[layer]
+    if mdp.period == 1:
+        return mode.label
+    return f"{replace(mode, phase=-1).label}, phase {mode.phase} of {mdp.period}"
+
+
+def region_offsets(strategy: Strategy, layer: int) -> dict[str, tuple[float, float]]:
+    """Where each region on a belt lies at ``layer``'s phase (Section VI-1): its offset
+    from the scenario position, by name (empty in a stationary model)."""
+    from cellplan.strategies.periodic import region_offset
+
+    offsets = {}
+    for name in strategy.mdp.belts:
+        offset = region_offset(strategy.mdp, name, layer)
+        if offset is not None:
+            offsets[name] = offset
+    return offsets
+
+
+def draw_regions_at(ax: Any, strategy: Strategy, cell: Any, layer: int) -> None:
+    """Outline every source and destination where it lies at ``layer``'s phase (a region
+    on a conveyor belt moves, Section VI-1); each outline's ``gid`` is the region's name."""
+    from shapely import affinity
+
+    offsets = region_offsets(strategy, layer)
+    for regions, color in (
+        (cell.sources, base.COLORS["source"]),
+        (cell.destinations, base.COLORS["destination"]),
+    ):
+        for name, region in regions.items():
+            dx, dy = offsets.get(name, (0.0, 0.0))
+            for geom in region.geometries:
+                moved = affinity.translate(geom, dx, dy)
+                base.draw_geometry(
+                    ax, moved, facecolor="none", edgecolor=color, lw=1.5, gid=name, zorder=3
+                )
+                p = moved.representative_point()
+                ax.annotate(
+                    name,
+                    (p.x, p.y),
+                    ha="center",
+                    va="center",
+                    fontsize=7,
+                    color=color,
+                    parse_math=False,
+                    zorder=4,
+                )
 
 
 def mode_regions(mode: Any) -> list[str]:
@@ -182,7 +242,9 @@ def _frame(
 ) -> None:
     mode = strategy.mdp.modes[int(sim.modes[first])]
     highlight = mode_regions(mode)
-    base.draw_workcell(ax, cell, highlight=highlight, labels=False)
+    # A region on a belt (Section VI-1) is drawn where it is when the segment ends.
+    offsets = region_offsets(strategy, int(sim.modes[last]))
+    base.draw_workcell(ax, cell, highlight=highlight, labels=False, offsets=offsets)
     carrying = carried_part(mode)
     tool = cell.robot.tool_pose(sim.q[first : last + 1])[:, :2]
     ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.2)
@@ -270,7 +332,8 @@ def save_animation(
         ax = axes[0, 0]
         mode = strategy.mdp.modes[int(sim.modes[k])]
         highlight = mode_regions(mode)
-        base.draw_workcell(ax, cell, highlight=highlight, labels=False)
+        offsets = region_offsets(strategy, int(sim.modes[k]))
+        base.draw_workcell(ax, cell, highlight=highlight, labels=False, offsets=offsets)
         tool = cell.robot.tool_pose(sim.q[max(0, k - 30) : k + 1])[:, :2]
         ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.0)
         base.draw_robot(ax, cell, sim.q[k], carried_part(mode))

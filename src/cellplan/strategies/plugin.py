@@ -68,6 +68,8 @@ def describe(setup: Setup) -> Mapping[str, str]:
         )
     if "Q" in kinds:
         modes = pending_line(len(mdp.request_prob), sc.strategy.max_pending, mdp)
+    if mdp.period > 1:
+        modes = periodic_line(mdp)
     failing = int(sum(np.diff(mdp.fmp_outcomes().ptr) > 1))
     lines = {"assembly modes": modes}
     if failing:
@@ -98,6 +100,17 @@ def pending_line(R: int, k: int, mdp: LayeredMDP) -> str:
     return (
         f"{mdp.n_modes:,} (Section VI-2: up to {k} open requests of {R} types: {empty:,} "
         f"empty + {carrying:,} carrying; max_pending {each}); states: {int(mdp.live.sum()):,}"
+    )
+
+
+def periodic_line(mdp: LayeredMDP) -> str:
+    """The layers of a time-varying model (Section VI-1): the modes of one phase times the
+    phases of the period, and the regions on belts."""
+    belts = sorted(mdp.belts)
+    moving = f"belt{'s' if len(belts) > 1 else ''} {', '.join(belts)}" if belts else "no belts"
+    return (
+        f"{mdp.modes_per_phase:,} x {mdp.period} phases = {mdp.n_modes:,} layers (Section "
+        f"VI-1: period {mdp.period} stages, {moving})"
     )
 
 
