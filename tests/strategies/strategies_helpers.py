@@ -83,3 +83,20 @@ def assert_validate_names(cellplan, tmp_path, text: str, expected: str) -> None:
     lines = [line for line in r.stderr.splitlines() if line.strip()]
     assert any(line.startswith("error: " + expected) for line in lines), lines
     assert "Traceback" not in r.stderr
+
+
+def lu_entries(monkeypatch) -> list[int]:
+    """Record the entries of every sparse LU that policy iteration factorises (SuperLU's
+    own count: its factors live in C memory, which tracemalloc does not see)."""
+    from cellplan.strategies import policy_iteration
+
+    seen: list[int] = []
+    real = policy_iteration.splu
+
+    def spy(matrix, *args, **kwargs):
+        lu = real(matrix, *args, **kwargs)
+        seen.append(int(lu.nnz))
+        return lu
+
+    monkeypatch.setattr(policy_iteration, "splu", spy)
+    return seen

@@ -14,7 +14,7 @@ import tracemalloc
 from pathlib import Path
 
 import pytest
-from strategies_helpers import tiny
+from strategies_helpers import lu_entries, tiny
 
 import cellplan
 from cellplan import api, budget
@@ -151,7 +151,7 @@ def test_summarize_reports_each_check_before_it_runs():
     assert "assembly modes" in lines
 
 
-def test_the_memory_estimate_counts_every_phase_of_a_time_varying_model():
+def test_the_memory_estimate_counts_every_phase_of_a_time_varying_model(monkeypatch):
     """Section VI-1: the layers of every phase of the period, solved by policy iteration
     (whose LU fill grows with the grid over a period), against tracemalloc's peak."""
     from test_strategies_periodic_files import PER_PHASE, PERIOD, belt_text
@@ -162,6 +162,7 @@ def test_the_memory_estimate_counts_every_phase_of_a_time_varying_model():
     sc = loads_scenario(belt_text(cells=40))
     cell = Workcell.from_scenario(sc)
     solve_scenario(sc, cell)  # compile and warm caches first
+    factors = lu_entries(monkeypatch)
     gc.collect()
     tracemalloc.start()
     try:
@@ -174,5 +175,8 @@ def test_the_memory_estimate_counts_every_phase_of_a_time_varying_model():
     assert est.modes == strategy.mdp.n_modes == PERIOD * PER_PHASE and est.method == "policy"
     stationary = estimate_memory(*tiny(cells=40), method="policy")
     assert est.terms["policy"] >= PERIOD * stationary.terms["policy"]
-    # An upper bound on the fill of the LU factors (0.52 measured here), not a loose one.
-    assert 0.4 <= peak / est.total <= 1.35, (peak, dict(est.terms))
+    # tracemalloc sees the arrays, not SuperLU's factors: those are checked on their own,
+    # against a bound fitted on other models (PERIODIC_FILL), so it may be loose here.
+    assert 0.4 <= peak / (est.total - est.terms["factors"]) <= 1.35, (peak, dict(est.terms))
+    assert 12 * max(factors) <= est.terms["factors"]
+    assert peak + 12 * max(factors) <= est.total

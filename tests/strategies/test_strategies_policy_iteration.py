@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from strategies_helpers import TINY, tiny
+from strategies_helpers import TINY, lu_entries, tiny
 from test_strategies_solver import sparse_rvi
 
 import cellplan
@@ -208,7 +208,7 @@ def tiny8():
     return build_model(sc, cell)
 
 
-def test_memory_estimate_bounds_policy_iterations_allocations():
+def test_memory_estimate_bounds_policy_iterations_allocations(monkeypatch):
     import gc
     import tracemalloc
 
@@ -217,6 +217,7 @@ def test_memory_estimate_bounds_policy_iterations_allocations():
     sc, cell = tiny(cells=48)
     mdp = build_model(sc, cell)
     solve_policy_iteration(mdp)  # compile and warm caches first
+    factors = lu_entries(monkeypatch)
     gc.collect()
     tracemalloc.start()
     try:
@@ -229,7 +230,9 @@ def test_memory_estimate_bounds_policy_iterations_allocations():
     assert est.method == "policy" and estimate_memory(sc, cell).method == "structured"
     # An upper bound (every cell counted live, every row at its mode's room), not a loose one.
     assert 1.0 <= est.terms["policy"] / peak <= 3.0, (peak, dict(est.terms))
-    assert est.total >= est.terms["model"] + est.terms["policy"]
+    assert 12 * max(factors) <= est.terms["factors"] <= 12 * 4 * max(factors)
+    assert peak + 12 * max(factors) <= est.total
+    assert est.total >= est.terms["model"] + est.terms["policy"] + est.terms["factors"]
 
 
 def test_cli_solves_by_policy_iteration_and_refuses_structured_on_failures(

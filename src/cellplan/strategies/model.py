@@ -1144,9 +1144,14 @@ def action_sets(
     return empty, carrying
 
 
-#: SuperLU's fill of a time-varying model's recurrent class, per place of the policy's
-#: matrix and per cell on the grid's longest axis (:func:`estimate_memory`).
-PERIODIC_FILL = 0.25
+#: SuperLU's factors of policy iteration's recurrent class, in entries (its own count,
+#: ``SuperLU.nnz``), per place of the policy's matrix on a stationary model: at most 2.9
+#: measured on the 8 models it was fitted on, 1.5 on 5 held out (:func:`estimate_memory`).
+STATIONARY_FILL = 4
+#: The same on a time-varying model, per ``(layers x cells)^(4/3)`` (the fill of a 3-D
+#: grid: the grid and the ring of phases): at most 3.05 measured on the 9 tiny-cell
+#: models it was fitted on, 2.0 on 7 held out, ``strategies_conveyor`` among them.
+PERIODIC_FILL = 4.0
 
 
 @dataclass(frozen=True)
@@ -1156,7 +1161,7 @@ class MemoryEstimate:
     ``terms`` names each group of arrays with its bytes; ``total`` is the model's arrays
     plus the larger of the building step's and the solver's working arrays (they are not
     alive together): ``solver`` for the structured and general solvers, ``policy`` for
-    policy iteration (``method``).
+    policy iteration (``method``), with ``factors``, the sparse LU factors it keeps.
     """
 
     cells: int
@@ -1170,7 +1175,7 @@ class MemoryEstimate:
     @property
     def total(self) -> int:
         t = self.terms
-        solver = t["policy"] if self.method == "policy" else t["solver"]
+        solver = t["policy"] + t["factors"] if self.method == "policy" else t["solver"]
         return t["model"] + t["tables"] + max(t["building"], solver)
 
 
@@ -1216,21 +1221,18 @@ def estimate_memory(
       (state list, row starts, counts, cost, index pointers), 33 per place (its row and
       position, column, value, mask), and per stored entry (at most ``Z``) 44 bytes: the
       packed CSR (float64 + int32), its int64 and int32 copies, and the last matrix, alive
-      while the next is assembled; plus the SuperLU factors of the recurrent class
-      (12 bytes per entry; up to ``2 Z`` entries: 1.2 ``Z`` measured on problem 1).
-      Measured against ``tracemalloc`` (which does not see SuperLU's own allocations) on
-      problem 1: 15.0 MB against 15.4 MB at 50 x 50, 60.1 against 62.5 at 100 x 100;
+      while the next is assembled; plus, as the term ``factors``, the SuperLU factors of
+      the recurrent class (12 bytes per entry; :data:`STATIONARY_FILL` ``Z`` entries).
+      ``tracemalloc`` does not see SuperLU's own allocations: the tests compare its peak
+      with the other terms and SuperLU's count of its entries with ``factors``;
     * a time-varying model (Section VI-1, :mod:`.periodic`) has the layers of every phase
       of its period ``P``: ``M`` and ``O`` are ``P`` times those of one phase (the move
       classes are shared) and so are the places ``Z``; the building step adds the phase-0
       model, one phase's fields, a moved region's test and four bool ``(M, N)`` of the
       live-state pass over the phases; ``auto`` solves it by policy iteration, whose
-      recurrent class is then a ring of layers through the phases: SuperLU's fill grows
-      with the grid, bounded by :data:`PERIODIC_FILL` places per cell of the longest axis
-      (measured 0.03 to 0.23 on the tiny cell with a belt, periods 6 to 20, 24 x 24 to
-      80 x 80, and on ``strategies_conveyor``); tracemalloc's peak over the estimate:
-      0.51 at 40 x 40 and 0.28 at 60 x 60 on ``strategies_conveyor``, 0.52 to 1.10 on the
-      tiny cell.
+      recurrent class is then a ring of layers through the phases, a 3-D grid, whose
+      SuperLU fill grows as its size to the 4/3: at most :data:`PERIODIC_FILL`
+      ``(M N)^(4/3)`` entries.
 
     The test ``test_memory_estimate_matches_measured_allocations`` compares it with the
     peak measured by ``tracemalloc``.
@@ -1266,10 +1268,12 @@ def estimate_memory(
     T = shape[heading] if heading >= 0 else 1
     bitmaps = 1 + S + 2 * PS + PD
     places = P * policy_places(requests, sec, N, d)
-    # SuperLU's factors of the recurrent class: about 1.2 places on a stationary model (2
-    # counted); over a period the class is a ring of layers and its fill grows with the
-    # grid, measured up to PERIODIC_FILL * (cells on the longest axis) places.
-    lu_fill = places * (2 if P == 1 else max(2.0, PERIODIC_FILL * max(shape)))
+    # SuperLU's factors of the recurrent class: a few entries per place on a stationary
+    # model (STATIONARY_FILL); over a period the class is a ring of layers, a 3-D grid
+    # whose fill grows as its size to the 4/3 (PERIODIC_FILL).
+    lu_fill = STATIONARY_FILL * places
+    if P > 1:
+        lu_fill = max(lu_fill, int(PERIODIC_FILL * float(M * N) ** (4 / 3)))
     building = N * (bitmaps + 8 * (PS + PD) + 8 * (2 * d + 3) + 2 * K + 8 * (d + 1))
     if P > 1:
         # The phase-0 model (its tf float64, live bool (M0, N)), the phases' fields (the
@@ -1283,7 +1287,9 @@ def estimate_memory(
         "building": max(building, N * bitmaps + _bitmap_peak(cell, shape, parts)),
         "solver": N * (18 * M + 16 * (A + 1) + 8 * M + 24 * M + 16 * M + M + 8 * M + 24 * M),
         "tables": K * A * T * (16 * d + 16 * 2**d),
-        "policy": 100 * M * N + (33 + 44) * places + 12 * lu_fill,
+        "policy": 100 * M * N + (33 + 44) * places,
+        # SuperLU's factors (C memory, which tracemalloc does not see): 12 bytes an entry.
+        "factors": 12 * lu_fill,
     }
     chosen = sec.solver.method if method is None else method
     # auto picks policy iteration for the Section VI models (solver.solve).

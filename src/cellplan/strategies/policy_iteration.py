@@ -581,7 +581,8 @@ def evaluate(
         vals = np.concatenate([-sub.data[off], np.ones(size - 1), np.ones(size)])
         lu = splu(sp.csc_matrix((vals, (rows, cols)), shape=(size, size)))
         x = lu.solve(cost[members])
-        memo.update(key=key, x=x, fill=int(lu.L.nnz + lu.U.nnz))
+        # SuperLU's own count: reading lu.L and lu.U would copy the factors.
+        memo.update(key=key, x=x, fill=int(lu.nnz))
     x = memo["x"].copy()
     g = float(x[0])
     x[0] = 0.0
@@ -596,7 +597,7 @@ def evaluate(
         rest = cost[idx] - g + P[idx] @ h  # h is still 0 on the component itself
         lub = splu((sp.identity(len(idx), format="csc") - P[idx][:, idx]).tocsc())
         h[idx] = lub.solve(rest)
-        fill = max(fill, int(lub.L.nnz + lub.U.nnz))
+        fill = max(fill, int(lub.nnz))
         first = k + 1
     return g, h, fill
 
