@@ -947,8 +947,6 @@ def build_model(
             drop[(p, d)] = in_region(d, p)
             tf_drop[(p, d)] = tf_of(d)
     geometry = Geometry(free_nr, free_w, free_c, pick, drop, tf_pick, tf_drop)
-    if sec.time_varying():
-        return _periodic_model(scenario, cell, grid, requests, geometry, start)
     if sec.simultaneous():
         from cellplan.strategies.bundles import Grid as KernelGrid
         from cellplan.strategies.pending import assemble_pending, pending_problems
@@ -1017,6 +1015,8 @@ def build_model(
         source_change=src,
         failures=failures,
     )
+    if sec.time_varying():  # the checks refuse failures and changes with it
+        mdp = _periodic_model(scenario, cell, grid, requests, geometry, mdp)
     return _checked(mdp, live_problems(mdp), start)
 
 
@@ -1026,28 +1026,15 @@ def _periodic_model(
     grid: Any,
     requests: list[tuple[str, str, str, float]],
     geometry: Geometry,
-    start: Sequence[float] | np.ndarray | None,
+    base: LayeredMDP,
 ) -> LayeredMDP:
     """The time-varying model of a scenario (Section VI-1, :mod:`.periodic`): the Section
-    V model on ``geometry`` at phase 0, and the pick and delivery regions at every phase."""
+    V model ``base`` on ``geometry`` (phase 0), and the pick and delivery regions at every
+    phase."""
     from cellplan.strategies.periodic import assemble_periodic, belt_offset
 
     sec = scenario.strategy
     T = sec.period
-    parts = sorted({p for p, *_ in requests})
-    empty, carrying = action_sets(sec, robot=cell.robot, parts=parts)
-    base = assemble(
-        shape=grid.shape,
-        lower=grid.lower,
-        upper=grid.upper,
-        periodic=grid.periodic,
-        requests=requests,
-        geometry=geometry,
-        actions_empty=empty,
-        actions_carrying=carrying,
-        stage_time=sec.stage_time,
-        arrival=sec.arrival.per_stage(sec.stage_time),
-    )
     velocity = {name: (float(b.velocity[0]), float(b.velocity[1])) for name, b in sec.belts.items()}
     pts = grid.points()
     kind = sec.regions
@@ -1074,14 +1061,13 @@ def _periodic_model(
         return int(np.floor(float(spec.time) / sec.stage_time + 0.5))  # half up
 
     fmp_stages = [0] + [stages(s) for _, s, _, _ in requests] + [stages(d) for *_, d, _ in requests]
-    mdp = assemble_periodic(
+    return assemble_periodic(
         base,
         fields=fields,
         arrival=sec.arrival_by_phase(),
         fmp_stages=fmp_stages,
         belts=velocity,
     )
-    return _checked(mdp, live_problems(mdp), start)
 
 
 def _checked(

@@ -439,6 +439,15 @@ class StrategySection(StrictModel):
             problems.extend(self._check_changes(scenario, "source"))
         return problems
 
+    @staticmethod
+    def _not_combined(model: str, given: dict[str, bool]) -> list[Problem]:
+        """One line per key given (True) that is not built together with ``model`` yet."""
+        return [
+            Problem(f"strategy.{key}", f"cannot be combined with {model} yet")
+            for key, on in given.items()
+            if on
+        ]
+
     def _check_pending(self, scenario: Scenario) -> list[Problem]:
         """One line per mistake in ``max_pending`` and ``urgency`` (Section VI-2)."""
         problems = []
@@ -447,19 +456,14 @@ class StrategySection(StrictModel):
                 problems.append(Problem(f"strategy.urgency.{part}", "unknown part"))
         if not self.simultaneous():
             return problems
-        for key, given in (
-            ("failures", bool(self.failures)),
-            ("destination_change", self.destination_change is not None),
-            ("source_change", self.source_change is not None),
-        ):
-            if given:
-                problems.append(
-                    Problem(
-                        f"strategy.{key}",
-                        "cannot be combined with simultaneous requests (max_pending or "
-                        "urgency) yet",
-                    )
-                )
+        problems += self._not_combined(
+            "simultaneous requests (max_pending or urgency)",
+            {
+                "failures": bool(self.failures),
+                "destination_change": self.destination_change is not None,
+                "source_change": self.source_change is not None,
+            },
+        )
         if scenario.parts and scenario.sources and scenario.destinations and not problems:
             R = len(self.request_list(scenario))
             M = sum(mode_counts(R, self.max_pending))
@@ -486,21 +490,16 @@ class StrategySection(StrictModel):
                     "belts and arrival_profile need a period of at least 2 stages",
                 )
             )
-        for key, given in (
-            ("failures", bool(self.failures)),
-            ("noise", self.noise is not None),
-            ("max_pending", self.simultaneous()),
-            ("destination_change", self.destination_change is not None),
-            ("source_change", self.source_change is not None),
-        ):
-            if given:
-                problems.append(
-                    Problem(
-                        f"strategy.{key}",
-                        "cannot be combined with a time-varying model (period, belts, "
-                        "arrival_profile) yet",
-                    )
-                )
+        problems += self._not_combined(
+            "a time-varying model (period, belts, arrival_profile)",
+            {
+                "failures": bool(self.failures),
+                "noise": self.noise is not None,
+                "max_pending": self.simultaneous(),
+                "destination_change": self.destination_change is not None,
+                "source_change": self.source_change is not None,
+            },
+        )
         for where, spec in [("fine_motion", self.fine_motion)] + [
             (f"fine_motion_regions.{r}", f) for r, f in self.fine_motion_regions.items()
         ]:
