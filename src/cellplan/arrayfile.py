@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import ast
 import operator
+import tokenize
 import zipfile
 import zlib
 from collections.abc import Callable, Mapping, MutableMapping
@@ -169,6 +170,10 @@ def read_arrays(
                 ValueError,
                 RuntimeError,
                 NotImplementedError,
+                # numpy tokenizes a .npy header before it parses it: an unbalanced bracket
+                # (one flipped bit) raises these, not ValueError.
+                tokenize.TokenError,
+                SyntaxError,
             ) as exc:
                 raise fail(name, f"unreadable ({_short(exc)})") from None
             if name == (first[-1] if first else None) and after_first is not None:

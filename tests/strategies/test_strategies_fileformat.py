@@ -279,6 +279,27 @@ def test_a_pickle_is_never_loaded(base, tmp_path):
         Strategy.load(path, setup.scenario)
 
 
+def test_a_member_header_that_does_not_tokenize_is_named(base, tmp_path):
+    # A flipped bit that unbalances a bracket in a member's .npy header made numpy's header
+    # tokenizer raise tokenize.TokenError, which reached the user as exit 70 (found by the
+    # slow crafted-file run). The header here is written by hand, its dict left open.
+    setup, _, arrays, meta = base
+    path = tmp_path / "open.npz"
+    with open(path, "wb") as fh:
+        np.savez(fh, meta=np.array(json.dumps(meta)), **arrays)
+    with zipfile.ZipFile(path) as src:
+        members = {i.filename: src.read(i) for i in src.infolist()}
+    raw = bytearray(members["values.npy"])
+    end = raw.index(b"}")
+    raw[end] = ord(" ")  # "{'descr': ... 'shape': (M, N), " and no closing brace
+    members["values.npy"] = bytes(raw)
+    with zipfile.ZipFile(path, "w") as dst:
+        for name, data in members.items():
+            dst.writestr(name, data)
+    with pytest.raises(PersistenceError, match="values: unreadable"):
+        Strategy.load(path, setup.scenario)
+
+
 @pytest.mark.parametrize(
     ("field", "value", "words"),
     [
