@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import io
 import json
+import zipfile
 
 import numpy as np
 import pytest
@@ -95,6 +97,34 @@ def test_inconsistent_trajectories_are_refused(change):
     fields.update(change)
     with pytest.raises(ValueError, match="invalid trajectory"):
         Trajectory(**fields)
+
+
+def _broken_npz(kind: str) -> bytes:
+    """A trajectory .npz written by numpy, then broken: ``truncated`` (cut in half) or
+    ``header`` (the header member's .npy header left without its closing brace)."""
+    buffer = io.BytesIO()
+    np.savez(buffer, header=np.array("{}"), t=np.arange(3.0))
+    raw = buffer.getvalue()
+    if kind == "truncated":
+        return raw[: len(raw) // 2]
+    out = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(raw)) as src, zipfile.ZipFile(out, "w") as dst:
+        for info in src.infolist():
+            data = bytearray(src.read(info))
+            if info.filename == "header.npy":  # read first
+                data[data.index(b"}")] = ord(" ")
+            dst.writestr(info.filename, bytes(data))
+    return out.getvalue()
+
+
+@pytest.mark.parametrize("kind", ["truncated", "header"])
+def test_broken_npz_files_give_one_line(tmp_path, kind):
+    path = tmp_path / "a.npz"
+    path.write_bytes(_broken_npz(kind))
+    with pytest.raises(PersistenceError) as err:
+        Trajectory.load(path)
+    assert len(err.value.problems) == 1
+    assert err.value.problems[0].field == str(path)
 
 
 @pytest.mark.parametrize(

@@ -22,6 +22,9 @@ from __future__ import annotations
 import csv
 import io
 import json
+import tokenize
+import zipfile
+import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -301,7 +304,20 @@ class Trajectory:
                     )
         except PersistenceError:
             raise
-        except (OSError, ValueError, KeyError, TypeError, IndexError, UnicodeDecodeError) as exc:
+        except (
+            OSError,
+            ValueError,
+            KeyError,
+            TypeError,
+            IndexError,
+            UnicodeDecodeError,
+            EOFError,
+            zipfile.BadZipFile,
+            zlib.error,
+            NotImplementedError,  # a zip member's foreign compression method
+            tokenize.TokenError,  # a .npy header numpy cannot tokenize (an open bracket)
+            SyntaxError,
+        ) as exc:
             msg = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
             raise PersistenceError([Problem(where, f"not a readable trajectory: {msg}")]) from None
         raise PersistenceError([Problem(where, "expected a .csv, .json or .npz trajectory")])
