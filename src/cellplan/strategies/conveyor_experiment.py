@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, decide_interval
+from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
 
 PROBLEM = "strategies_conveyor"
 CELLS = "40,40"
@@ -99,20 +99,15 @@ def _paired_claim(
     rows: list[dict[str, Scalar]], key: str, claim: str, paper: str, what: str
 ) -> Claim:
     """The optimal value of ``key`` is below the reactive one's, paired by seed."""
-    from cellplan.strategies.experiments import _ci
+    from cellplan.strategies.experiments import column, reduction_claim
 
-    opt = np.array([float(r[f"optimal_{key}"]) for r in rows])
-    base = np.array([float(r[f"reactive_{key}"]) for r in rows])
-    d = 100.0 * (base - opt) / base
-    m, h = _ci(d)
-    n = len(d)
-    return Claim(
+    return reduction_claim(
+        column(rows, f"optimal_{key}"),
+        column(rows, f"reactive_{key}"),
         claim=claim,
         paper=paper,
-        ours=f"{m:.1f}% ± {h:.1f}% {what} than the reactive robot",
-        reproduced=decide_interval(m - h, m + h, n, above=0.0),
+        ours=f"{what} than the reactive robot",
         detail=f"{key.replace('_', ' ')} of each run, paired by seed",
-        n=n,
         rule="95% interval of the mean reduction against reactive above 0 (at least 5 seeds)",
         explanation=EXPLANATION,
     )
@@ -121,17 +116,16 @@ def _paired_claim(
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     """Per-policy table with 95% intervals, a figure, three claims."""
     from cellplan import plots as base
-    from cellplan.strategies.experiments import _ci
+    from cellplan.strategies.experiments import _ci, ci_text, column
     from cellplan.strategies.failure_experiment import agreement_claim
 
     outdir = Path(outdir)
 
     def col(key: str) -> np.ndarray:
-        return np.array([float(r[key]) for r in rows])
+        return column(rows, key)
 
     def ci(key: str, fmt: str = ".3f") -> str:
-        m, h = _ci(col(key))
-        return f"{m:{fmt}} ± {h:{fmt}}" if np.isfinite(h) else f"{m:{fmt}}"
+        return ci_text(col(key), fmt)
 
     n = len(rows)
     gain = float(rows[0]["gain"])
