@@ -542,6 +542,28 @@ def test_plot_mode_draws_the_belt_region_where_it_is_at_the_phase(tv_base, tmp_p
     assert len(s1_0) == len(s1_4) == 2 and s1_0 == [2.0, 2.0]  # S1 spans x 2 to 6
     assert s1_4 == pytest.approx([2.0 + 4 * VELOCITY[0]] * 2)
     assert s2_0 == s2_4 == [24.0, 24.0]
+    assert _outline_x(figures[-1], "belt:S1") == [2.0, 2.0]  # the belt's track, each panel
+
+
+def test_the_belt_track_spans_the_region_over_the_period(tv_base, section_v_base):
+    """The track drawn for S1 runs from where a part comes in (x 2 to 6) to where the last
+    phase leaves it, the region moved by (PERIOD - 1) stages of its belt."""
+    from cellplan.plots import new_figure
+    from cellplan.strategies.plots import draw_belts
+
+    setup, path, _, _ = tv_base
+    strat = Strategy.load(path, setup.scenario)
+    _, axes = new_figure()
+    draw_belts(axes[0, 0], strat, setup.workcell)
+    (track,) = [p for p in axes[0, 0].patches if p.get_gid() == "belt:S1"]
+    xs, ys = track.get_path().vertices.T
+    assert xs.min() == pytest.approx(2.0)
+    assert xs.max() == pytest.approx(6.0 + (PERIOD - 1) * VELOCITY[0])
+    assert (ys.min(), ys.max()) == pytest.approx((2.0, 5.0))
+    stationary = Strategy.load(section_v_base[1])
+    _, axes = new_figure()
+    draw_belts(axes[0, 0], stationary, setup.workcell)
+    assert not axes[0, 0].patches  # nothing without a belt
 
 
 def test_frames_and_gif_draw_the_belt_region_where_it_is_at_each_stage(

@@ -153,6 +153,7 @@ def plot_mode(
     ax2.set_aspect("equal" if not angular else "auto")
     if mdp.period > 1 and tuple(cell.robot.axis_names[:2]) == ("x", "y"):
         for panel in (ax, ax2):
+            draw_belts(panel, strategy, cell, filled=False)
             draw_regions_at(panel, strategy, cell, mode)
     return base.save_figure(fig, path)
 
@@ -178,6 +179,47 @@ def region_offsets(strategy: Strategy, layer: int) -> dict[str, tuple[float, flo
         if offset is not None:
             offsets[name] = offset
     return offsets
+
+
+BELT_COLOR = "#d9d2c3"
+"""Fill of a conveyor belt's track (Section VI-1): paler than every region and obstacle."""
+BELT_EDGE = "#8a7f6a"
+"""Outline of a belt's track over a plot of values, and the arrow of its motion."""
+
+
+def draw_belts(ax: Any, strategy: Strategy, cell: Any, filled: bool = True) -> None:
+    """Draw the track of every region on a conveyor belt (Section VI-1): the band its
+    region sweeps over the period, from where a part comes in to where the last phase
+    leaves it, with an arrow along the belt's motion; shaded under the workcell
+    (``filled``), or outlined above a plot of values. Nothing in a stationary model.
+    Each band's ``gid`` is ``belt:<region>``."""
+    from shapely import affinity
+    from shapely.ops import unary_union
+
+    from cellplan.strategies.periodic import belt_offset
+
+    mdp = strategy.mdp
+    for name, velocity in mdp.belts.items():
+        region = cell.region(name)
+        end = belt_offset(velocity, mdp.period - 1, mdp.stage_time)
+        for geom in region.geometries:
+            track = unary_union([geom, affinity.translate(geom, *end)]).convex_hull
+            # Under the workcell's regions, or above the values' contours.
+            zorder = 0.5 if filled else 2.5
+            style: dict[str, Any] = (
+                {"facecolor": BELT_COLOR, "edgecolor": "none"}
+                if filled
+                else {"facecolor": "none", "edgecolor": BELT_EDGE, "ls": "--"}
+            )
+            base.draw_geometry(ax, track, gid=f"belt:{name}", zorder=zorder, **style)
+            start = geom.centroid
+            ax.annotate(
+                "",
+                xy=(start.x + end[0], start.y + end[1]),
+                xytext=(start.x, start.y),
+                arrowprops={"arrowstyle": "->", "color": BELT_EDGE, "lw": 1.0},
+                zorder=zorder + 0.1,
+            )
 
 
 def draw_regions_at(ax: Any, strategy: Strategy, cell: Any, layer: int) -> None:
@@ -245,6 +287,7 @@ def _frame(
     # A region on a belt (Section VI-1) is drawn where it is when the segment ends.
     offsets = region_offsets(strategy, int(sim.modes[last]))
     base.draw_workcell(ax, cell, highlight=highlight, labels=False, offsets=offsets)
+    draw_belts(ax, strategy, cell)
     carrying = carried_part(mode)
     tool = cell.robot.tool_pose(sim.q[first : last + 1])[:, :2]
     ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.2)
@@ -334,6 +377,7 @@ def save_animation(
         highlight = mode_regions(mode)
         offsets = region_offsets(strategy, int(sim.modes[k]))
         base.draw_workcell(ax, cell, highlight=highlight, labels=False, offsets=offsets)
+        draw_belts(ax, strategy, cell)
         tool = cell.robot.tool_pose(sim.q[max(0, k - 30) : k + 1])[:, :2]
         ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.0)
         base.draw_robot(ax, cell, sim.q[k], carried_part(mode))
