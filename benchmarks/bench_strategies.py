@@ -43,6 +43,7 @@ import scipy.sparse as sp
 from numba import njit
 
 from cellplan.errors import CellplanError
+from cellplan.strategies import sweeps
 from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
 from cellplan.strategies.model import LayeredMDP, build_model
 from cellplan.strategies.solver import solve
@@ -462,6 +463,8 @@ def _best_ms(fn: Any) -> float:
 
 def _layer_kernels(mdp: LayeredMDP, m: int, h: np.ndarray, pol: np.ndarray, g: float) -> str:
     model = mdp.kernel_args()
+    if hasattr(sweeps, "with_dense"):  # as the solver sweeps it (trees from 2026-11-24 on)
+        model = sweeps.with_dense(model)
     D = np.zeros_like(h)
     nchg = np.zeros(1, np.int64)
     t_sweep = _best_ms(lambda: sweep_policy(m, 1, h, D, g, False, True, pol, 1, nchg, 1e-9, model))

@@ -73,6 +73,10 @@ class Layers(NamedTuple):
     out_layer: np.ndarray  # (G,) int64 mode after FMP in each outcome
     out_prob: np.ndarray  # (G,) its probability (1 - failure rate, failure rate, ...)
     out_cost: np.ndarray  # (G,) extra loss of the outcome (rework time), added to t_f
+    # (M, N) int64, or (0, 0) when not computed: bit a of [m, c] marks a collision-free
+    # move from a live interior cell that lands on live corners of the same layer only;
+    # the solver skips the corner tests there (:func:`.sweeps.dense_cells`).
+    dense: np.ndarray
 
 
 class Model(NamedTuple):

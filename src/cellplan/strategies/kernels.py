@@ -9,6 +9,7 @@
 | :mod:`.domain` | live states (the states that can finish their request) |
 | :mod:`.sweeps` | Gauss-Seidel sweeps and policy iteration per layer |
 | :mod:`.evaluation` | exact evaluation of a layer's policy (Tarjan order) |
+| :mod:`.improvement` | one Jacobi policy-improvement step, vectorised over cells |
 | :mod:`.coldstart` | a first policy by Dijkstra's algorithm |
 | :mod:`.bellman` | the Jacobi Bellman operator over every state (certificate) |
 | :mod:`.points` | equation (9) at a real state: online query, executor lookahead |
@@ -21,11 +22,13 @@ from __future__ import annotations
 
 from cellplan.strategies.bellman import bellman_all, bellman_rows
 from cellplan.strategies.domain import live_layer
+from cellplan.strategies.improvement import improve_layer
 from cellplan.strategies.interpolation import interp, supported
 from cellplan.strategies.motion import motion_ok, valid_moves
 from cellplan.strategies.points import action_values_at, lookahead, query
 from cellplan.strategies.stencils import decode, displacement, stencil, table_stencil, wrap
 from cellplan.strategies.sweeps import (
+    dense_cells,
     layer_iteration,
     other_branches,
     solve_self,
@@ -39,7 +42,9 @@ __all__ = [
     "bellman_all",
     "bellman_rows",
     "decode",
+    "dense_cells",
     "displacement",
+    "improve_layer",
     "interp",
     "layer_iteration",
     "live_layer",

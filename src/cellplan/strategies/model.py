@@ -220,6 +220,7 @@ class LayeredMDP:
             out_layer=out.layer,
             out_prob=out.prob,
             out_cost=out.cost,
+            dense=np.zeros((0, 0), np.int64),
         )
         return Model(self.grid(), moves, layers)
 

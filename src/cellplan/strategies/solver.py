@@ -68,6 +68,18 @@ FIRST_ACCURACY = 1e-2
 # again is wasted (P6 at 64^3: 18 -> 11.3 s).
 EARLY_SWEEPS = 5
 EARLY_SHAPE = 1e4
+# Once the NR shape changes by less than FINAL_SHAPE * tol per pass, the C and W layers of
+# a model without source or destination changes are solved to the final inner accuracy:
+# policy iteration reaches it for the price of one more improvement step, and exact
+# layers let the next certificate attempt succeed (problem 1 at 200 x 200: 5 -> 4 passes).
+# Layers coupled by changes are solved by Gauss-Seidel, for which that costs sweeps.
+FINAL_SHAPE = 1e3
+# The certificate is tried with every layer moved along the Newton step on g once the NR
+# shape changes by less than ATTEMPT_SHAPE * tol, and the drift is below tol, or below
+# NEWTON_DRIFT * tol with the layers solved to NEWTON_ACCURACY * tol.
+ATTEMPT_SHAPE = 0.5
+NEWTON_DRIFT = 1e3
+NEWTON_ACCURACY = 0.1
 # Passes mixed by the Anderson acceleration of the NR shape.
 ANDERSON_DEPTH = 4
 # Warm passes start each layer with an exact evaluation of last pass's policy.
@@ -289,7 +301,7 @@ class _Layers:
 
     def __init__(self, mdp: LayeredMDP, max_sweeps: int, workers: Workers) -> None:
         self.mdp = mdp
-        self.model = mdp.kernel_args()
+        self.model = sweeps.with_dense(mdp.kernel_args())
         self.max_sweeps = max_sweeps
         self.workers = workers
         live = mdp.live
@@ -372,7 +384,7 @@ class _Layers:
 
             def solve_one(m: int, warm_start: bool = warm is not None) -> tuple[int, int]:
                 return sweeps.layer_iteration(
-                    m, self.h, self.D, g, accuracy, cap, self.pol,
+                    m, self.h, self.D, g, accuracy, cap, self.max_sweeps, self.pol,
                     EVAL_FIRST and warm_start, self.cold_dijkstra, self.model,
                 )  # fmt: skip
 
@@ -453,6 +465,7 @@ class _Layers:
             branch_ptr=np.array([0, n_groups + 1], np.int64),
             branch_layer=np.arange(n_groups + 1, dtype=np.int64),
             branch_prob=np.concatenate([[self.p_self], self.group_prob]),
+            dense=np.zeros((0, 0), np.int64),
         )
         self.merged = self.model._replace(layers=layers)
         self.hg = np.zeros(live.shape)
@@ -621,8 +634,9 @@ def solve_structured(
             # Normalise NR at the reference state; C and W keep their raw values (they were
             # solved against prev_term) and are shifted only at the end.
             shift = float(h[0, ref])
+            d_shift = float(D[0, ref])
             h[0][lnr] -= shift
-            D[0][lnr] -= D[0, ref]
+            D[0][lnr] -= d_shift
             if progress is not None:
                 progress(run.sweeps, shape_span, g)
             log.debug(
@@ -637,28 +651,51 @@ def solve_structured(
             ):
                 break
             # The certificate's span is about the larger of the drift and the NR shape change
-            # (the drift shows up as the inconsistency at the FMP into NR): try it once both
-            # are within the tolerance; a failed attempt costs one Jacobi sweep.
-            if not capped and outer > 1 and abs(drift) < tol and shape_span < tol * 0.5:
+            # (the drift shows up as the inconsistency at the FMP into NR) and the inner
+            # accuracy. The Newton step on g is exact while no action changes, so the
+            # certificate is tried with every layer moved along it: once the shape change is
+            # within the tolerance, and either the drift is too, or it is small and the
+            # layers were solved exactly (policy iteration makes that cheap). A failed
+            # attempt costs one Jacobi sweep.
+            newton = -drift / deriv if deriv < 0 else 0.0
+            if (
+                not capped
+                and outer > 1
+                and shape_span < ATTEMPT_SHAPE * tol
+                and (
+                    abs(drift) < tol
+                    or (abs(drift) < NEWTON_DRIFT * tol and accuracy <= NEWTON_ACCURACY * tol)
+                )
+            ):
+                # Every layer moved to g + newton along its policy (h + newton D, exact
+                # while no action changes), C and W shifted as NR was normalised.
                 trial = h.copy()
+                trial[0][lnr] += newton * D[0][lnr]
                 for m in run.order:
-                    trial[m][live[m]] -= shift
+                    lm = live[m]
+                    trial[m][lm] += newton * (D[m][lm] - d_shift) - shift
                 cert = _certify(mdp, trial, workers)
-                log.debug("certificate at pass %d: span %.3e", outer, cert[1] - cert[0])
+                log.debug(
+                    "certificate at pass %d: span %.3e (g step %.3e)",
+                    outer, cert[1] - cert[0], newton,
+                )  # fmt: skip
                 if cert[1] - cert[0] < tol:
                     h[:] = trial
                     shift = 0.0
+                    g = g + newton
                     break
                 cert = None
             # Inner accuracy follows the outer progress: early passes need not be exact.
-            accuracy = (
-                min(FIRST_ACCURACY, max(inner_tol, ACCURACY_FACTOR * min(abs(drift), shape_span)))
-                if outer > 1
-                else FIRST_ACCURACY
-            )
+            if outer == 1:
+                accuracy = FIRST_ACCURACY
+            elif shape_span < FINAL_SHAPE * tol and not run.coupled:
+                accuracy = inner_tol
+            else:
+                accuracy = min(
+                    FIRST_ACCURACY, max(inner_tol, ACCURACY_FACTOR * min(abs(drift), shape_span))
+                )
             g_prev = g
-            step = -drift / deriv if deriv < 0 else 0.0
-            g = min(max(g + step, 0.0), mdp.stage_time)
+            g = min(max(g + newton, 0.0), mdp.stage_time)
             if extrapolate and outer > 1:
                 mixer.push(old[lnr] - old[ref], h[0][lnr].copy(), D[0][lnr].copy(), g_prev)
                 new_x = mixer.mix(g)
