@@ -421,7 +421,10 @@ def layer_iteration(
     an exact evaluation of the recorded policy once a full sweep changes the minimiser in
     at most :data:`SETTLED_FRACTION` of the cells; stops when a *full* sweep changes the
     values by less than ``accuracy``, or after ``cap`` sweeps and evaluations (an inexact
-    solve) once every live state has a finite value, or after ``limit``. A solve started
+    solve) once every live state has a finite value, or after ``limit``. After each exact
+    evaluation of a single-branch layer, a Jacobi residual check
+    (:func:`cellplan.strategies.improvement.improve_layer`, vectorised) ends the solve when
+    no state can improve by ``accuracy``, without the confirming sweep. A solve started
     from ``+inf`` is never stopped by ``cap`` with live states unreached: a later pass
     would start from them, and an infinite value has no place in the outer iteration's
     arithmetic; it goes on until every live state is reached or ``2^d`` sweeps in a row
@@ -439,10 +442,10 @@ def layer_iteration(
     flip = 0
     left = nlive  # live states still at +inf (counted only past the cap)
     stuck = 0  # sweeps past the cap in a row that reached no new state
-    confirm = warm and improvable(m, model)
+    check = improvable(m, model)
     evaluated = False  # h[m] is the exact value of pol[m]
     # Warm start: the recorded policy is last pass's and nearly right, so evaluate it first
-    # and let one full sweep confirm (saves a full sweep per layer and pass).
+    # and let the residual check (or one full sweep) confirm it.
     evaluate_first = warm
     if not warm and dijkstra:
         evaluate_first = dijkstra_layer(m, h, g, pol, model) > 0
@@ -455,15 +458,14 @@ def layer_iteration(
                 break
         if evaluate_first:
             evaluate_first = False
-        elif confirm and evaluated and unreached(h[m], cells) == 0:
-            # Last pass's policy, evaluated: its values are exact, so the Bellman residual
-            # of every state (one Jacobi improvement step, vectorised: improvement.py)
-            # tells whether the layer is already solved, at a fraction of a sweep's cost.
-            # If not, Gauss-Seidel sweeps take over: they carry improvements across the
-            # layer in one sweep, where policy iteration moves a change of action by
-            # about one cell per step on a fine grid.
-            residual, _ = improve_layer(m, h, g, pol, accuracy, model)
-            confirm = False
+        elif check and evaluated and unreached(h[m], cells) == 0:
+            # Just evaluated: the values are exact for the policy, so the Bellman residual
+            # of every state (one Jacobi improvement step, vectorised: improvement.py,
+            # here changing no action) tells whether the layer is solved, at a quarter of
+            # a sweep's cost. If not, the Gauss-Seidel sweeps go on as before: they carry
+            # improvements across the layer in one sweep, where policy iteration moves a
+            # change of action by about one cell per step on a fine grid.
+            residual, _ = improve_layer(m, h, g, pol, np.inf, model)
             evaluated = False
             if residual < accuracy:
                 full += 1
