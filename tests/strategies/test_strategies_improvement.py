@@ -182,7 +182,7 @@ def test_a_capped_cold_solve_leaves_no_live_state_unreached(mdp, g, dense):
     pol = np.full(h.shape, -3, np.int16)
     for m in (mdp.c_layer(0), mdp.w_layer(0)):
         h[m][mdp.live[m]] = np.inf
-        layer_iteration(m, h, D, g, 1e-2, 1, 100_000, pol, False, False, model)
+        layer_iteration(m, h, D, g, 1e-2, 1, 100_000, pol, False, True, False, model)
         assert np.all(np.isfinite(h[m][mdp.live[m]]))
 
 
@@ -228,7 +228,7 @@ def test_a_capped_cold_solve_of_a_long_corridor_goes_past_the_cap():
     h[m][mdp.live[m]] = np.inf
     D = np.zeros_like(h)
     pol = np.full(h.shape, -3, np.int16)
-    full, _ = layer_iteration(m, h, D, 0.5, 1e-2, 1, 100_000, pol, False, False, model)
+    full, _ = layer_iteration(m, h, D, 0.5, 1e-2, 1, 100_000, pol, False, True, False, model)
     assert full > 1  # one sweep did not reach the far end
     # Every cell of the corridor: (steps to the drop cell + 1) x (1 - g), the FMP there
     # costing t_f - g = 1 - g with NR at zero; steps by breadth-first search.

@@ -78,6 +78,7 @@ EARLY_SHAPE = 1e4
 # shape changes by less than ATTEMPT_SHAPE * tol, and the drift is below tol, or below
 # NEWTON_DRIFT * tol with the layers solved to NEWTON_ACCURACY * tol.
 ATTEMPT_SHAPE = 0.5
+EXACT_UNCAPPED = True
 NEWTON_DRIFT = 1e3
 NEWTON_ACCURACY = 0.1
 # Passes mixed by the Anderson acceleration of the NR shape.
@@ -385,7 +386,8 @@ class _Layers:
             def solve_one(m: int, warm_start: bool = warm is not None) -> tuple[int, int]:
                 return sweeps.layer_iteration(
                     m, self.h, self.D, g, accuracy, cap, self.max_sweeps, self.pol,
-                    EVAL_FIRST and warm_start, self.cold_dijkstra, self.model,
+                    EVAL_FIRST and warm_start, cap >= self.max_sweeps, self.cold_dijkstra,
+                    self.model,
                 )  # fmt: skip
 
             counts = self.workers.map(solve_one, reps)
@@ -688,7 +690,7 @@ def solve_structured(
             # Inner accuracy follows the outer progress: early passes need not be exact.
             if outer == 1:
                 accuracy = FIRST_ACCURACY
-            elif shape_span <= EARLY_SHAPE * tol and not run.coupled:
+            elif EXACT_UNCAPPED and shape_span <= EARLY_SHAPE * tol and not run.coupled:
                 accuracy = inner_tol
             else:
                 accuracy = min(

@@ -413,7 +413,7 @@ def unreached(hm, cells):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def layer_iteration(
-    m, h, D, g, accuracy, cap, limit, pol, warm, dijkstra, model
+    m, h, D, g, accuracy, cap, limit, pol, warm, check, dijkstra, model
 ):  # pragma: no cover - numba
     """Policy iteration on one C or W layer; returns (full sweeps, exact evaluations).
 
@@ -424,7 +424,9 @@ def layer_iteration(
     solve) once every live state has a finite value, or after ``limit``. After each exact
     evaluation of a single-branch layer, a Jacobi residual check
     (:func:`cellplan.strategies.improvement.improve_layer`, vectorised) ends the solve when
-    no state can improve by ``accuracy``, without the confirming sweep. A solve started
+    no state can improve by ``accuracy``, without the confirming sweep (with ``check``: the
+    solver asks for it on uncapped passes, where layers converge; on capped ones they stop
+    at the cap, and a failed check costs half a sweep in 3-D). A solve started
     from ``+inf`` is never stopped by ``cap`` with live states unreached: a later pass
     would start from them, and an infinite value has no place in the outer iteration's
     arithmetic; it goes on until every live state is reached or ``2^d`` sweeps in a row
@@ -442,7 +444,7 @@ def layer_iteration(
     flip = 0
     left = nlive  # live states still at +inf (counted only past the cap)
     stuck = 0  # sweeps past the cap in a row that reached no new state
-    check = improvable(m, model)
+    check = check and improvable(m, model)
     evaluated = False  # h[m] is the exact value of pol[m]
     # Warm start: the recorded policy is last pass's and nearly right, so evaluate it first
     # and let the residual check (or one full sweep) confirm it.
