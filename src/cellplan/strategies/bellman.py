@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cellplan.strategies.improvement import RUN
 from cellplan.strategies.noisy import noisy_move_value
 from cellplan.strategies.stencils import EPS_W, decode, fmp_code, table_stencil
 
@@ -246,3 +247,169 @@ def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no
 def bellman_all(h, out, policy, gap, subset, model):  # pragma: no cover - numba
     """:func:`bellman_rows` over every state, in the calling thread."""
     bellman_rows(h, out, policy, gap, subset, 0, h.shape[0] * h.shape[1], model)
+
+
+@njit(cache=True, nogil=True)
+def bellman_dense(m, h, out, policy, gap, subset, model):  # pragma: no cover - numba
+    """:func:`bellman_rows` over layer ``m``, the moves of its dense cells vectorised.
+
+    For a layer :func:`cellplan.strategies.improvement.improvable` accepts (one branch
+    into itself, world-frame moves, ``Layers.dense`` filled) and without noisy motion.
+    Cells are taken in runs; FMP and stay first, then the moves in their order, each move
+    over the whole run at once for the cells whose corners are all live (the loop
+    :mod:`cellplan.strategies.improvement` uses) and one cell at a time for the others, so
+    every state sees its actions in the order of :func:`bellman_rows`, with the same sums
+    and the same tie rule: the same values, actions and gaps bit for bit.
+    """
+    moves = model.moves
+    lay = model.layers
+    live = lay.live
+    livem = live[m]
+    hm = h[m]
+    N = hm.shape[0]
+    d = model.grid.shape.shape[0]
+    ncorner = 1 << d
+    kcls = lay.vcls[m]
+    na = moves.nact[kcls]
+    valid = moves.valid[kcls]
+    interior = moves.interior[kcls]
+    dense = lay.dense[m]
+    nxt = lay.fmp_next[m]
+    opt0 = lay.opt_ptr[m]
+    opt1 = lay.opt_ptr[m + 1]
+    cost = lay.cost[m]
+    some = subset.shape[0] > 0
+    nk = np.zeros(na, np.int64)
+    wts = np.zeros((na, ncorner))
+    offs = np.zeros((na, ncorner), np.int64)
+    wsum = np.zeros(na)
+    lo = np.zeros(na, np.int64)
+    hi = np.full(na, N, np.int64)
+    for a in range(na):
+        for jj in range(ncorner):
+            wj = moves.cw[kcls, a, 0, jj]
+            if wj <= EPS_W:
+                break
+            o = moves.coff[kcls, a, 0, jj]
+            wts[a, jj] = wj
+            offs[a, jj] = o
+            wsum[a] += wj
+            lo[a] = max(lo[a], -o)
+            hi[a] = min(hi[a], N - o)
+            nk[a] += 1
+    best = np.empty(RUN)
+    second = np.empty(RUN)
+    arg = np.empty(RUN, np.int64)
+    acc = np.empty(RUN)
+    other = np.empty(RUN, np.int64)  # live cells of the run with moves off the dense path
+    mi = np.empty(d, np.int64)
+    idx = np.empty(ncorner, np.int64)
+    w = np.empty(ncorner)
+    for c0 in range(0, N, RUN):
+        c1 = min(N, c0 + RUN)
+        n_other = 0
+        for c in range(c0, c1):
+            i = c - c0
+            b = np.inf
+            s = np.inf
+            ar = -3
+            if livem[c]:
+                if nxt >= 0:
+                    for opt in range(opt0, opt1):
+                        if lay.tf[opt, c] < np.inf:
+                            v = fmp_value(opt, c, lay.tf[opt, c], h, live, lay)
+                            if v < b and (b == np.inf or v < b - 1e-12 * abs(b)):
+                                s = b
+                                b = v
+                                ar = fmp_code(opt - opt0)
+                            elif v < s:
+                                s = v
+                v = cost + 1.0 * hm[c]
+                if v < b and (b == np.inf or v < b - 1e-12 * abs(b)):
+                    s = b
+                    b = v
+                    ar = -1
+                elif v < s:
+                    s = v
+                if (valid[c] & ~dense[c]) != 0:
+                    other[n_other] = c
+                    n_other += 1
+            best[i] = b
+            second[i] = s
+            arg[i] = ar
+        for a in range(na):
+            bit = np.int64(1) << a
+            s0 = max(c0, lo[a])
+            s1 = min(c1, hi[a])
+            n = s1 - s0
+            if n > 0 and nk[a] > 0:
+                o = offs[a, 0]
+                hv = hm[s0 + o : s0 + o + n]
+                wj = wts[a, 0]
+                for i in range(n):
+                    acc[i] = wj * hv[i]
+                for jj in range(1, nk[a]):
+                    o = offs[a, jj]
+                    hv = hm[s0 + o : s0 + o + n]
+                    wj = wts[a, jj]
+                    for i in range(n):
+                        acc[i] += wj * hv[i]
+                ws = wsum[a]
+                bl = best[s0 - c0 : s1 - c0]
+                sl = second[s0 - c0 : s1 - c0]
+                al = arg[s0 - c0 : s1 - c0]
+                dl = dense[s0:s1]
+                for i in range(n):
+                    v = cost + acc[i] / ws
+                    use = (dl[i] & bit) != 0
+                    bb = bl[i]
+                    better = use & (v < bb) & ((bb == np.inf) | (v < bb - 1e-12 * abs(bb)))
+                    lower = use & (v < sl[i])
+                    sl[i] = bb if better else (v if lower else sl[i])
+                    bl[i] = v if better else bb
+                    al[i] = a if better else al[i]
+            for k in range(n_other):
+                c = other[k]
+                if (valid[c] & bit) == 0 or (dense[c] & bit) != 0:
+                    continue
+                if interior[c]:
+                    nc = nk[a]
+                    for j in range(nc):
+                        idx[j] = c + offs[a, j]
+                        w[j] = wts[a, j]
+                else:
+                    decode(c, model.grid.shape, mi)
+                    nc = table_stencil(
+                        kcls, a, mi, moves.offs, moves.fr, -1, model.grid.shape,
+                        model.grid.periodic, idx, w,
+                    )  # fmt: skip
+                ssum = 0.0
+                vsum = 0.0
+                for j in range(nc):
+                    wj = w[j]
+                    if wj > EPS_W and livem[idx[j]]:
+                        ssum += wj
+                        vsum += wj * hm[idx[j]]
+                if ssum <= EPS_W:
+                    continue
+                v = cost + vsum / ssum
+                i = c - c0
+                bb = best[i]
+                if v < bb and (bb == np.inf or v < bb - 1e-12 * abs(bb)):
+                    second[i] = bb
+                    best[i] = v
+                    arg[i] = a
+                elif v < second[i]:
+                    second[i] = v
+        for c in range(c0, c1):
+            if not livem[c]:
+                out[m, c] = np.nan
+                policy[m, c] = -3
+                gap[m, c] = np.nan
+                continue
+            if some and not subset[m, c]:
+                continue
+            i = c - c0
+            out[m, c] = best[i]
+            policy[m, c] = arg[i]
+            gap[m, c] = second[i] - best[i]

@@ -38,8 +38,9 @@ RUN = 2048
 @njit(cache=True)
 def improvable(m, model):  # pragma: no cover - numba
     """Layer ``m`` has one branch, into itself with probability one (a C or W layer of a
-    model without mode changes), its moves are in the world frame (no heading axis), and
-    the dense cells are known (``Layers.dense`` filled)."""
+    model without mode changes), its moves are in the world frame (no heading axis) and
+    land where commanded (no noise), and the dense cells are known (``Layers.dense``
+    filled)."""
     lay = model.layers
     b0 = lay.branch_ptr[m]
     b1 = lay.branch_ptr[m + 1]
@@ -48,6 +49,7 @@ def improvable(m, model):  # pragma: no cover - numba
         and lay.branch_layer[b0] == m
         and lay.branch_prob[b0] == 1.0
         and model.moves.heading_axis < 0
+        and model.moves.noise_prob.shape[0] <= 1
         and lay.dense.shape[0] > 0
     )
 

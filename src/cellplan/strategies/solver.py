@@ -51,6 +51,7 @@ from cellplan.core import Status
 from cellplan.strategies import bellman as bellman_kernels
 from cellplan.strategies import sweeps
 from cellplan.strategies.bundles import Model
+from cellplan.strategies.improvement import improvable
 from cellplan.strategies.model import LayeredMDP
 from cellplan.strategies.section import SolverMethod
 from cellplan.strategies.threads import Workers, workers_for
@@ -160,38 +161,61 @@ def bellman(
     h: np.ndarray,
     subset: np.ndarray | None = None,
     workers: Workers | None = None,
+    model: Model | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(T h, policy, gap)``: one Jacobi sweep of equation (9) over every state (no ``g``).
 
     ``gap`` is the second-best action value minus the best, per state. With ``subset``
     (boolean, like ``h``) only those states are swept; the outputs elsewhere are NaN / -3.
-    ``workers`` runs ranges of states in parallel threads.
+    ``workers`` runs ranges of states in parallel threads. ``model``: the kernel bundle
+    (default ``mdp.kernel_args()``); with ``Layers.dense`` filled, as the structured solver
+    has it, the layers :func:`.improvement.improvable` accepts are swept by
+    :func:`.bellman.bellman_dense` (the same results, the moves vectorised).
     """
     out = np.full_like(h, np.nan)
     policy = np.full(h.shape, -3, np.int64)
     gap = np.full_like(h, np.nan)
     mask = np.zeros((0, 0), np.bool_) if subset is None else subset
-    model = mdp.kernel_args()
+    model = mdp.kernel_args() if model is None else model
     pool = Workers(1) if workers is None else workers
+    M, N = h.shape
+    # (A subset is cheaper state by state: the stability check's is a quarter of them.)
+    dense = [m for m in range(M) if subset is None and improvable(m, model)]
+    # Tasks: a dense layer whole, the other layers in ranges of states.
+    tasks: list[tuple[int, int, int]] = [(m, 0, 0) for m in dense]
+    for m in sorted(set(range(M)) - set(dense)):
+        tasks += [(-1, m * N + a, m * N + b) for a, b in pool.ranges(N)]
 
-    def rows(r: tuple[int, int]) -> None:
-        bellman_kernels.bellman_rows(h, out, policy, gap, mask, r[0], r[1], model)
+    def run(task: tuple[int, int, int]) -> None:
+        m, start, stop = task
+        if m >= 0:
+            bellman_kernels.bellman_dense(m, h, out, policy, gap, mask, model)
+        else:
+            bellman_kernels.bellman_rows(h, out, policy, gap, mask, start, stop, model)
 
-    pool.map(rows, pool.ranges(h.size))
+    pool.map(run, tasks)
     return out, policy, gap
 
 
 Certificate = tuple[float, float, np.ndarray, np.ndarray, np.ndarray]
 
 
-def _certify(mdp: LayeredMDP, h: np.ndarray, workers: Workers | None = None) -> Certificate:
+def _certify(
+    mdp: LayeredMDP, h: np.ndarray, workers: Workers | None = None, model: Model | None = None
+) -> Certificate:
     """The span test: ``min (T h - h) <= g <= max (T h - h)`` over the live states."""
-    th, policy, gap = bellman(mdp, h, workers=workers)
+    th, policy, gap = bellman(mdp, h, workers=workers, model=model)
     r = (th - h)[mdp.live]
     return float(r.min()), float(r.max()), th, policy, gap
 
 
-def _stability(mdp: LayeredMDP, cert: Certificate, g: float, workers: Workers | None = None) -> int:
+def _stability(
+    mdp: LayeredMDP,
+    cert: Certificate,
+    g: float,
+    workers: Workers | None = None,
+    model: Model | None = None,
+) -> int:
     """States whose action changes in one more Bellman sweep, ``T (T h - g)`` against ``T h``.
 
     ``T h - g = h + r`` with ``span(r)`` the certificate's span, so an action can change only
@@ -205,7 +229,7 @@ def _stability(mdp: LayeredMDP, cert: Certificate, g: float, workers: Workers | 
     near = live & (gap <= slack)
     if not np.any(near):
         return 0
-    _, policy2, _ = bellman(mdp, th - g, near, workers)
+    _, policy2, _ = bellman(mdp, th - g, near, workers, model)
     return int(np.count_nonzero((policy2 != policy) & near))
 
 
@@ -222,14 +246,15 @@ def _finish(
     ref: int,
     cert: Certificate | None = None,
     workers: Workers | None = None,
+    model: Model | None = None,
 ) -> SolveResult:
     # ``cert``: the certificate of this very ``h``, when the caller already computed it.
-    cert = _certify(mdp, h, workers) if cert is None else cert
+    cert = _certify(mdp, h, workers, model) if cert is None else cert
     lo, hi, _, policy, _ = cert
     full += 1
     span = hi - lo
     g = 0.5 * (lo + hi) if span < tol else g_hint
-    changes = _stability(mdp, cert, g, workers)
+    changes = _stability(mdp, cert, g, workers, model)
     full += 1
     values = np.where(mdp.live, h - h[0, ref], np.nan)
     return SolveResult(
@@ -676,7 +701,7 @@ def solve_structured(
                 for m in run.order:
                     lm = live[m]
                     trial[m][lm] += newton * (D[m][lm] - d_shift) - shift
-                cert = _certify(mdp, trial, workers)
+                cert = _certify(mdp, trial, workers, run.model)
                 log.debug(
                     "certificate at pass %d: span %.3e (g step %.3e)",
                     outer, cert[1] - cert[0], newton,
@@ -709,8 +734,9 @@ def solve_structured(
         for m in run.order:
             h[m][live[m]] -= shift
         result = _finish(
-            mdp, h, g, tol, run.sweeps, 0, outer, "structured", t0, max(ref, 0), cert, workers
-        )
+            mdp, h, g, tol, run.sweeps, 0, outer, "structured", t0, max(ref, 0), cert, workers,
+            run.model,
+        )  # fmt: skip
     result.eval_sweeps = run.evaluations
     return result
 
