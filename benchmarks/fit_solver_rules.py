@@ -8,7 +8,10 @@ benchmark: problem 1 at 100 x 100 and 200 x 200, problem 6 at 64^3.
 
 Each setting is a comma-separated list of ``NAME=VALUE`` overrides of the solver module's
 constants (``-`` for the defaults); every problem is solved best of ``--repeat`` (wall
-time, the default thread count) and the line gives each time, the passes and the total.
+time, the default thread count; with ``--cpu`` the CPU time of one thread, which other
+jobs on the shared machine disturb less) and the line gives each time, the passes and
+the total. The numba kernels' own constants (``sweeps.PI_FRACTION``, ...) are compiled in:
+edit the module and run again to compare them.
 
 Run: ``.venv/bin/python benchmarks/fit_solver_rules.py --set fit - EARLY_SHAPE=1e3``.
 """
@@ -47,6 +50,11 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--set", choices=sorted(SETS), default="fit")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument(
+        "--cpu",
+        action="store_true",
+        help="one thread, CPU time (less disturbed by other jobs than the wall time)",
+    )
     ap.add_argument("settings", nargs="+", help="NAME=VALUE[,NAME=VALUE] or - (defaults)")
     args = ap.parse_args()
     models: list[tuple[str, LayeredMDP]] = []
@@ -62,10 +70,11 @@ def main() -> None:
         cols = []
         for label, mdp in models:
             times = []
+            clock = time.process_time if args.cpu else time.perf_counter
             for _ in range(args.repeat):
-                t = time.perf_counter()
-                res = solver.solve(mdp, "structured")
-                times.append(time.perf_counter() - t)
+                t = clock()
+                res = solver.solve(mdp, "structured", threads=1 if args.cpu else None)
+                times.append(clock() - t)
             total += min(times)
             cols.append(f"{label} {min(times):.3f} s / {res.outer_iterations} passes")
         for name, value in old.items():
