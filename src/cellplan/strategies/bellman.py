@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cellplan.strategies.improvement import RUN
+from cellplan.strategies.improvement import RUN, move_sums, move_tables
 from cellplan.strategies.noisy import noisy_move_value
 from cellplan.strategies.stencils import EPS_W, decode, fmp_code, table_stencil
 
@@ -279,24 +279,7 @@ def bellman_dense(m, h, out, policy, gap, subset, model):  # pragma: no cover - 
     opt1 = lay.opt_ptr[m + 1]
     cost = lay.cost[m]
     some = subset.shape[0] > 0
-    nk = np.zeros(na, np.int64)
-    wts = np.zeros((na, ncorner))
-    offs = np.zeros((na, ncorner), np.int64)
-    wsum = np.zeros(na)
-    lo = np.zeros(na, np.int64)
-    hi = np.full(na, N, np.int64)
-    for a in range(na):
-        for jj in range(ncorner):
-            wj = moves.cw[kcls, a, 0, jj]
-            if wj <= EPS_W:
-                break
-            o = moves.coff[kcls, a, 0, jj]
-            wts[a, jj] = wj
-            offs[a, jj] = o
-            wsum[a] += wj
-            lo[a] = max(lo[a], -o)
-            hi[a] = min(hi[a], N - o)
-            nk[a] += 1
+    nk, wts, offs, lo, hi, wsum = move_tables(model, kcls, N)
     best = np.empty(RUN)
     second = np.empty(RUN)
     arg = np.empty(RUN, np.int64)
@@ -343,17 +326,7 @@ def bellman_dense(m, h, out, policy, gap, subset, model):  # pragma: no cover - 
             s1 = min(c1, hi[a])
             n = s1 - s0
             if n > 0 and nk[a] > 0:
-                o = offs[a, 0]
-                hv = hm[s0 + o : s0 + o + n]
-                wj = wts[a, 0]
-                for i in range(n):
-                    acc[i] = wj * hv[i]
-                for jj in range(1, nk[a]):
-                    o = offs[a, jj]
-                    hv = hm[s0 + o : s0 + o + n]
-                    wj = wts[a, jj]
-                    for i in range(n):
-                        acc[i] += wj * hv[i]
+                move_sums(hm, a, s0, n, nk, wts, offs, acc)
                 ws = wsum[a]
                 bl = best[s0 - c0 : s1 - c0]
                 sl = second[s0 - c0 : s1 - c0]

@@ -54,6 +54,56 @@ def improvable(m, model):  # pragma: no cover - numba
     )
 
 
+@njit(cache=True)
+def move_tables(model, kcls, N):  # pragma: no cover - numba
+    """Each move of class ``kcls`` from an interior cell (heading slice 0: world-frame
+    moves): ``(nk, wts, offs, lo, hi, wsum)``, its number of corners with weight, their
+    weights and flat offsets (by decreasing weight, as the stencil tables), the cells
+    ``lo <= c < hi`` from which all its corners are inside the ``N`` cells, and the sum of
+    its weights."""
+    moves = model.moves
+    na = moves.nact[kcls]
+    ncorner = moves.cw.shape[3]
+    nk = np.zeros(na, np.int64)
+    wts = np.zeros((na, ncorner))
+    offs = np.zeros((na, ncorner), np.int64)
+    wsum = np.zeros(na)
+    lo = np.zeros(na, np.int64)
+    hi = np.full(na, N, np.int64)
+    for a in range(na):
+        for jj in range(ncorner):
+            wj = moves.cw[kcls, a, 0, jj]
+            if wj <= EPS_W:
+                break
+            o = moves.coff[kcls, a, 0, jj]
+            wts[a, jj] = wj
+            offs[a, jj] = o
+            wsum[a] += wj
+            lo[a] = max(lo[a], -o)
+            hi[a] = min(hi[a], N - o)
+            nk[a] += 1
+    return nk, wts, offs, lo, hi, wsum
+
+
+@njit(cache=True)
+def move_sums(hm, a, s0, n, nk, wts, offs, acc):  # pragma: no cover - numba
+    """``acc[i] = sum_j w_j hm[s0 + i + o_j]`` for move ``a`` over ``n`` cells from ``s0``:
+    the interpolation sums of a run of cells, corner by corner in the tables' order (the
+    sweeps' order, so the same sums). Slices, so that the loops index from zero: numba
+    then drops the negative-index checks and vectorises them."""
+    o = offs[a, 0]
+    hv = hm[s0 + o : s0 + o + n]
+    wj = wts[a, 0]
+    for i in range(n):
+        acc[i] = wj * hv[i]
+    for jj in range(1, nk[a]):
+        o = offs[a, jj]
+        hv = hm[s0 + o : s0 + o + n]
+        wj = wts[a, jj]
+        for i in range(n):
+            acc[i] += wj * hv[i]
+
+
 @njit(cache=True, nogil=True)
 def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
     """One policy-improvement step on layer ``m`` from the exact values ``h`` of ``pol[m]``.
@@ -82,26 +132,7 @@ def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
     nxt = lay.fmp_next[m]
     tfm = lay.tf[m]
     step_cost = lay.cost[m] - g
-    # Each move's corners from an interior cell (heading slice 0: world-frame moves), the
-    # sum of their weights, and the cells from which all its corners are inside the grid.
-    nk = np.zeros(na, np.int64)
-    wts = np.zeros((na, ncorner))
-    offs = np.zeros((na, ncorner), np.int64)
-    wsum = np.zeros(na)
-    lo = np.zeros(na, np.int64)
-    hi = np.full(na, N, np.int64)
-    for a in range(na):
-        for jj in range(ncorner):
-            wj = moves.cw[kcls, a, 0, jj]
-            if wj <= EPS_W:
-                break
-            o = moves.coff[kcls, a, 0, jj]
-            wts[a, jj] = wj
-            offs[a, jj] = o
-            wsum[a] += wj
-            lo[a] = max(lo[a], -o)
-            hi[a] = min(hi[a], N - o)
-            nk[a] += 1
+    nk, wts, offs, lo, hi, wsum = move_tables(model, kcls, N)
     best = np.empty(RUN)
     arg = np.empty(RUN, np.int64)
     acc = np.empty(RUN)
@@ -123,17 +154,7 @@ def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
             n = s1 - s0
             if n <= 0 or nk[a] == 0:
                 continue
-            o = offs[a, 0]
-            hv = hm[s0 + o : s0 + o + n]
-            wj = wts[a, 0]
-            for i in range(n):
-                acc[i] = wj * hv[i]
-            for jj in range(1, nk[a]):
-                o = offs[a, jj]
-                hv = hm[s0 + o : s0 + o + n]
-                wj = wts[a, jj]
-                for i in range(n):
-                    acc[i] += wj * hv[i]
+            move_sums(hm, a, s0, n, nk, wts, offs, acc)
             bit = np.int64(1) << a
             ws = wsum[a]
             bl = best[s0 - c0 : s1 - c0]
