@@ -17,8 +17,8 @@ the cells whose every landing corner is live (``Layers.dense``: no renormalisati
 interpolation weights of Section IV-B) are computed one move at a time over runs of
 consecutive cells: with the model's moves in the world frame, a move's corners sit at the
 same flat offsets from every interior cell, and the loop over a run compiles to vector
-instructions (P1 200 x 200 W layer: the moves of all cells in about a tenth of a
-Gauss-Seidel sweep). The other cells (near obstacles and the border) take the scalar
+instructions (P1 200 x 200 W layer: the whole step in 0.65 ms, a Gauss-Seidel sweep
+2.9 ms). The other cells (near obstacles and the border) take the scalar
 path, with the corner tests and renormalisation of
 :func:`cellplan.strategies.sweeps.sweep_policy`. The sums are the same as the sweep's,
 in the same order, so both find the same values.

@@ -79,7 +79,6 @@ EARLY_SHAPE = 1e4
 # shape changes by less than ATTEMPT_SHAPE * tol, and the drift is below tol, or below
 # NEWTON_DRIFT * tol with the layers solved to NEWTON_ACCURACY * tol.
 ATTEMPT_SHAPE = 0.5
-EXACT_UNCAPPED = True
 NEWTON_DRIFT = 1e3
 NEWTON_ACCURACY = 0.1
 # Passes mixed by the Anderson acceleration of the NR shape.
@@ -715,7 +714,7 @@ def solve_structured(
             # Inner accuracy follows the outer progress: early passes need not be exact.
             if outer == 1:
                 accuracy = FIRST_ACCURACY
-            elif EXACT_UNCAPPED and shape_span <= EARLY_SHAPE * tol and not run.coupled:
+            elif shape_span <= EARLY_SHAPE * tol and not run.coupled:
                 accuracy = inner_tol
             else:
                 accuracy = min(
