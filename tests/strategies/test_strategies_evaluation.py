@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import networkx as nx
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from strategies_helpers import tiny
@@ -121,3 +122,53 @@ def test_stability_check_on_near_ties_equals_a_full_second_sweep():
         expected = int(np.count_nonzero((full != policy) & mdp.live))
         assert solver._stability(mdp, cert, result.gain) == expected
     assert expected > 0  # the perturbed case exercises the second sweep
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 4),
+    st.integers(1, 40),
+    st.integers(0, 2**32 - 1),
+    st.sampled_from([0.0, 1e-8, 1e-3]),
+)
+def test_span_and_near_ties_equal_the_array_formulas(M, N, seed, span):
+    """The loops that replace the certificate's temporaries give the same numbers."""
+    from cellplan.strategies import bellman as bk
+
+    rng = np.random.default_rng(seed)
+    live = rng.random((M, N)) < 0.7
+    live[0, 0] = True
+    h = rng.normal(scale=10.0, size=(M, N))
+    th = h + rng.normal(scale=1e-3, size=(M, N))
+    # Ties (gap 0), gaps at the slack's edge, and NaN where no second action exists.
+    gap = rng.choice([0.0, span, 2e-9, 1.0, np.nan], size=(M, N))
+    th[~live] = np.nan
+    r = (th - h)[live]
+    assert bk.residual_range(th, h, live) == (r.min(), r.max())
+    slack = span + 1e-9 * np.maximum(1.0, np.abs(np.where(live, th, 0.0)))
+    np.testing.assert_array_equal(bk.near_ties(th, gap, live, span), live & (gap <= slack))
+
+
+def test_span_of_a_nan_residual_is_nan():
+    from cellplan.strategies import bellman as bk
+
+    h = np.zeros((1, 3))
+    th = np.array([[0.5, np.nan, 0.2]])
+    lo, hi = bk.residual_range(th, h, np.ones((1, 3), np.bool_))
+    assert np.isnan(lo) and np.isnan(hi)
+
+
+def test_bellman_into_a_given_array_equals_a_fresh_one():
+    from cellplan.strategies import solver
+
+    sc, cell = tiny(12)
+    mdp = build_model(sc, cell)
+    h = np.where(mdp.live, solver.solve(mdp, "structured").values, 0.0)
+    fresh = solver.bellman(mdp, h)
+    buf = np.full_like(h, 123.0)
+    given_out = solver.bellman(mdp, h, out=buf)
+    assert given_out[0] is buf
+    for a, b in zip(fresh, given_out, strict=True):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="out must be a separate array"):
+        solver.bellman(mdp, h, out=h)

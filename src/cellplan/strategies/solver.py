@@ -161,6 +161,7 @@ def bellman(
     subset: np.ndarray | None = None,
     workers: Workers | None = None,
     model: Model | None = None,
+    out: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(T h, policy, gap)``: one Jacobi sweep of equation (9) over every state (no ``g``).
 
@@ -169,9 +170,15 @@ def bellman(
     ``workers`` runs ranges of states in parallel threads. ``model``: the kernel bundle
     (default ``mdp.kernel_args()``); with ``Layers.dense`` filled, as the structured solver
     has it, the layers :func:`.improvement.improvable` accepts are swept by
-    :func:`.bellman.bellman_dense` (the same results, the moves vectorised).
+    :func:`.bellman.bellman_dense` (the same results, the moves vectorised). ``out``: an
+    array like ``h`` to hold ``T h`` (overwritten; not ``h`` itself).
     """
-    out = np.full_like(h, np.nan)
+    if out is None:
+        out = np.full_like(h, np.nan)
+    else:
+        if out is h or out.shape != h.shape:
+            raise ValueError("bellman: out must be a separate array shaped like h")
+        out.fill(np.nan)
     policy = np.full(h.shape, -3, np.int64)
     gap = np.full_like(h, np.nan)
     mask = np.zeros((0, 0), np.bool_) if subset is None else subset
@@ -204,8 +211,8 @@ def _certify(
 ) -> Certificate:
     """The span test: ``min (T h - h) <= g <= max (T h - h)`` over the live states."""
     th, policy, gap = bellman(mdp, h, workers=workers, model=model)
-    r = (th - h)[mdp.live]
-    return float(r.min()), float(r.max()), th, policy, gap
+    lo, hi = bellman_kernels.residual_range(th, h, mdp.live)
+    return float(lo), float(hi), th, policy, gap
 
 
 def _stability(
@@ -220,15 +227,18 @@ def _stability(
     ``T h - g = h + r`` with ``span(r)`` the certificate's span, so an action can change only
     where its margin over the second-best action is at most that span (ties included); the
     second sweep visits only those states.
+
+    The certificate's ``T h`` and ``gap`` arrays are reused as the second sweep's input and
+    output (the certificate is not read again): on problem 6 each full-size array is
+    36 MB, and memory a process touches for the first time costs more there than the
+    sweep's arithmetic.
     """
     lo, hi, th, policy, gap = cert
-    live = mdp.live
-    # Float slack: values are sums of tens of terms of size up to |T h|.
-    slack = (hi - lo) + 1e-9 * np.maximum(1.0, np.abs(np.where(live, th, 0.0)))
-    near = live & (gap <= slack)
+    near = bellman_kernels.near_ties(th, gap, mdp.live, hi - lo)
     if not np.any(near):
         return 0
-    _, policy2, _ = bellman(mdp, th - g, near, workers, model)
+    start = np.subtract(th, g, out=th)
+    _, policy2, _ = bellman(mdp, start, near, workers, model, out=gap)
     return int(np.count_nonzero((policy2 != policy) & near))
 
 
