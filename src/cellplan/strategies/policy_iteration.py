@@ -48,6 +48,7 @@ from numba import njit
 from scipy.sparse import csgraph
 from scipy.sparse.linalg import splu
 
+from cellplan.strategies.bellman import residual_range
 from cellplan.strategies.bundles import Model
 from cellplan.strategies.model import LayeredMDP
 from cellplan.strategies.noisy import landing_row
@@ -710,8 +711,7 @@ def solve_policy_iteration(
                 h = hfull.ravel()[chain.states]
             th, pol, gap = bellman(mdp, hfull, workers=workers)
             sweeps += 1
-            diff = (th - hfull)[live]
-            lo, hi = float(diff.min()), float(diff.max())
+            lo, hi = (float(v) for v in residual_range(th, hfull, live))
             cert = (lo, hi, th, pol, gap)
             cert_pol = pol
             if progress is not None:
