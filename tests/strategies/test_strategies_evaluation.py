@@ -172,3 +172,5 @@ def test_bellman_into_a_given_array_equals_a_fresh_one():
         np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="out must be a separate array"):
         solver.bellman(mdp, h, out=h)
+    with pytest.raises(ValueError, match="out must be a separate array"):
+        solver.bellman(mdp, h, out=h[:, ::-1])  # a view of h

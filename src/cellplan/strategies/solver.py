@@ -176,7 +176,7 @@ def bellman(
     if out is None:
         out = np.full_like(h, np.nan)
     else:
-        if out is h or out.shape != h.shape:
+        if np.may_share_memory(out, h) or out.shape != h.shape or out.dtype != h.dtype:
             raise ValueError("bellman: out must be a separate array shaped like h")
         out.fill(np.nan)
     policy = np.full(h.shape, -3, np.int64)
