@@ -112,17 +112,31 @@ def check_improvement(mdp: LayeredMDP, h: np.ndarray, g: float, rng: np.random.G
         for c, vals in values.items():
             if vals:
                 pol[m, c] = list(vals)[rng.integers(len(vals))]
+        # A recorded stay (the stage loss is positive: g < 1) has no finite value, so h is
+        # not that action's value: the cell leaves for its best other action, whatever the
+        # gain, and the residual is unbounded.
+        leave = {
+            c: min(v for a, v in values[c].items() if a != -1)
+            for c in np.flatnonzero(live)
+            if pol[m, c] == -1 and any(a != -1 for a in values[c])
+        }
         for tie in (0.0, 0.5):
             got = pol.copy()
             residual, changed = improve_layer(m, h, g, got, tie, model)
             drop = h[m] - best
-            assert residual == np.max(drop[live], initial=0.0) or np.isclose(
-                residual, np.max(drop[live], initial=0.0), rtol=1e-12, atol=1e-12
-            )
+            if leave:
+                assert residual == np.inf
+            else:
+                assert residual == np.max(drop[live], initial=0.0) or np.isclose(
+                    residual, np.max(drop[live], initial=0.0), rtol=1e-12, atol=1e-12
+                )
             assert changed == np.count_nonzero(got[m] != pol[m])
             for c in np.flatnonzero(live):
                 old, new = int(pol[m, c]), int(got[m, c])
-                if new != old:
+                if c in leave:
+                    assert new != -1
+                    assert abs(values[c][new] - leave[c]) <= 1e-12 * max(1.0, abs(leave[c]))
+                elif new != old:
                     # A change goes to an action attaining the minimum, only for more than tie.
                     assert abs(values[c][new] - best[c]) <= 1e-12 * max(1.0, abs(best[c]))
                     assert h[m, c] - best[c] > tie
@@ -148,6 +162,32 @@ def test_one_improvement_step_across_runs_of_cells():
     rng = np.random.default_rng(7)
     h = np.where(mdp.live, rng.normal(size=mdp.live.shape) + 10.0, 0.0)
     check_improvement(mdp, h, 0.4, rng)
+
+
+def test_a_state_left_below_its_value_by_staying_is_not_taken_for_solved():
+    # Staying for ever has no finite value, so the exact evaluation leaves a state whose
+    # action is stay as it was. Found by starting the solver from a converged problem 6:
+    # a C state left 0.35 below every action it has, its action stay, passed the residual
+    # check pass after pass and the certificate failed (span 0.3).
+    mdp = big_model(11)
+    model = with_dense(mdp.kernel_args())
+    rng = np.random.default_rng(2)
+    g = 0.4
+    m = mdp.c_layer(0)
+    h = np.where(mdp.live, 5.0 * rng.random(mdp.live.shape), 0.0)
+    D = np.zeros_like(h)
+    pol = np.full(h.shape, -3, np.int16)
+    h[m][mdp.live[m]] = np.inf
+    layer_iteration(m, h, D, g, 1e-11, 10**6, 10**6, pol, False, True, False, model)
+    solved = h[m].copy()
+    # A state on a move, upstream of others, set below its value and to stay.
+    moving = np.flatnonzero(mdp.live[m] & (pol[m] >= 0))
+    c = int(moving[len(moving) // 2])
+    h[m, c] -= 0.5
+    pol[m, c] = -1
+    layer_iteration(m, h, D, g, 1e-11, 10**6, 10**6, pol, True, True, False, model)
+    assert pol[m, c] != -1
+    np.testing.assert_allclose(h[m][mdp.live[m]], solved[mdp.live[m]], rtol=0, atol=1e-9)
 
 
 @settings(max_examples=60, deadline=None)

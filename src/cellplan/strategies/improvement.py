@@ -116,6 +116,12 @@ def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
     ``(residual, changed)``: the largest ``h(x) - min_u [...]`` over the live cells (the
     Bellman residual of the evaluated policy) and the number of cells whose action changed.
     Needs :func:`improvable` and every live value finite.
+
+    A cell whose recorded action is stay, with a positive stage loss ``l - g``, has no
+    finite value under it (staying for ever), and the exact evaluation leaves such a cell
+    as it was, possibly below every action it has: there ``h`` is not the policy's value.
+    The cell takes its best other action (FMP or a move) and the residual is ``inf``, so
+    the layer is not taken for solved.
     """
     moves = model.moves
     lay = model.layers
@@ -204,11 +210,11 @@ def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
                     if v < best[i]:
                         best[i] = v
                         arg[i] = a
-            top = np.inf
-            act = -3
+            fmp = np.inf
             if nxt >= 0 and tfm[c] < np.inf and live[nxt, c] and h[nxt, c] < np.inf:
-                top = tfm[c] - g + h[nxt, c]
-                act = -2
+                fmp = tfm[c] - g + h[nxt, c]
+            top = fmp
+            act = -2 if fmp < np.inf else -3
             stay = step_cost + hm[c]
             if stay < top:
                 top = stay
@@ -217,9 +223,15 @@ def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
                 top = best[i]
                 act = arg[i]
             drop = hm[c] - top
+            old = pol[m, c]
+            if old == -1 and step_cost > 0.0 and min(fmp, best[i]) < np.inf:
+                # Staying for ever has no finite value: the exact evaluation leaves such a
+                # state as it was, possibly below every action it has, so ``h`` is not the
+                # policy's value there. Leaving is an improvement of unbounded size.
+                act = -2 if fmp <= best[i] else arg[i]
+                drop = np.inf
             if drop > residual:
                 residual = drop
-            old = pol[m, c]
             if act != old and (old == -3 or not drop <= tie):
                 pol[m, c] = act
                 changed += 1
