@@ -248,13 +248,16 @@ def self_system(m, h, D, g, E, ED, pself, pol, cells, local, model):  # pragma: 
             const[v] = step_cost + E[c, 1 + pa]
             dconst[v] = -1.0 + ED[c, 1 + pa]
             if pself > 0.0:
-                decode(c, shape, mi)
+                inner = moves.interior[kcls, c]
+                # The multi-index is read only at the border or for a robot-frame heading.
+                if not inner or moves.heading_axis >= 0:
+                    decode(c, shape, mi)
                 nc = move_corners(
                     kcls,
                     pa,
                     c,
                     mi,
-                    moves.interior[kcls, c],
+                    inner,
                     moves.offs,
                     moves.fr,
                     moves.coff,

@@ -22,7 +22,7 @@ from __future__ import annotations
 import itertools
 import os
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TypeVar
 
 from numba.core import config as numba_config
@@ -57,6 +57,40 @@ class Workers:
         if self._pool is None:
             return [fn(item) for item in items]
         return list(self._pool.map(fn, items))
+
+    def map_chains(
+        self, fn: Callable[[T], R], roots: Iterable[T], after: Callable[[T], list[T]]
+    ) -> dict[T, R]:
+        """Run ``fn`` on every root and, as soon as an item is done, on the items
+        ``after(item)`` names (each item named once, by one predecessor).
+
+        Items that wait for a predecessor take a thread only once it is done, so no
+        thread idles at a barrier between stages (the solver's W layer of a request
+        starts as soon as its C layer is solved). Serially an item's followers run right
+        after it. Returns ``{item: fn(item)}``.
+        """
+        results: dict[T, R] = {}
+        if self._pool is None:
+            todo = list(roots)[::-1]
+            while todo:
+                item = todo.pop()
+                results[item] = fn(item)
+                todo.extend(after(item)[::-1])
+            return results
+        pool = self._pool
+        futures: list[Future[None]] = []
+
+        def run(item: T) -> None:
+            results[item] = fn(item)
+            # Submitted before this future completes, so the loop below waits for them.
+            futures.extend(pool.submit(run, nxt) for nxt in after(item))
+
+        futures.extend(pool.submit(run, item) for item in roots)
+        done = 0
+        while done < len(futures):
+            futures[done].result()  # re-raises a worker's exception here
+            done += 1
+        return results
 
     def ranges(self, n: int, per_thread: int = 4) -> list[tuple[int, int]]:
         """``[start, stop)`` chunks of ``range(n)``: ``per_thread`` per thread (one if serial)."""
