@@ -19,8 +19,9 @@ the minimisers of the right-hand side. Two solvers share the kernels:
   Gauss-Seidel sweeps over every action choose the actions, and between them the chosen
   policy is evaluated exactly in one pass, in the dependency order of its strongly
   connected components (:mod:`cellplan.strategies.evaluation`); a layer is done when a
-  *full* sweep changes it by less than the inner accuracy. The independent C layers, then the
-  W layers, run in parallel threads (layers coupled by destination or source changes are
+  *full* sweep changes it by less than the inner accuracy. The independent C layers run in
+  parallel threads, each request's W layer as soon as its C layer is done (layers coupled
+  by destination or source changes are
   swept together as a group, started from their uncoupled solutions). NR is then solved
   with its stay self-loop eliminated exactly (``h = H_W - g/P``), removing the slow
   ``(1 - P)`` mode; its request branches (into the fixed W layers) are summed once per
