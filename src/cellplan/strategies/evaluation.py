@@ -384,55 +384,55 @@ def _row(v, ptr, succ, wt, const, dconst, hl, Dl):  # pragma: no cover - numba
 def solve_system(ptr, succ, wt, const, dconst, fixed, hl, Dl):  # pragma: no cover - numba
     """Solve ``h = const + W h`` and ``D = dconst + W D`` in place, component by component.
 
-    ``fixed`` rows keep their values. Returns the largest change of ``h``.
+    ``fixed`` rows keep their values.
     """
     members, comp_ptr = components(ptr, succ)
-    h0 = hl.copy()
     for k in range(comp_ptr.shape[0] - 1):
         a = comp_ptr[k]
         b = comp_ptr[k + 1]
-        if b - a > 1:
-            # Gauss-Seidel round a cycle needs finite starting values.
-            for j in range(a, b):
-                v = members[j]
-                if not fixed[v] and not hl[v] < np.inf:
-                    hl[v] = 0.0
-        for _ in range(COMPONENT_SWEEPS if b - a > 1 else 1):
+        if b - a == 1:
+            # A single cell (nearly all of them): its successors are final, one solve.
+            v = members[a]
+            if not fixed[v]:
+                val, der = _row(v, ptr, succ, wt, const, dconst, hl, Dl)
+                if val == val:  # else a total self-loop: no finite value under this policy
+                    hl[v] = val
+                    Dl[v] = der
+            continue
+        # Gauss-Seidel round a cycle needs finite starting values.
+        for j in range(a, b):
+            v = members[j]
+            if not fixed[v] and not hl[v] < np.inf:
+                hl[v] = 0.0
+        for _ in range(COMPONENT_SWEEPS):
             worst = 0.0
             for j in range(a, b):
                 v = members[j]
                 if fixed[v]:
                     continue
                 val, der = _row(v, ptr, succ, wt, const, dconst, hl, Dl)
-                if val != val:  # a total self-loop: no finite value under this policy
+                if val != val:
                     continue
-                rel = abs(val - hl[v]) / (1.0 + abs(val)) if hl[v] < np.inf else np.inf
+                rel = abs(val - hl[v]) / (1.0 + abs(val))
                 if rel > worst:
                     worst = rel
                 hl[v] = val
                 Dl[v] = der
             if worst < COMPONENT_TOL:
                 break
-    maxchange = 0.0
-    for v in range(hl.shape[0]):
-        ch = abs(hl[v] - h0[v]) if h0[v] < np.inf else (np.inf if hl[v] < np.inf else 0.0)
-        if ch > maxchange:
-            maxchange = ch
-    return maxchange
 
 
 @njit(cache=True)
 def evaluate(hm, Dm, cells, ptr, succ, wt, const, dconst, fixed):  # pragma: no cover - numba
     """Solve the system of :func:`layer_system` / :func:`self_system` into a layer's
-    ``hm`` and ``Dm`` (indexed by cell); returns the largest change of ``hm``."""
+    ``hm`` and ``Dm`` (indexed by cell)."""
     n = cells.shape[0]
     hl = np.empty(n)
     Dl = np.empty(n)
     for v in range(n):
         hl[v] = hm[cells[v]]
         Dl[v] = Dm[cells[v]]
-    change = solve_system(ptr, succ, wt, const, dconst, fixed, hl, Dl)
+    solve_system(ptr, succ, wt, const, dconst, fixed, hl, Dl)
     for v in range(n):
         hm[cells[v]] = hl[v]
         Dm[cells[v]] = Dl[v]
-    return change
