@@ -57,21 +57,18 @@ def test_map_chains_runs_every_item_once_after_its_predecessor(parents, nthreads
             children[p].append(i)
     roots = [i for i, p in enumerate(parent) if p < 0]
     lock = threading.Lock()
-    started: list[int] = []
-    finished: set[int] = set()
+    done: list[int] = []
 
     def fn(item: int) -> int:
         with lock:
-            # A follower starts only once its predecessor has finished.
-            assert parent[item] < 0 or parent[item] in finished
-            started.append(item)
-        with lock:
-            finished.add(item)
+            # A follower runs only once its predecessor has finished.
+            assert parent[item] < 0 or parent[item] in done
+            done.append(item)
         return 10 * item
 
     with threads.Workers(nthreads) as pool:
         results = pool.map_chains(fn, roots, children.__getitem__)
-    assert sorted(started) == list(range(len(parent)))
+    assert sorted(done) == list(range(len(parent)))
     assert results == {i: 10 * i for i in range(len(parent))}
 
 
@@ -89,11 +86,8 @@ def test_map_chains_raises_a_workers_error(nthreads):
 def test_threaded_solve_with_shared_layers_gives_the_serial_answer(monkeypatch):
     # D2 is D1 again: the requests to D2 have the same C and W layers as those to D1,
     # solved once and copied; each W layer must read its C layer only once it is copied.
-    extra_destination = "  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}\n"
-    text = TINY.replace("CELLS", "16").replace(
-        extra_destination,
-        extra_destination + extra_destination.replace("D1", "D2"),
-    )
+    d1_line = "  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}\n"
+    text = TINY.replace("CELLS", "16").replace(d1_line, d1_line + d1_line.replace("D1", "D2"))
     sc = loads_scenario(text)
     mdp = build_model(sc, Workcell.from_scenario(sc))
     run = _Layers(mdp, 100, threads.Workers(1))
