@@ -612,6 +612,110 @@ class _ShapeMixer:
         return np.asarray(f_now[-1] - df @ gamma)
 
 
+@dataclass(frozen=True)
+class _Drift:
+    """What a pass did to NR at the reference state (steps 2-3 of :func:`solve_structured`).
+
+    ``drift`` is how far ``h_NR(ref)`` moved in the pass (zero exactly at the optimal
+    gain), ``deriv`` its derivative in ``g`` (minus the expected length of the request
+    cycle, carried along the minimising actions as ``D``), ``shape`` the span of the
+    change of NR over its live states (infinite on the first pass, whose old values are
+    the initial zeros), and ``shift``, ``d_shift`` the values of ``h_NR(ref)`` and
+    ``D_NR(ref)`` that NR was normalised by.
+    """
+
+    drift: float
+    deriv: float
+    shape: float
+    shift: float
+    d_shift: float
+
+    def newton(self) -> float:
+        """The Newton step on ``g``: ``-drift / (d drift / dg)`` (none without descent)."""
+        return -self.drift / self.deriv if self.deriv < 0 else 0.0
+
+
+def _normalise_nr(
+    h: np.ndarray,
+    D: np.ndarray,
+    old: np.ndarray,
+    old_d: np.ndarray,
+    lnr: np.ndarray,
+    ref: int,
+    first: bool,
+) -> _Drift:
+    """Measure the pass at NR's reference state and normalise NR there (``h_NR(ref) = 0``).
+
+    ``old`` and ``old_d``: NR's values and ``D`` before the pass. The C and W layers keep
+    their raw values (they were solved against the un-normalised NR) and are shifted only
+    at the end.
+    """
+    delta = (h[0] - old)[lnr]
+    p = _Drift(
+        drift=float(h[0, ref] - old[ref]),
+        deriv=float(D[0, ref] - old_d[ref]),
+        shape=np.inf if first else float(delta.max() - delta.min()),
+        shift=float(h[0, ref]),
+        d_shift=float(D[0, ref]),
+    )
+    h[0][lnr] -= p.shift
+    D[0][lnr] -= p.d_shift
+    return p
+
+
+def _settled(p: _Drift, capped: bool, accuracy: float, tol: float, inner_tol: float) -> bool:
+    """A full pass that moved neither ``h_NR(ref)`` nor the NR shape (by ``0.1 tol``)."""
+    return not capped and abs(p.drift) < tol * 0.1 and p.shape < tol * 0.1 and accuracy <= inner_tol
+
+
+def _certificate_due(p: _Drift, capped: bool, first: bool, accuracy: float, tol: float) -> bool:
+    """Whether to try the certificate after this pass (step 5 of :func:`solve_structured`).
+
+    Its span is about the larger of the drift (it shows up as the inconsistency at the
+    FMP into NR), the NR shape change and the inner accuracy. The Newton step on ``g`` is
+    exact while no action changes, so the certificate is tried with every layer moved
+    along it (:func:`_moved_along_newton`): once the shape change is within the tolerance,
+    and either the drift is too, or it is small and the layers were solved exactly (policy
+    iteration makes that cheap). A failed attempt costs one Jacobi sweep.
+    """
+    return (
+        not capped
+        and not first
+        and p.shape < ATTEMPT_SHAPE * tol
+        and (
+            abs(p.drift) < tol
+            or (abs(p.drift) < NEWTON_DRIFT * tol and accuracy <= NEWTON_ACCURACY * tol)
+        )
+    )
+
+
+def _moved_along_newton(run: _Layers, p: _Drift, newton: float) -> np.ndarray:
+    """Every layer moved to ``g + newton`` along its policy (``h + newton D``, exact while no
+    action changes); the C and W layers also shifted as NR was normalised."""
+    live = run.live
+    trial = run.h.copy()
+    lnr = live[0]
+    trial[0][lnr] += newton * run.D[0][lnr]
+    for m in run.order:
+        lm = live[m]
+        trial[m][lm] += newton * (run.D[m][lm] - p.d_shift) - p.shift
+    return trial
+
+
+def _inner_accuracy(p: _Drift, first: bool, coupled: bool, inner_tol: float, tol: float) -> float:
+    """The inner accuracy of the next pass: early passes need not be exact.
+
+    It follows the outer progress (:data:`ACCURACY_FACTOR` times the smaller of the drift
+    and the shape change) until the passes are no longer capped; from then on a model
+    without source or destination changes is solved to the final ``inner_tol``.
+    """
+    if first:
+        return FIRST_ACCURACY
+    if p.shape <= EARLY_SHAPE * tol and not coupled:
+        return inner_tol
+    return min(FIRST_ACCURACY, max(inner_tol, ACCURACY_FACTOR * min(abs(p.drift), p.shape)))
+
+
 def solve_structured(
     mdp: LayeredMDP,
     tol: float = 1e-6,
@@ -629,14 +733,18 @@ def solve_structured(
     1. solve the C layers, then the W layers (:meth:`_Layers.request_layers`);
     2. solve NR (:meth:`_Layers.nr_layer`); its value at a reference state moved by the
        *drift* ``delta``, which is zero exactly at the optimal gain (NR is normalised
-       there, the Bellman equation ``h + g = T h`` then holds round the request cycle);
+       there, the Bellman equation ``h + g = T h`` then holds round the request cycle;
+       :func:`_normalise_nr`);
     3. a Newton step ``g <- g - delta / (d delta / dg)``, the derivative (minus the
-       expected cycle length) carried along the minimising actions as ``D``;
+       expected cycle length) carried along the minimising actions as ``D``
+       (:meth:`_Drift.newton`);
     4. the next NR shape: Anderson-mixed over the last passes (:class:`_ShapeMixer`), or
        with ``extrapolate`` off and ``predictor`` on moved to first order with ``g``
        through ``D``;
-    5. once the drift and the NR shape change are within the tolerance, the certificate:
-       one Jacobi Bellman sweep, whose span must be below ``tol``.
+    5. once the drift and the NR shape change are within the tolerance
+       (:func:`_certificate_due`), the certificate: one Jacobi Bellman sweep over every
+       layer moved along the Newton step (:func:`_moved_along_newton`), whose span must
+       be below ``tol``.
 
     ``threads`` overrides the thread count (:mod:`cellplan.strategies.threads`).
     """
@@ -659,9 +767,12 @@ def solve_structured(
         cert: Certificate | None = None
         last_shape = np.inf
         for outer in range(1, max_outer + 1):
+            first = outer == 1
+            # Warm start (later passes): the largest change of the NR values the C layers
+            # read, beyond the change of the old policy's cost under the new g.
             warm: float | None = None
             dg = g - g_solved
-            if outer > 1:
+            if not first:
                 rest = h[0][lnr] - prev_term[lnr] - dg * prev_d0[lnr]
                 warm = float(np.max(rest)) + 1e-12
             prev_term = h[0].copy()
@@ -670,61 +781,28 @@ def solve_structured(
             # Early passes (g at its first guess, or the NR shape still moving a lot) get an
             # inexact inner solve: it can neither stop the loop nor try the certificate.
             capped = last_shape > EARLY_SHAPE * tol
+            # Steps 1 and 2: once round the request cycle.
             run.request_layers(g, accuracy, warm, dg, EARLY_SWEEPS if capped else max_sweeps)
             old = h[0].copy()
             old_d = D[0].copy()
-            run.nr_layer(g, accuracy, outer == 1)
+            run.nr_layer(g, accuracy, first)
             if ref < 0:
                 ref = int(np.flatnonzero(lnr)[np.argmin(h[0][lnr])])
-            # On the first pass the old NR values are the initial zeros: a rough drift.
-            drift = float(h[0, ref] - old[ref])
-            deriv = float(D[0, ref] - old_d[ref])
-            delta = (h[0] - old)[lnr]
-            shape_span = float(delta.max() - delta.min()) if outer > 1 else np.inf
-            last_shape = shape_span
-            # Normalise NR at the reference state; C and W keep their raw values (they were
-            # solved against prev_term) and are shifted only at the end.
-            shift = float(h[0, ref])
-            d_shift = float(D[0, ref])
-            h[0][lnr] -= shift
-            D[0][lnr] -= d_shift
+            p = _normalise_nr(h, D, old, old_d, lnr, ref, first)
+            shift = p.shift
+            last_shape = p.shape
             if progress is not None:
-                progress(run.sweeps, shape_span, g)
+                progress(run.sweeps, p.shape, g)
             log.debug(
                 "pass %d: g %.10f drift %.3e d(drift)/dg %.3f NR shape change %.3e accuracy %.1e",
-                outer, g, drift, deriv, shape_span, accuracy,
+                outer, g, p.drift, p.deriv, p.shape, accuracy,
             )  # fmt: skip
-            if (
-                not capped
-                and abs(drift) < tol * 0.1
-                and shape_span < tol * 0.1
-                and accuracy <= inner_tol
-            ):
+            if _settled(p, capped, accuracy, tol, inner_tol):
                 break
-            # The certificate's span is about the larger of the drift and the NR shape change
-            # (the drift shows up as the inconsistency at the FMP into NR) and the inner
-            # accuracy. The Newton step on g is exact while no action changes, so the
-            # certificate is tried with every layer moved along it: once the shape change is
-            # within the tolerance, and either the drift is too, or it is small and the
-            # layers were solved exactly (policy iteration makes that cheap). A failed
-            # attempt costs one Jacobi sweep.
-            newton = -drift / deriv if deriv < 0 else 0.0
-            if (
-                not capped
-                and outer > 1
-                and shape_span < ATTEMPT_SHAPE * tol
-                and (
-                    abs(drift) < tol
-                    or (abs(drift) < NEWTON_DRIFT * tol and accuracy <= NEWTON_ACCURACY * tol)
-                )
-            ):
-                # Every layer moved to g + newton along its policy (h + newton D, exact
-                # while no action changes), C and W shifted as NR was normalised.
-                trial = h.copy()
-                trial[0][lnr] += newton * D[0][lnr]
-                for m in run.order:
-                    lm = live[m]
-                    trial[m][lm] += newton * (D[m][lm] - d_shift) - shift
+            # Step 3, and step 5 with it where due.
+            newton = p.newton()
+            if _certificate_due(p, capped, first, accuracy, tol):
+                trial = _moved_along_newton(run, p, newton)
                 cert = _certify(mdp, trial, workers, run.model)
                 log.debug(
                     "certificate at pass %d: span %.3e (g step %.3e)",
@@ -736,18 +814,11 @@ def solve_structured(
                     g = g + newton
                     break
                 cert = None
-            # Inner accuracy follows the outer progress: early passes need not be exact.
-            if outer == 1:
-                accuracy = FIRST_ACCURACY
-            elif shape_span <= EARLY_SHAPE * tol and not run.coupled:
-                accuracy = inner_tol
-            else:
-                accuracy = min(
-                    FIRST_ACCURACY, max(inner_tol, ACCURACY_FACTOR * min(abs(drift), shape_span))
-                )
+            accuracy = _inner_accuracy(p, first, run.coupled, inner_tol, tol)
             g_prev = g
             g = min(max(g + newton, 0.0), mdp.stage_time)
-            if extrapolate and outer > 1:
+            # Step 4: the NR values the next pass's C layers read.
+            if extrapolate and not first:
                 mixer.push(old[lnr] - old[ref], h[0][lnr].copy(), D[0][lnr].copy(), g_prev)
                 new_x = mixer.mix(g)
                 h[0][lnr] = new_x - new_x[np.searchsorted(np.flatnonzero(lnr), ref)]
