@@ -782,10 +782,13 @@ def solve_structured(
             # inexact inner solve: it can neither stop the loop nor try the certificate.
             capped = last_shape > EARLY_SHAPE * tol
             # Steps 1 and 2: once round the request cycle.
+            t_pass = time.perf_counter()
             run.request_layers(g, accuracy, warm, dg, EARLY_SWEEPS if capped else max_sweeps)
+            t_layers = time.perf_counter()
             old = h[0].copy()
             old_d = D[0].copy()
             run.nr_layer(g, accuracy, first)
+            t_nr = time.perf_counter()
             if ref < 0:
                 ref = int(np.flatnonzero(lnr)[np.argmin(h[0][lnr])])
             p = _normalise_nr(h, D, old, old_d, lnr, ref, first)
@@ -794,19 +797,22 @@ def solve_structured(
             if progress is not None:
                 progress(run.sweeps, p.shape, g)
             log.debug(
-                "pass %d: g %.10f drift %.3e d(drift)/dg %.3f NR shape change %.3e accuracy %.1e",
-                outer, g, p.drift, p.deriv, p.shape, accuracy,
+                "pass %d: g %.10f drift %.3e d(drift)/dg %.3f NR shape change %.3e accuracy "
+                "%.1e%s; C and W layers %.3f s, NR %.3f s",
+                outer, g, p.drift, p.deriv, p.shape, accuracy, " (capped)" if capped else "",
+                t_layers - t_pass, t_nr - t_layers,
             )  # fmt: skip
             if _settled(p, capped, accuracy, tol, inner_tol):
                 break
             # Step 3, and step 5 with it where due.
             newton = p.newton()
             if _certificate_due(p, capped, first, accuracy, tol):
+                t_cert = time.perf_counter()
                 trial = _moved_along_newton(run, p, newton)
                 cert = _certify(mdp, trial, workers, run.model)
                 log.debug(
-                    "certificate at pass %d: span %.3e (g step %.3e)",
-                    outer, cert[1] - cert[0], newton,
+                    "certificate at pass %d: span %.3e (g step %.3e); %.3f s",
+                    outer, cert[1] - cert[0], newton, time.perf_counter() - t_cert,
                 )  # fmt: skip
                 if cert[1] - cert[0] < tol:
                     h[:] = trial
