@@ -19,7 +19,7 @@ from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
 from cellplan.strategies.interpolation import interp
 from cellplan.strategies.model import Geometry, LayeredMDP, assemble
 from cellplan.strategies.stencils import MAX_DIM, stencil
-from cellplan.strategies.sweeps import sweep_layer, sweep_policy
+from cellplan.strategies.sweeps import other_branches, sweep_layer, sweep_policy, sweep_self
 
 # --- references ---------------------------------------------------------------------------
 
@@ -450,3 +450,81 @@ def test_single_branch_fast_paths_equal_the_general_loops(mdp, seed, g, flips):
             outs.append((out, policy, gap))
         for a, b in zip(*outs, strict=True):
             np.testing.assert_array_equal(a[m], b[m])
+
+
+# --- NR in slabs --------------------------------------------------------------------------
+
+
+def _nr_inputs(mdp, seed):
+    """Random values, NR's request branches summed, and its stay probability."""
+    rng = np.random.default_rng(seed)
+    h = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
+    D = np.where(mdp.live, rng.normal(size=mdp.live.shape), 0.0)
+    model = mdp.kernel_args()
+    n = mdp.live.shape[1]
+    E = np.empty((n, int(mdp.nact[mdp.vcls[0]]) + 1))
+    ED = np.empty_like(E)
+    other_branches(0, h, D, E, ED, 0, n, model)
+    b = range(int(mdp.branch_ptr[0]), int(mdp.branch_ptr[1]))
+    pself = float(sum(mdp.branch_prob[k] for k in b if mdp.branch_layer[k] == 0))
+    return h, D, E, ED, pself, model
+
+
+def _slab_sweep(mdp, h, D, E, ED, pself, model, g, flips, slabs):
+    """One NR sweep, its slabs in the given order, reading each other's old values."""
+    frozen_h, frozen_D = h[0].copy(), D[0].copy()
+    pol = np.full(h.shape, -3, np.int16)
+    changed = np.zeros(1, np.int64)
+    change = 0.0
+    for rows in slabs:
+        change = max(
+            change,
+            sweep_self(
+                0, flips, h, D, g, E, ED, pself, pol, 1, changed, 1e-9, model, rows,
+                frozen_h, frozen_D,
+            ),
+        )  # fmt: skip
+    return change, pol, int(changed[0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(models(), st.integers(0, 2**31 - 1), st.floats(0.0, 0.9), st.integers(0, 3), st.data())
+def test_nr_slabs_give_the_same_sweep_in_any_order(mdp, seed, g, flips, data):
+    # Two slabs of rows read each other's values from before the sweep: run in either
+    # order (as two threads may) they give bit for bit the same values, D and policy.
+    rows = int(mdp.shape[0])
+    cut = data.draw(st.integers(1, rows - 1))
+    slabs = [(0, cut), (cut, rows)]
+    h, D, E, ED, pself, model = _nr_inputs(mdp, seed)
+    runs = []
+    for order in (slabs, slabs[::-1]):
+        hh, DD = h.copy(), D.copy()
+        change, pol, changed = _slab_sweep(mdp, hh, DD, E, ED, pself, model, g, flips, order)
+        runs.append((change, hh, DD, pol, changed))
+    (c1, h1, d1, p1, n1), (c2, h2, d2, p2, n2) = runs
+    assert (c1, n1) == (c2, n2)
+    np.testing.assert_array_equal(h1, h2)
+    np.testing.assert_array_equal(d1, d2)
+    np.testing.assert_array_equal(p1, p2)
+    # Only NR moves.
+    np.testing.assert_array_equal(h1[1:], h[1:])
+
+
+@settings(max_examples=40, deadline=None)
+@given(models(), st.integers(0, 2**31 - 1), st.floats(0.0, 0.9), st.data())
+def test_nr_sweeps_in_slabs_reach_nr_bellman_fixed_point(mdp, seed, g, data):
+    # With the W layers fixed, repeated sweeps in two slabs (Gauss-Seidel inside, Jacobi
+    # across) reach h_NR = (T h)_NR - g at every live NR state, T by the reference.
+    rows = int(mdp.shape[0])
+    cut = data.draw(st.integers(1, rows - 1))
+    h, D, E, ED, pself, model = _nr_inputs(mdp, seed)
+    for s in range(20_000):
+        change, _, _ = _slab_sweep(
+            mdp, h, D, E, ED, pself, model, g, s % 4, [(0, cut), (cut, rows)]
+        )
+        if change < 1e-13:
+            break
+    assert change < 1e-13  # the NR update contracts by the stay probability, below 1
+    ref = ref_bellman(mdp, h)[0] - g
+    live = mdp.live[0] & np.isfinite(ref)
+    np.testing.assert_allclose(h[0][live], ref[live], rtol=1e-9, atol=1e-9)

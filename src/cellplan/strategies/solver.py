@@ -40,6 +40,7 @@ the minimisers of the right-hand side. Two solvers share the kernels:
 from __future__ import annotations
 
 import hashlib
+import itertools
 import logging
 import time
 import typing
@@ -50,7 +51,7 @@ import numpy as np
 
 from cellplan.core import Status
 from cellplan.strategies import bellman as bellman_kernels
-from cellplan.strategies import sweeps
+from cellplan.strategies import evaluation, sweeps
 from cellplan.strategies.bundles import Model
 from cellplan.strategies.improvement import improvable
 from cellplan.strategies.model import LayeredMDP
@@ -88,6 +89,11 @@ ANDERSON_DEPTH = 4
 EVAL_FIRST = True
 # Final inner accuracy relative to the span tolerance.
 INNER_FACTOR = 1e-2
+# NR, the one layer solved alone, is swept in this many slabs of rows on the pool's
+# threads. A fixed number rather than the thread count, so that the answer does not
+# depend on the threads (two threads: one NR sweep 4.75 -> 2.74 ms on P1 at 200 x 200,
+# 14.2 -> 8.65 ms on P6; docs/benchmarks.md, seventh session).
+NR_SLABS = 2
 Progress = Callable[[int, float, float], None]  # (sweep, residual span, gain)
 
 
@@ -389,6 +395,13 @@ class _Layers:
         self.ED = np.empty_like(self.E)
         self.p_self = float(sum(prob[b] for b in range(ptr[0], ptr[1]) if lay[b] == 0))
         self._merge_request_branches()
+        # NR is swept in NR_SLABS slabs of rows along the first axis (_nr_sweep).
+        self.nr_cells = evaluation.live_cells(live[0])
+        rows = int(mdp.shape[0])
+        cuts = [rows * k // NR_SLABS for k in range(NR_SLABS + 1)]
+        self.nr_slabs = [(a, b) for a, b in itertools.pairwise(cuts) if b > a]
+        self.frozen_h = np.empty(live.shape[1])
+        self.frozen_D = np.empty(live.shape[1])
 
     # --- step 1: the C and W layers ---------------------------------------------------------
 
@@ -548,6 +561,8 @@ class _Layers:
 
         with ``E`` the request branches summed once per pass (:func:`sweeps.other_branches`).
         The first pass starts from ``+inf``; later ones evaluate last pass's NR policy first.
+        Its sweeps run in slabs on the pool (:meth:`_nr_sweep`), its exact evaluations
+        (:func:`.evaluation.self_system`, :func:`.evaluation.evaluate`) in this thread.
         """
         n = self.live.shape[1]
 
@@ -564,14 +579,53 @@ class _Layers:
         self.workers.map(branches, self.workers.ranges(n))
         if cold:
             self.h[0][self.live[0]] = np.inf
-        counts = np.zeros(2, np.int64)
-        sweeps.solve_self(
-            0, self.h, self.D, g, self.E, self.ED, self.p_self, accuracy, self.max_sweeps,
-            self.pol, not cold, counts, self.model,
-        )  # fmt: skip
-        self.sweeps += int(counts[0])
-        self.evaluations += int(counts[1])
-        log.debug("NR: full sweeps %d, evaluations %d", counts[0], counts[1])
+        # Policy iteration, as sweeps.layer_iteration does it for a C or W layer: full
+        # sweeps until the minimiser has nearly settled, then an exact evaluation.
+        cells, local = self.nr_cells
+        full = evaluations = 0
+        changed = 0
+        evaluate_first = not cold  # last pass's policy, confirmed by a full sweep
+        while full + evaluations < max(1, self.max_sweeps):
+            if evaluate_first:
+                evaluate_first = False
+            else:
+                change, changed = self._nr_sweep(g, full % (1 << len(self.mdp.shape)), accuracy)
+                full += 1
+                if change < accuracy:
+                    break
+            if changed <= sweeps.SETTLED_FRACTION * len(cells):
+                system = evaluation.self_system(
+                    0, self.h, self.D, g, self.E, self.ED, self.p_self, self.pol, cells, local,
+                    self.model,
+                )  # fmt: skip
+                evaluation.evaluate(self.h[0], self.D[0], cells, *system)
+                evaluations += 1
+        self.sweeps += full
+        self.evaluations += evaluations
+        log.debug("NR: full sweeps %d, evaluations %d", full, evaluations)
+
+    def _nr_sweep(self, g: float, flips: int, tie: float) -> tuple[float, int]:
+        """One Gauss-Seidel sweep of NR, its slabs of rows on the pool (:func:`.sweeps.sweep_self`).
+
+        Inside a slab the sweep is Gauss-Seidel; across slabs it reads the values from
+        before the sweep, so the slabs can run in any order on any number of threads and
+        give the same values. Returns the largest change and how many minimisers changed
+        by more than ``tie``.
+        """
+        np.copyto(self.frozen_h, self.h[0])
+        np.copyto(self.frozen_D, self.D[0])
+        changed = np.zeros((len(self.nr_slabs), 1), np.int64)
+
+        def run(k: int) -> float:
+            rows = self.nr_slabs[k]
+            return float(
+                sweeps.sweep_self(
+                    0, flips, self.h, self.D, g, self.E, self.ED, self.p_self, self.pol, 1,
+                    changed[k], tie, self.model, rows, self.frozen_h, self.frozen_D,
+                )
+            )  # fmt: skip
+
+        return max(self.workers.map(run, range(len(self.nr_slabs)))), int(changed.sum())
 
 
 class _ShapeMixer:

@@ -15,8 +15,10 @@ by policy iteration built from the kernels here:
   actions, :mod:`cellplan.strategies.evaluation` evaluates the chosen policy exactly once
   it has nearly settled (the solver runs independent layers in parallel threads; the
   kernels release the GIL);
-* :func:`other_branches`, :func:`sweep_self`, :func:`solve_self` - the same for NR with
-  its stay self-loop solved exactly, ``h = (l - g + E_stay) / (1 - P_self)``.
+* :func:`other_branches`, :func:`sweep_self` - the same for NR with its stay self-loop
+  solved exactly, ``h = (l - g + E_stay) / (1 - P_self)``; NR is one layer, so its sweep
+  runs in slabs of rows on parallel threads (the policy-iteration loop around it is
+  :meth:`cellplan.strategies.solver._Layers.nr_layer`).
 
 Cells are visited in alternating axis orders (``flips``) so that values propagate in
 every direction. The model arrives as one :class:`~cellplan.strategies.bundles.Model`.
@@ -29,12 +31,13 @@ from numba import njit
 
 from cellplan.strategies.bundles import Model
 from cellplan.strategies.coldstart import dijkstra_layer
-from cellplan.strategies.evaluation import evaluate, layer_system, live_cells, self_system
+from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
 from cellplan.strategies.improvement import improvable, improve_layer
 from cellplan.strategies.stencils import (
     EPS_W,
     decode,
     first_of_order,
+    first_of_rows,
     move_corners,
     next_of_order,
     table_stencil,
@@ -608,17 +611,25 @@ def other_branches(m, h, D, E, ED, start, stop, model):  # pragma: no cover - nu
                 ED[c, 1 + a] = der
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def sweep_self(
-    m, flips, h, D, g, E, ED, pself, pol, mode, nchg, tie, model
+    m, flips, h, D, g, E, ED, pself, pol, mode, nchg, tie, model, rows, frozen_h, frozen_D
 ):  # pragma: no cover - numba
-    """One Gauss-Seidel sweep of a layer without FMP whose other branches are in ``E``.
+    """One Gauss-Seidel sweep of a slab of a layer without FMP whose other branches are in
+    ``E``.
 
     The update of :func:`sweep_policy` with ``exact_stay`` for NR (``pself`` is the
     probability of staying in the layer): stay is solved exactly,
     ``h = (l - g + E[c, 0]) / (1 - pself)``, and a move costs
     ``l - g + E[c, 1 + a] + pself * H_m(x')``. ``pol``, ``mode`` and ``nchg`` as in
     :func:`sweep_policy`. Returns the largest change.
+
+    Only the cells whose first index lies in ``rows = (start, stop)`` are updated, in the
+    sweep order; a landing corner outside the slab is read from ``frozen_h`` and
+    ``frozen_D`` (the layer's values before the sweep) rather than from ``h`` and ``D``.
+    Slabs of one sweep therefore read nothing another writes, so they can run on parallel
+    threads in any order and give the same values: Gauss-Seidel inside a slab, Jacobi
+    across slabs.
     """
     moves = model.moves
     grid = model.grid
@@ -640,11 +651,24 @@ def sweep_self(
     na = moves.nact[kcls]
     step_cost = lay.cost[m] - g
     maxchange = 0.0
+    # The slab is a run of flat indices (the first axis varies slowest).
+    stride = ncell // shape[0]
+    lo = rows[0] * stride
+    hi = rows[1] * stride
+    # A cell at least `reach` rows inside the slab lands only on corners in the slab.
+    reach = 0
+    for a in range(na):
+        for t in range(moves.offs.shape[2]):
+            o = moves.offs[kcls, a, t, 0]
+            reach = max(reach, -o if o < 0 else o + 1)
+    safe_lo = lo + reach * stride
+    safe_hi = hi - reach * stride
     c = -1
-    for kk in range(ncell):
-        c = first_of_order(shape, flips, mi) if kk == 0 else next_of_order(shape, flips, mi)
+    for kk in range(hi - lo):
+        c = first_of_rows(shape, flips, rows, mi) if kk == 0 else next_of_order(shape, flips, mi)
         if not livem[c]:
             continue
+        inside = safe_lo <= c < safe_hi
         best = np.inf
         bestd = 0.0
         barg = -3
@@ -687,11 +711,12 @@ def sweep_self(
                     if wj > EPS_W:
                         i = idx[j]
                         if livem[i]:
-                            hv = hm[i]
+                            own = inside or lo <= i < hi
+                            hv = hm[i] if own else frozen_h[i]
                             if hv < np.inf:
                                 ssum += wj
                                 vsum += wj * hv
-                                dsum += wj * Dm[i]
+                                dsum += wj * (Dm[i] if own else frozen_D[i])
                 if ssum <= EPS_W:
                     continue
                 val += pself * vsum / ssum
@@ -714,43 +739,3 @@ def sweep_self(
             hm[c] = best
             Dm[c] = bestd
     return maxchange
-
-
-@njit(cache=True)
-def solve_self(
-    m, h, D, g, E, ED, pself, accuracy, max_sweeps, pol, warm, counts, model
-):  # pragma: no cover - numba
-    """Policy iteration with :func:`sweep_self` (as :func:`layer_iteration`) for NR.
-
-    Stops when a full sweep changes less than ``accuracy``; ``counts`` receives
-    (full sweeps, exact evaluations).
-    """
-    d = model.grid.shape.shape[0]
-    cells, local = live_cells(model.layers.live[m])
-    nlive = cells.shape[0]
-    nchg = np.zeros(1, np.int64)
-    full = 0
-    ev = 0
-    flip = 0
-    evaluate_first = warm
-    while full + ev < max(1, max_sweeps):
-        if evaluate_first:
-            # Last pass's policy, evaluated exactly, then confirmed by a full sweep.
-            evaluate_first = False
-        else:
-            nchg[0] = 0
-            change = sweep_self(
-                m, flip % (1 << d), h, D, g, E, ED, pself, pol, 1, nchg, accuracy, model
-            )
-            full += 1
-            flip += 1
-            if change < accuracy:
-                break
-        if nchg[0] <= SETTLED_FRACTION * nlive:
-            ptr, succ, wt, const, dconst, fixed = self_system(
-                m, h, D, g, E, ED, pself, pol, cells, local, model
-            )
-            evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
-            ev += 1
-    counts[0] = full
-    counts[1] = ev
