@@ -1187,7 +1187,8 @@ def estimate_memory(
       (int64 ``(d + 1, N)``);
     * solver (its peak is the final certificate, :func:`~.solver._finish`): ``h`` and
       ``D`` float64 and the policy int16 ``(M, N)``, the NR action sums ``E`` and ``ED``
-      float64 ``(N, A + 1)``, a trial copy of ``h``, the certificate's Bellman sweep (value,
+      float64 ``(N, A + 1)``, NR's values and ``D`` before a sweep (float64 ``N`` each,
+      read across its slabs), a trial copy of ``h``, the certificate's Bellman sweep (value,
       int64 policy, gap: three ``(M, N)`` of 8 bytes), the stability test's slack (two
       float64 temporaries), its mask (bool) and shifted values (float64), and its second
       Bellman sweep (three more 8-byte ``(M, N)``);
@@ -1272,7 +1273,7 @@ def estimate_memory(
     terms = {
         "model": N * (8 * n_opt + M + K + K + 8 * K),
         "building": max(building, N * bitmaps + _bitmap_peak(cell, shape, parts)),
-        "solver": N * (18 * M + 16 * (A + 1) + 8 * M + 24 * M + 16 * M + M + 8 * M + 24 * M),
+        "solver": N * (18 * M + 16 * (A + 1) + 16 + 8 * M + 24 * M + 16 * M + M + 8 * M + 24 * M),
         "tables": K * A * T * (16 * d + 16 * 2**d),
         "policy": 100 * M * N + (33 + 44) * places,
         # SuperLU's factors (C memory, which tracemalloc does not see): 12 bytes an entry.

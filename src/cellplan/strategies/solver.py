@@ -728,9 +728,10 @@ def _certificate_due(p: _Drift, capped: bool, first: bool, accuracy: float, tol:
     Its span is about the larger of the drift (it shows up as the inconsistency at the
     FMP into NR), the NR shape change and the inner accuracy. The Newton step on ``g`` is
     exact while no action changes, so the certificate is tried with every layer moved
-    along it (:func:`_moved_along_newton`): once the shape change is within the tolerance,
-    and either the drift is too, or it is small and the layers were solved exactly (policy
-    iteration makes that cheap). A failed attempt costs one Jacobi sweep.
+    along it (:func:`_moved_along_newton`): once the shape change is within
+    :data:`ATTEMPT_SHAPE` times the tolerance, and either the drift is within the tolerance,
+    or it is small and the layers were solved exactly (policy iteration makes that cheap).
+    A failed attempt costs one Jacobi sweep.
     """
     return (
         not capped
