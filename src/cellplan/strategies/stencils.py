@@ -148,12 +148,11 @@ def first_of_order(shape, flips, mi):  # pragma: no cover - numba
 @njit(cache=True, inline="always")
 def first_of_rows(shape, flips, rows, mi):  # pragma: no cover - numba
     """:func:`first_of_order` of the cells whose first index is in ``rows = (start, stop)``."""
-    flat = first_of_order(shape, flips, mi)
-    if rows[0] > 0 or rows[1] < shape[0]:
-        mi[0] = rows[1] - 1 if flips & 1 else rows[0]
-        flat = mi[0]
-        for j in range(1, shape.shape[0]):
-            flat = flat * shape[j] + mi[j]
+    first_of_order(shape, flips, mi)
+    mi[0] = rows[1] - 1 if flips & 1 else rows[0]
+    flat = 0
+    for j in range(shape.shape[0]):
+        flat = flat * shape[j] + mi[j]
     return flat
 
 
