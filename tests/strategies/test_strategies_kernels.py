@@ -470,7 +470,7 @@ def _nr_inputs(mdp, seed):
     return h, D, E, ED, pself, model
 
 
-def _slab_sweep(mdp, h, D, E, ED, pself, model, g, flips, slabs):
+def _slab_sweep(h, D, E, ED, pself, model, g, flips, slabs):
     """One NR sweep, its slabs in the given order, reading each other's old values."""
     frozen_h, frozen_D = h[0].copy(), D[0].copy()
     pol = np.full(h.shape, -3, np.int16)
@@ -499,7 +499,7 @@ def test_nr_slabs_give_the_same_sweep_in_any_order(mdp, seed, g, flips, data):
     runs = []
     for order in (slabs, slabs[::-1]):
         hh, DD = h.copy(), D.copy()
-        change, pol, changed = _slab_sweep(mdp, hh, DD, E, ED, pself, model, g, flips, order)
+        change, pol, changed = _slab_sweep(hh, DD, E, ED, pself, model, g, flips, order)
         runs.append((change, hh, DD, pol, changed))
     (c1, h1, d1, p1, n1), (c2, h2, d2, p2, n2) = runs
     assert (c1, n1) == (c2, n2)
@@ -519,9 +519,7 @@ def test_nr_sweeps_in_slabs_reach_nr_bellman_fixed_point(mdp, seed, g, data):
     cut = data.draw(st.integers(1, rows - 1))
     h, D, E, ED, pself, model = _nr_inputs(mdp, seed)
     for s in range(20_000):
-        change, _, _ = _slab_sweep(
-            mdp, h, D, E, ED, pself, model, g, s % 4, [(0, cut), (cut, rows)]
-        )
+        change, _, _ = _slab_sweep(h, D, E, ED, pself, model, g, s % 4, [(0, cut), (cut, rows)])
         if change < 1e-13:
             break
     assert change < 1e-13  # the NR update contracts by the stay probability, below 1
