@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from strategies_helpers import tiny
 
-from cellplan.errors import PersistenceError
+from cellplan.errors import ArgumentError, PersistenceError
+from cellplan.strategies.points import query
 from cellplan.strategies.strategy import FMP, STAY, Strategy, solve_scenario
 
 
@@ -101,3 +102,71 @@ def test_policy_never_commands_a_colliding_motion(solved, x, y, mode):
     avoid = "all" if m.kind == "NR" else cell.sources_except(m.source)
     q1 = strategy.next_configuration(q, mode, u)
     assert not cell.motion_collides(q[None], q1[None], 0.05, carrying, avoid)[0]
+
+
+def test_queries_refuse_bad_arguments_with_one_line_each(solved):
+    # The kernels index the model's arrays with q and the mode unchecked: a mode out of
+    # range used to read past the end of them (a segmentation fault).
+    _, _, strategy, _ = solved
+    q = np.array([15.0, 8.0])
+    n = strategy.mdp.n_modes
+    cases = [
+        (lambda: strategy.action(np.array([15.0, 8.0, 1.0]), 0), "q", "shape (2,), got (3,)"),
+        (lambda: strategy.action(q[:1], 0), "q", "shape (2,), got (1,)"),
+        (lambda: strategy.action(q[None], 0), "q", "got (1, 2)"),
+        (lambda: strategy.action(["a", "b"], 0), "q", "array of numbers"),
+        (lambda: strategy.action(np.array([np.nan, 8.0]), 0), "q", "NaN or infinite"),
+        (lambda: strategy.action(np.array([15.0, -np.inf]), 0), "q", "NaN or infinite"),
+        (lambda: strategy.action(q, n), "mode", f"[0, {n}), got {n}"),
+        (lambda: strategy.action(q, -1), "mode", "got -1"),
+        (lambda: strategy.action(q, 1.0), "mode", "got 1.0"),
+        (lambda: strategy.action(q, True), "mode", "got True"),
+        (lambda: strategy.action_values(q, n + 3), "mode", "layer index"),
+        (lambda: strategy.action_values(np.array([np.nan, 1.0]), 0), "q", "NaN"),
+        (lambda: strategy.action_values(q, 0, values=np.zeros((2, 2))), "values", "(2, 2)"),
+        (lambda: strategy.cell_of(np.array([np.inf, 1.0])), "q", "NaN or infinite"),
+        (lambda: strategy.next_configuration(q, 0, 10**6), "action", "got 1000000"),
+        (lambda: strategy.next_configuration(q, 0, -3), "action", "got -3"),
+        (lambda: strategy.next_configuration(q, n, 0), "mode", "layer index"),
+    ]
+    for call, field, text in cases:
+        with pytest.raises(ArgumentError) as info:
+            call()
+        (problem,) = info.value.problems
+        assert problem.field == field
+        assert text in problem.message
+
+
+@settings(max_examples=60)
+@given(
+    x=st.floats(-5.0, 35.0),
+    y=st.floats(-5.0, 35.0),
+    mode=st.integers(0, 4),
+    forbid=st.booleans(),
+)
+def test_the_bound_query_kernel_is_the_dispatched_one(solved, x, y, mode, forbid):
+    # Strategy.action calls the query's compiled code directly (points.compiled_for),
+    # skipping numba's dispatcher: the same answer and action values as through it.
+    _, _, strategy, _ = solved
+    args = strategy._query_args()
+    q = np.array([x, y])
+    out = np.empty_like(args.out)
+    expect = query(q, mode, args.h0, args.live, forbid, args.model, out)
+    assert args.kernel(q, mode, args.h0, args.live, forbid, args.model, args.out) == expect
+    np.testing.assert_array_equal(args.out, out)
+
+
+def test_queries_follow_replaced_values(solved):
+    _, _, strategy, _ = solved
+    copy = Strategy(strategy.mdp, strategy.values.copy(), dict(strategy.meta))
+    q = np.array([15.3, 8.2])
+    copy.action(q, 0)
+    before = copy._query_args()
+    copy.values = -copy.values  # a strategy that heads for the worst states
+    after = copy._query_args()
+    assert after is not before and after.values is copy.values
+    out = np.empty_like(after.out)
+    expect = query(
+        q, 0, np.nan_to_num(copy.values, nan=0.0), copy.mdp.live, False, after.model, out
+    )
+    assert copy.action(q, 0) == expect

@@ -9,7 +9,7 @@ representation of L*". At ``(q, m)`` the value of an action is
     move:  l(m) + sum_b P_b H_{L_b}(q + dq_a)     (only if the swept motion is free)
 
 with ``H`` the interpolation of :mod:`cellplan.strategies.interpolation` over the layer's
-live corners. :func:`query` picks the minimiser (the online step, about 10 us);
+live corners. :func:`query` picks the minimiser (the online step, a few us);
 :func:`lookahead` searches motion sequences for the :class:`~cellplan.strategies.execution.
 Executor`. The values ``h`` and their ``live`` mask are arguments (the executor passes
 its corrected copy, the baselines their own layers); the rest of the model comes in one
@@ -18,6 +18,10 @@ its corrected copy, the baselines their own layers); the rest of the model comes
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numba
 import numpy as np
 from numba import njit
 
@@ -131,9 +135,14 @@ def query(q, m, h, live, forbid_fmp, model, out):  # pragma: no cover - numba
     """The optimal action at a real state in one call (the online step of Section IV-B).
 
     FMP is offered where the grid cell containing ``q`` allows it (unless ``forbid_fmp``).
-    Returns -2 (FMP), -1 (stay), a move index, or -9 when no action is available; ``out``
-    receives the right-hand side of (9) per action as in :func:`action_values_at`.
+    Returns -2 (FMP), -1 (stay), a move index, -9 when no action is available, or -10 when
+    ``q`` is not finite (nothing is read then); ``out`` receives the right-hand side of (9)
+    per action as in :func:`action_values_at`. ``q`` must have the grid's dimension and
+    ``m`` be a layer index: the caller checks both.
     """
+    for j in range(q.shape[0]):
+        if not np.isfinite(q[j]):
+            return -10
     grid = model.grid
     c = cell_containing(q, grid.shape, grid.lower, grid.spacing, grid.periodic)
     tf_here = model.layers.tf[model.layers.opt_ptr[m], c]
@@ -313,3 +322,19 @@ def fmp_options_at(q, m, h, live, allowed, model):  # pragma: no cover - numba
             best = lay.tf[o0 + j, c] + v
             arg = j
     return arg, best
+
+
+def compiled_for(kernel: Any, args: Sequence[Any]) -> Callable[..., Any]:
+    """``kernel``'s compiled code for the numba types of ``args``, callable without numba's
+    dispatcher.
+
+    A call through the dispatcher first works out the type of every argument to choose
+    the compiled version; for the model bundle, named tuples of about thirty arrays, that
+    took 8 of a 12 us query on problem 1 (docs/benchmarks.md). The returned function skips
+    that step, so it must only be called with arguments of exactly these types: the same
+    arrays, or arrays of the same dtype, dimension and layout, and scalars of the same
+    kind (``int``, ``bool``). Compiles the kernel, or loads it from numba's cache, on the
+    way.
+    """
+    fn: Callable[..., Any] = kernel.compile(tuple(numba.typeof(a) for a in args))
+    return fn

@@ -15,10 +15,11 @@ scenario whose digest differs raises :class:`~cellplan.errors.PersistenceError`.
 from __future__ import annotations
 
 import json
+import operator
 import re
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -29,7 +30,7 @@ from cellplan.strategies.bundles import Model, Outcomes
 from cellplan.strategies.fileformat import FORMAT, VERSION, mode_of
 from cellplan.strategies.model import LayeredMDP, Mode
 from cellplan.strategies.motion import motion_ok
-from cellplan.strategies.points import action_values_at, fmp_options_at, query
+from cellplan.strategies.points import action_values_at, compiled_for, fmp_options_at, query
 from cellplan.strategies.solver import SolveResult
 from cellplan.strategies.stencils import MAX_DIM, displacement, fmp_code, wrap
 
@@ -54,6 +55,18 @@ _ARRAY_FIELDS = [
 ]
 #: The FMP outcome arrays of a strategy file (:class:`~.bundles.Outcomes`, by field).
 _OUTCOME_ARRAYS = {"out_ptr": "ptr", "out_layer": "layer", "out_prob": "prob", "out_cost": "cost"}
+
+
+class _QueryArgs(NamedTuple):
+    """What :meth:`Strategy.action` passes to the query kernel, prepared once."""
+
+    mdp: LayeredMDP
+    values: np.ndarray
+    model: Model
+    h0: np.ndarray  # the values with 0 for NaN, C-ordered
+    live: np.ndarray
+    out: np.ndarray  # the kernel's scratch row of action values
+    kernel: Any  # points.query compiled for these arguments' types
 
 
 @dataclass
@@ -214,9 +227,10 @@ class Strategy:
         )
 
     def cell_of(self, q: np.ndarray) -> int:
-        """Flat index of the grid cell containing ``q``."""
+        """Flat index of the grid cell containing ``q`` (clamped to the grid on bounded axes)."""
         mdp = self.mdp
-        idx = np.floor((np.asarray(q, float) - mdp.lower) / mdp.spacing).astype(np.int64)
+        q, _ = self._checked_state(q)
+        idx = np.floor((q - mdp.lower) / mdp.spacing).astype(np.int64)
         for j in range(len(idx)):
             idx[j] = (
                 idx[j] % mdp.shape[j] if mdp.periodic[j] else min(max(idx[j], 0), mdp.shape[j] - 1)
@@ -236,7 +250,11 @@ class Strategy:
         the region test (by default the cell containing ``q`` must allow FMP).
         """
         mdp = self.mdp
-        q = np.ascontiguousarray(q, dtype=float)
+        q, mode = self._checked_state(q, mode)
+        if values is not None and np.shape(values) != mdp.live.shape:
+            raise ArgumentError(
+                [Problem("values", f"expected shape {mdp.live.shape}, got {np.shape(values)}")]
+            )
         c = self.cell_of(q)
         tf_here = float(mdp.tf[mode, c])
         if fmp_allowed is None:
@@ -266,19 +284,59 @@ class Strategy:
     @property
     def _model(self) -> Model:
         """The model bundle of the point kernels (built once; queries run every stage)."""
-        cached = self.__dict__.get("_model_cache")
-        if cached is None or cached[0] is not self.mdp:
-            cached = (self.mdp, self.mdp.kernel_args())
-            self.__dict__["_model_cache"] = cached
-        return cached[1]
+        return self._query_args().model
 
     @property
     def _h0(self) -> np.ndarray:
-        cached = self.__dict__.get("_h0_cache")
-        if cached is None:
-            cached = np.nan_to_num(self.values, nan=0.0)
-            self.__dict__["_h0_cache"] = cached
+        return self._query_args().h0
+
+    def _query_args(self) -> _QueryArgs:
+        """What every query passes to the kernels, prepared once per model and values
+        (rebuilt if either attribute is replaced)."""
+        cached: _QueryArgs | None = self.__dict__.get("_query_cache")
+        if cached is None or cached.mdp is not self.mdp or cached.values is not self.values:
+            mdp = self.mdp
+            model = mdp.kernel_args()
+            h0 = np.ascontiguousarray(np.nan_to_num(self.values, nan=0.0))
+            live = np.ascontiguousarray(mdp.live)
+            out = np.empty(2 + mdp.disp.shape[1])
+            q = np.zeros(len(mdp.shape))
+            kernel = compiled_for(query, (q, 0, h0, live, False, model, out))
+            cached = _QueryArgs(mdp, self.values, model, h0, live, out, kernel)
+            self.__dict__["_query_cache"] = cached
         return cached
+
+    def _checked_state(
+        self, q: np.ndarray, mode: int | None = None, finite: bool = True
+    ) -> tuple[np.ndarray, int]:
+        """``q`` as a float ``(d,)`` array and ``mode`` as a layer index (0 when None), or
+        an :class:`~cellplan.errors.ArgumentError` naming what is wrong: the kernels index
+        the model's arrays with both unchecked. ``finite=False`` leaves the test for NaN
+        and infinities to the caller (the query kernel does it for a fraction of what numpy
+        takes, and a query runs every stage)."""
+        mdp = self.mdp
+        d = len(mdp.shape)
+        try:
+            arr = np.ascontiguousarray(q, dtype=float)
+        except (TypeError, ValueError):
+            raise ArgumentError([Problem("q", "expected an array of numbers")]) from None
+        if arr.shape != (d,):
+            raise ArgumentError(
+                [Problem("q", f"expected a configuration of shape ({d},), got {np.shape(q)}")]
+            )
+        if finite and not np.isfinite(arr).all():
+            raise ArgumentError([Problem("q", "contains NaN or infinite values")])
+        if mode is None:
+            return arr, 0
+        try:
+            m = operator.index(mode)
+        except TypeError:
+            m = -1
+        if not 0 <= m < mdp.n_modes or isinstance(mode, bool):
+            raise ArgumentError(
+                [Problem("mode", f"expected a layer index in [0, {mdp.n_modes}), got {mode!r}")]
+            )
+        return arr, m
 
     def attach(self, cell: Any) -> Strategy:
         """Confirm every FMP that :meth:`action` returns with the workcell's exact region test.
@@ -299,27 +357,20 @@ class Strategy:
         with FMP options (simultaneous requests, Section VI-2) option ``j >= 1`` is
         ``-3 - j`` (:func:`~cellplan.strategies.stencils.fmp_option` decodes it).
 
-        One compiled evaluation of equation (9) (about ten microseconds). With a workcell
+        One compiled evaluation of equation (9), a few microseconds: the compiled code is
+        called directly (:func:`~cellplan.strategies.points.compiled_for`). With a workcell
         :meth:`attach` ed, an FMP is returned only where the exact region test allows it.
-        Raises ``ValueError`` when no action is available (``q`` outside the live states).
+        Raises :class:`~cellplan.errors.ArgumentError` for a ``q`` that is not a finite
+        configuration of the grid's dimension or a ``mode`` that is not a layer index, and
+        ``ValueError`` when no action is available (``q`` outside the live states).
         """
-        mdp = self.mdp
-        out = self.__dict__.get("_out")
-        if out is None:
-            out = np.empty(2 + mdp.disp.shape[1])
-            self.__dict__["_out"] = out
-        if mdp.opt_ptr is not None:
-            q = np.ascontiguousarray(q, dtype=float)
-            return self._best_option_or_motion(q, mode, out, forbid_fmp)
-        u = query(
-            np.ascontiguousarray(q, dtype=float),
-            mode,
-            self._h0,
-            mdp.live,
-            forbid_fmp,
-            self._model,
-            out,
-        )
+        q, mode = self._checked_state(q, mode, finite=self.mdp.opt_ptr is not None)
+        args = self._query_args()
+        if self.mdp.opt_ptr is not None:
+            return self._best_option_or_motion(q, mode, args.out, forbid_fmp)
+        u = args.kernel(q, mode, args.h0, args.live, bool(forbid_fmp), args.model, args.out)
+        if u == -10:
+            raise ArgumentError([Problem("q", "contains NaN or infinite values")])
         if u == -9:
             raise ValueError(
                 "no action is available here (the state is outside the strategy's domain)"
@@ -369,14 +420,30 @@ class Strategy:
         landing free from the cell centre can be blocked from an off-centre ``q``), the
         robot stops where it is. None gives the commanded move.
         """
-        q = np.asarray(q, float).copy()
-        if action < 0:
-            return q
+        q, mode = self._checked_state(q, mode)
+        q = q.copy()
         mdp = self.mdp
         k = mdp.vcls[mode]
-        row = action
-        if landing is not None and len(mdp.noise_prob) > 1:
-            row = int(mdp.nact[k]) + action * len(mdp.noise_prob) + int(landing)
+        n_moves = int(mdp.nact[k])
+        if not isinstance(action, (int, np.integer)) or not FMP <= action < n_moves:
+            raise ArgumentError(
+                [Problem("action", f"expected FMP (-2), stay (-1) or a move in [0, {n_moves})"
+                         f" of this mode, got {action!r}")]
+            )  # fmt: skip
+        if action < 0:
+            return q
+        row = int(action)
+        n_landings = len(mdp.noise_prob)
+        if landing is not None and n_landings > 1:
+            if not isinstance(landing, (int, np.integer)) or not 0 <= landing < n_landings:
+                raise ArgumentError(
+                    [
+                        Problem(
+                            "landing", f"expected an outcome in [0, {n_landings}), got {landing!r}"
+                        )
+                    ]
+                )
+            row = n_moves + row * n_landings + int(landing)
         dq = np.empty(len(q))
         displacement(q, mdp.disp[k, row], mdp.heading_axis, dq)
         if row != action and not motion_ok(
