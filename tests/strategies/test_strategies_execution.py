@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from strategies_helpers import tiny
 
+from cellplan.errors import ArgumentError
 from cellplan.strategies.execution import Executor, default_depth
 from cellplan.strategies.simulate import Request, Simulation, simulate
 from cellplan.strategies.strategy import FMP, STAY, Strategy, solve_scenario
@@ -184,3 +185,22 @@ def test_no_snap_model_keeps_only_moves_that_land_among_free_cells(solved):
                 assert bool((mdp.valid[k, c] >> a) & 1) == (not touches)
                 removed += touches
     assert removed > 0  # the tiny cell's block makes some moves snap
+
+
+def test_the_executor_refuses_bad_states_with_one_line(solved):
+    # The executor's kernels index the values with the mode unchecked, like the query's.
+    _, strategy = solved
+    ex = Executor(strategy)
+    n = strategy.mdp.n_modes
+    q = np.array([15.0, 8.0])
+    cases = [
+        (lambda: ex.action(q, n), "mode"),
+        (lambda: ex.action(np.array([np.nan, 8.0]), 1), "q"),
+        (lambda: ex.action_values(q[:1], 1), "q"),
+        (lambda: ex.value(q, -2), "mode"),
+        (lambda: ex.correct(q, n + 1, 0.0), "mode"),
+    ]
+    for call, field in cases:
+        with pytest.raises(ArgumentError) as info:
+            call()
+        assert [p.field for p in info.value.problems] == [field]

@@ -49,7 +49,7 @@ from cellplan.strategies import stencils
 from cellplan.strategies.interpolation import interp
 from cellplan.strategies.model import LayeredMDP
 from cellplan.strategies.points import action_values_at, lookahead
-from cellplan.strategies.strategy import FMP, Strategy, best_action
+from cellplan.strategies.strategy import FMP, Strategy, best_action, checked_state
 
 # Fraction of one stage's progress (l - g) below which an inconsistency is left alone.
 RAISE_FRACTION = 0.5
@@ -148,7 +148,7 @@ class Executor:
         returned array is reused by the next call.
         """
         mdp = self.strategy.mdp
-        q = np.ascontiguousarray(q, dtype=float)
+        q, mode = checked_state(mdp, q, mode)
         tf_here = float(mdp.tf[mode, self.strategy.cell_of(q)])
         if fmp_allowed is None:
             fmp_allowed = bool(np.isfinite(tf_here))
@@ -167,8 +167,9 @@ class Executor:
     def value(self, q: np.ndarray, mode: int) -> float:
         """The interpolated cost-to-go ``H(q)`` of a layer (NaN outside its live states)."""
         mdp = self.strategy.mdp
+        q, mode = checked_state(mdp, q, mode)
         n = stencils.stencil(
-            np.ascontiguousarray(q, dtype=float),
+            q,
             mdp.shape,
             mdp.lower,
             mdp.spacing,
@@ -189,6 +190,7 @@ class Executor:
         corrected (NR has no progress to make).
         """
         mdp = self.strategy.mdp
+        q, mode = checked_state(mdp, q, mode)
         if not self.learn or mdp.fmp_next[mode] < 0 or not np.isfinite(target):
             return 0.0
         here = self.value(q, mode)  # also leaves q's stencil in _idx, _w
@@ -217,7 +219,7 @@ class Executor:
         available.
         """
         mdp = self.strategy.mdp
-        q = np.ascontiguousarray(q, dtype=float)
+        q, mode = checked_state(mdp, q, mode)
         if self._plan and self._plan_mode == mode:
             u = self._plan.pop(0)
             if not (u == FMP and fmp_allowed is False):

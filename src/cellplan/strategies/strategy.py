@@ -229,7 +229,7 @@ class Strategy:
     def cell_of(self, q: np.ndarray) -> int:
         """Flat index of the grid cell containing ``q`` (clamped to the grid on bounded axes)."""
         mdp = self.mdp
-        q, _ = self._checked_state(q)
+        q, _ = checked_state(self.mdp, q)
         idx = np.floor((q - mdp.lower) / mdp.spacing).astype(np.int64)
         for j in range(len(idx)):
             idx[j] = (
@@ -250,7 +250,7 @@ class Strategy:
         the region test (by default the cell containing ``q`` must allow FMP).
         """
         mdp = self.mdp
-        q, mode = self._checked_state(q, mode)
+        q, mode = checked_state(self.mdp, q, mode)
         if values is not None and np.shape(values) != mdp.live.shape:
             raise ArgumentError(
                 [Problem("values", f"expected shape {mdp.live.shape}, got {np.shape(values)}")]
@@ -306,38 +306,6 @@ class Strategy:
             self.__dict__["_query_cache"] = cached
         return cached
 
-    def _checked_state(
-        self, q: np.ndarray, mode: int | None = None, finite: bool = True
-    ) -> tuple[np.ndarray, int]:
-        """``q`` as a float ``(d,)`` array and ``mode`` as a layer index (0 when None), or
-        an :class:`~cellplan.errors.ArgumentError` naming what is wrong: the kernels index
-        the model's arrays with both unchecked. ``finite=False`` leaves the test for NaN
-        and infinities to the caller (the query kernel does it for a fraction of what numpy
-        takes, and a query runs every stage)."""
-        mdp = self.mdp
-        d = len(mdp.shape)
-        try:
-            arr = np.ascontiguousarray(q, dtype=float)
-        except (TypeError, ValueError):
-            raise ArgumentError([Problem("q", "expected an array of numbers")]) from None
-        if arr.shape != (d,):
-            raise ArgumentError(
-                [Problem("q", f"expected a configuration of shape ({d},), got {np.shape(q)}")]
-            )
-        if finite and not np.isfinite(arr).all():
-            raise ArgumentError([Problem("q", "contains NaN or infinite values")])
-        if mode is None:
-            return arr, 0
-        try:
-            m = operator.index(mode)
-        except TypeError:
-            m = -1
-        if not 0 <= m < mdp.n_modes or isinstance(mode, bool):
-            raise ArgumentError(
-                [Problem("mode", f"expected a layer index in [0, {mdp.n_modes}), got {mode!r}")]
-            )
-        return arr, m
-
     def attach(self, cell: Any) -> Strategy:
         """Confirm every FMP that :meth:`action` returns with the workcell's exact region test.
 
@@ -364,7 +332,7 @@ class Strategy:
         configuration of the grid's dimension or a ``mode`` that is not a layer index, and
         ``ValueError`` when no action is available (``q`` outside the live states).
         """
-        q, mode = self._checked_state(q, mode, finite=self.mdp.opt_ptr is not None)
+        q, mode = checked_state(self.mdp, q, mode, finite=self.mdp.opt_ptr is not None)
         args = self._query_args()
         if self.mdp.opt_ptr is not None:
             return self._best_option_or_motion(q, mode, args.out, forbid_fmp)
@@ -420,7 +388,7 @@ class Strategy:
         landing free from the cell centre can be blocked from an off-centre ``q``), the
         robot stops where it is. None gives the commanded move.
         """
-        q, mode = self._checked_state(q, mode)
+        q, mode = checked_state(self.mdp, q, mode)
         q = q.copy()
         mdp = self.mdp
         k = mdp.vcls[mode]
@@ -604,3 +572,37 @@ def solve_scenario(
     strategy.meta["home"] = [float(v) for v in home]
     strategy.meta["start"] = [float(v) for v in cell.robot.start]
     return strategy, result
+
+
+def checked_state(
+    mdp: LayeredMDP, q: Any, mode: Any = None, finite: bool = True
+) -> tuple[np.ndarray, int]:
+    """``q`` as a float ``(d,)`` array and ``mode`` as a layer index of ``mdp`` (0 when
+    None), or an :class:`~cellplan.errors.ArgumentError` naming what is wrong: the point
+    kernels index the model's arrays with both unchecked.
+
+    ``finite=False`` leaves the test for NaN and infinities to the caller (the query kernel
+    does it for a fraction of what numpy takes, and a query runs every stage).
+    """
+    d = len(mdp.shape)
+    try:
+        arr = np.ascontiguousarray(q, dtype=float)
+    except (TypeError, ValueError):
+        raise ArgumentError([Problem("q", "expected an array of numbers")]) from None
+    if arr.shape != (d,):
+        raise ArgumentError(
+            [Problem("q", f"expected a configuration of shape ({d},), got {np.shape(q)}")]
+        )
+    if finite and not np.isfinite(arr).all():
+        raise ArgumentError([Problem("q", "contains NaN or infinite values")])
+    if mode is None:
+        return arr, 0
+    try:
+        m = operator.index(mode)
+    except TypeError:
+        m = -1
+    if not 0 <= m < mdp.n_modes or isinstance(mode, bool):
+        raise ArgumentError(
+            [Problem("mode", f"expected a layer index in [0, {mdp.n_modes}), got {mode!r}")]
+        )
+    return arr, m
