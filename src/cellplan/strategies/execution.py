@@ -147,9 +147,12 @@ class Executor:
         As :meth:`Strategy.action_values`, on this execution's (corrected) values; the
         returned array is reused by the next call.
         """
+        q, mode = checked_state(self.strategy.mdp, q, mode)
+        return self._action_values(q, mode, fmp_allowed)
+
+    def _action_values(self, q: np.ndarray, mode: int, fmp_allowed: bool | None) -> np.ndarray:
         mdp = self.strategy.mdp
-        q, mode = checked_state(mdp, q, mode)
-        tf_here = float(mdp.tf[mode, self.strategy.cell_of(q)])
+        tf_here = float(mdp.tf[mode, self.strategy._cell_of(q)])
         if fmp_allowed is None:
             fmp_allowed = bool(np.isfinite(tf_here))
         action_values_at(
@@ -166,8 +169,11 @@ class Executor:
 
     def value(self, q: np.ndarray, mode: int) -> float:
         """The interpolated cost-to-go ``H(q)`` of a layer (NaN outside its live states)."""
+        q, mode = checked_state(self.strategy.mdp, q, mode)
+        return self._value(q, mode)
+
+    def _value(self, q: np.ndarray, mode: int) -> float:
         mdp = self.strategy.mdp
-        q, mode = checked_state(mdp, q, mode)
         n = stencils.stencil(
             q,
             mdp.shape,
@@ -189,11 +195,14 @@ class Executor:
         offset, or the lookahead's best). Only layers with a request to finish are
         corrected (NR has no progress to make).
         """
+        q, mode = checked_state(self.strategy.mdp, q, mode)
+        return self._correct(q, mode, target)
+
+    def _correct(self, q: np.ndarray, mode: int, target: float) -> float:
         mdp = self.strategy.mdp
-        q, mode = checked_state(mdp, q, mode)
         if not self.learn or mdp.fmp_next[mode] < 0 or not np.isfinite(target):
             return 0.0
-        here = self.value(q, mode)  # also leaves q's stencil in _idx, _w
+        here = self._value(q, mode)  # also leaves q's stencil in _idx, _w
         if np.isnan(here):
             return 0.0
         progress = float(mdp.cost[mode]) - self.offset
@@ -229,12 +238,12 @@ class Executor:
         if mdp.fmp_next[mode] >= 0 and self.depth > 1:
             best, plan = self._lookahead(q, mode, fmp_allowed is not False)
             if plan:
-                self.correct(q, mode, best)
+                self._correct(q, mode, best)
                 self._plan = plan[1:]
                 return plan[0]
-        vals = self.action_values(q, mode, fmp_allowed)
+        vals = self._action_values(q, mode, fmp_allowed)
         u = best_action(vals)
-        self.correct(q, mode, float(np.nanmin(vals)) - self.offset)
+        self._correct(q, mode, float(np.nanmin(vals)) - self.offset)
         return u
 
     def _lookahead(self, q: np.ndarray, mode: int, fmp_root: bool) -> tuple[float, list[int]]:

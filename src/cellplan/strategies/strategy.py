@@ -228,8 +228,11 @@ class Strategy:
 
     def cell_of(self, q: np.ndarray) -> int:
         """Flat index of the grid cell containing ``q`` (clamped to the grid on bounded axes)."""
+        return self._cell_of(checked_state(self.mdp, q)[0])
+
+    def _cell_of(self, q: np.ndarray) -> int:
+        """:meth:`cell_of` for a ``q`` already checked (:func:`checked_state`)."""
         mdp = self.mdp
-        q, _ = checked_state(self.mdp, q)
         idx = np.floor((q - mdp.lower) / mdp.spacing).astype(np.int64)
         for j in range(len(idx)):
             idx[j] = (
@@ -255,7 +258,7 @@ class Strategy:
             raise ArgumentError(
                 [Problem("values", f"expected shape {mdp.live.shape}, got {np.shape(values)}")]
             )
-        c = self.cell_of(q)
+        c = self._cell_of(q)
         tf_here = float(mdp.tf[mode, c])
         if fmp_allowed is None:
             fmp_allowed = bool(np.isfinite(tf_here))
