@@ -18,6 +18,13 @@
 3. Absolute times of ``solve`` on the bundled problems and the peak memory.
 4. ``--kernels P[=cells]``: one sweep and one exact evaluation of a C and a W layer
    (thread CPU time), to compare the hot loops of two trees.
+5. ``--oracle P[=cells]``: the solver's floor. The problem is solved as shipped, then
+   again started from that answer's own gain and NR values with every layer solved exactly
+   from the first pass (``solve_structured(..., start=...)``): one exact pass of the C and
+   W layers from cold against the right terminal values, one pass that confirms it, the
+   certificate. A better start or outer iteration cannot bring a solve below that; only
+   cheaper layer solves can. Prints both times, the passes and the ratio (the solver's
+   DEBUG log splits each pass into C/W layers and NR).
 
 Run: ``.venv/bin/python benchmarks/bench_strategies.py --peer storm --problems ""`` for
 the comparison alone; other grids with ``--skip-p1 --problems p3,p6 --cells
@@ -46,7 +53,7 @@ from cellplan.errors import CellplanError
 from cellplan.strategies import sweeps
 from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
 from cellplan.strategies.model import LayeredMDP, build_model
-from cellplan.strategies.solver import solve
+from cellplan.strategies.solver import solve, solve_structured
 from cellplan.strategies.stencils import decode, table_stencil
 from cellplan.strategies.strategy import Strategy
 from cellplan.strategies.sweeps import sweep_policy
@@ -351,6 +358,13 @@ def main() -> None:
         help="time one sweep and one exact evaluation of a C and a W layer of problem P "
         "(thread CPU time, best of 7), e.g. --kernels p1=200,200 or --kernels p6",
     )
+    ap.add_argument(
+        "--oracle",
+        default="",
+        metavar="P[=N,N[,N]]",
+        help="solve problem P as shipped and again from that answer's gain and NR values "
+        "(the solver's floor), e.g. --oracle p6 or --oracle p1=200,200",
+    )
     args = ap.parse_args()
     grids = {k: [int(v) for v in g.split(",")] for k, g in (c.split("=") for c in args.cells)}
     print(f"start: {load()}; threads {default_threads()}", flush=True)
@@ -368,6 +382,9 @@ def main() -> None:
     if args.kernels:
         name, _, cells = args.kernels.partition("=")
         kernel_times(name, [int(v) for v in cells.split(",")] if cells else None)
+    if args.oracle:
+        name, _, cells = args.oracle.partition("=")
+        oracle_floor(name, [int(v) for v in cells.split(",")] if cells else None)
     print(f"end: {load()}")
 
 
@@ -495,6 +512,35 @@ def kernel_times(p: str, cells: list[int] | None) -> None:
         for kind, m in (("C", mdp.c_layer(0)), ("W", mdp.w_layer(0)))
     ]
     print(f"kernels {p} {tuple(int(v) for v in mdp.shape)}: {'; '.join(out)}; {load()}")
+
+
+def oracle_floor(p: str, cells: list[int] | None) -> None:
+    """The shipped solve against a solve started from its own answer's gain and NR values
+    (every pass exact, the C and W layers cold): the second is what the solve costs when
+    its outer iteration has nothing left to find. Each timed twice, best of 2, in this
+    process."""
+    sc, cell = load_workcell(f"strategies_{p}")
+    mdp = build_model(sc, cell, cells)
+    tol = sc.strategy.solver.tolerance if sc.strategy is not None else 1e-6
+    shipped = []
+    for _ in range(2):
+        t = time.perf_counter()
+        res = solve_structured(mdp, tol)
+        shipped.append(time.perf_counter() - t)
+    start = (res.gain, res.values[0])
+    floor = []
+    for _ in range(2):
+        t = time.perf_counter()
+        again = solve_structured(mdp, tol, start=start)
+        floor.append(time.perf_counter() - t)
+    print(
+        f"oracle {p} {tuple(int(v) for v in mdp.shape)}: shipped {min(shipped):.3f} s "
+        f"({res.outer_iterations} passes, gain {res.gain:.9f}); from its own gain and NR "
+        f"{min(floor):.3f} s ({again.outer_iterations} passes, gain {again.gain:.9f} in "
+        f"[{again.gain_lower:.9f}, {again.gain_upper:.9f}], {again.status}); "
+        f"ratio {min(shipped) / min(floor):.2f}x; {load()}",
+        flush=True,
+    )
 
 
 def solve_problem(p: str, cells: list[int] | None) -> None:

@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from strategies_helpers import tiny
 
+from cellplan.core import Status
 from cellplan.strategies import solver
 from cellplan.strategies.model import build_model
 from cellplan.strategies.solver import (
@@ -127,3 +128,56 @@ def test_trial_moves_every_layer_along_newton(tiny_run, seed, step):
         moved = run.h[m] + step * (run.D[m] - p.d_shift) - p.shift
         np.testing.assert_allclose(trial[m][lm], moved[lm], rtol=0, atol=1e-12)
     assert np.all(np.isnan(trial[~live]))
+
+
+@pytest.fixture(scope="module")
+def tiny_solved():
+    sc, cell = tiny(cells=12)
+    mdp = build_model(sc, cell)
+    return mdp, solver.solve_structured(mdp, TOL)
+
+
+def _brackets_overlap(a, b) -> bool:
+    return max(a.gain_lower, b.gain_lower) <= min(a.gain_upper, b.gain_upper)
+
+
+@given(st.floats(0.0, 1.0), st.floats(0.0, 100.0), st.integers(0, 2**32 - 1))
+@settings(max_examples=15, deadline=None)
+def test_a_start_changes_the_path_not_the_answer(tiny_solved, g_frac, scale, seed):
+    mdp, cold = tiny_solved
+    nr = np.random.default_rng(seed).normal(size=mdp.live.shape[1]) * scale
+    res = solver.solve_structured(mdp, TOL, start=(g_frac * mdp.stage_time, nr))
+    assert res.status is Status.SOLVED
+    assert res.span < TOL
+    assert _brackets_overlap(res, cold)  # both certified: the gain lies in each
+
+
+def test_started_from_its_own_answer_the_outer_loop_has_nothing_to_find(tiny_solved):
+    # One exact pass from the answer's g and NR (C and W layers cold), one that confirms
+    # it: the floor that benchmarks/bench_strategies.py --oracle measures.
+    mdp, cold = tiny_solved
+    assert cold.outer_iterations > 2
+    res = solver.solve_structured(mdp, TOL, start=(cold.gain, cold.values[0]))
+    assert res.status is Status.SOLVED
+    assert res.outer_iterations == 2
+    assert _brackets_overlap(res, cold)
+
+
+@pytest.mark.parametrize(
+    ("gain", "values", "field"),
+    [
+        (np.nan, None, "gain nan"),
+        (-0.1, None, "gain -0.1"),
+        (None, "short", "shape"),
+        (None, "nan on live", "not finite"),
+    ],
+)
+def test_a_bad_start_is_refused_naming_the_field(tiny_solved, gain, values, field):
+    mdp, cold = tiny_solved
+    nr = cold.values[0].copy()
+    if values == "short":
+        nr = nr[:-1]
+    elif values == "nan on live":
+        nr[np.flatnonzero(mdp.live[0])[3]] = np.nan
+    with pytest.raises(ValueError, match=f"^start: .*{field}"):
+        solver.solve_structured(mdp, TOL, start=(cold.gain if gain is None else gain, nr))

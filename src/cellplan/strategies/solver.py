@@ -780,6 +780,7 @@ def solve_structured(
     predictor: bool = True,
     extrapolate: bool = True,
     threads: int | None = None,
+    start: tuple[float, np.ndarray] | None = None,
 ) -> SolveResult:
     """The decomposed solver (see the module docstring and docs/strategies.md).
 
@@ -802,18 +803,32 @@ def solve_structured(
        be below ``tol``.
 
     ``threads`` overrides the thread count (:mod:`cellplan.strategies.threads`).
+
+    ``start``: ``(g, h_NR)``, a gain and NR values (``(N,)``, finite on NR's live states,
+    e.g. a finished solve's ``gain`` and ``values[0]``) to start from instead of
+    ``g = dt / 2`` and NR at zero. Every pass then solves its layers to the final inner
+    accuracy, uncapped: capped early passes would move away from a good start, after
+    which the outer iteration needs as many passes as from scratch. Given the answer's
+    own ``g`` and NR the solve takes two passes (one exact pass of the C and W layers
+    from cold, one that confirms it): the floor that a better start or outer iteration
+    cannot go below (``benchmarks/bench_strategies.py --oracle``; docs/benchmarks.md).
     """
     t0 = time.perf_counter()
     live = mdp.live
     lnr = live[0]
     inner_tol = tol * INNER_FACTOR
+    exact = start is not None
     with workers_for(int(live.sum()), threads) as workers:
         run = _Layers(mdp, max_sweeps, workers)
         h, D = run.h, run.D
         g = 0.5 * mdp.stage_time
+        accuracy = FIRST_ACCURACY
+        if start is not None:
+            g, nr_start = _checked_start(mdp, start)
+            h[0][lnr] = nr_start
+            accuracy = inner_tol
         ref = -1
         outer = 0
-        accuracy = FIRST_ACCURACY
         prev_term = np.zeros(live.shape[1])  # the NR values the C layers were solved against
         prev_d0 = np.zeros(live.shape[1])
         g_solved = g  # the g the C and W layers were last solved with
@@ -835,7 +850,7 @@ def solve_structured(
             g_solved = g
             # Early passes (g at its first guess, or the NR shape still moving a lot) get an
             # inexact inner solve: it can neither stop the loop nor try the certificate.
-            capped = last_shape > EARLY_SHAPE * tol
+            capped = not exact and last_shape > EARLY_SHAPE * tol
             # Steps 1 and 2: once round the request cycle.
             t_pass = time.perf_counter()
             run.request_layers(g, accuracy, warm, dg, EARLY_SWEEPS if capped else max_sweeps)
@@ -875,7 +890,8 @@ def solve_structured(
                     g = g + newton
                     break
                 cert = None
-            accuracy = _inner_accuracy(p, first, run.coupled, inner_tol, tol)
+            if not exact:
+                accuracy = _inner_accuracy(p, first, run.coupled, inner_tol, tol)
             g_prev = g
             g = min(max(g + newton, 0.0), mdp.stage_time)
             # Step 4: the NR values the next pass's C layers read.
@@ -895,6 +911,20 @@ def solve_structured(
         )  # fmt: skip
     result.eval_sweeps = run.evaluations
     return result
+
+
+def _checked_start(mdp: LayeredMDP, start: tuple[float, np.ndarray]) -> tuple[float, np.ndarray]:
+    """``start``'s gain and NR values on NR's live states, or a ``ValueError`` naming the field."""
+    g, nr = start
+    values = np.asarray(nr, dtype=np.float64)
+    if not (np.isfinite(g) and 0.0 <= g <= mdp.stage_time):
+        raise ValueError(f"start: gain {g!r} is not a number in [0, {mdp.stage_time}]")
+    if values.shape != (mdp.live.shape[1],):
+        raise ValueError(f"start: NR values have shape {values.shape}, not ({mdp.live.shape[1]},)")
+    on_live = values[mdp.live[0]]
+    if not np.isfinite(on_live).all():
+        raise ValueError("start: NR values are not finite on every live NR state")
+    return float(g), on_live
 
 
 def method_problem(mdp: LayeredMDP, method: str, damping: float = 1.0) -> str | None:
