@@ -22,9 +22,9 @@
    again started from that answer's own gain and NR values with every layer solved exactly
    from the first pass (``solve_structured(..., start=...)``): one exact pass of the C and
    W layers from cold against the right terminal values, one pass that confirms it, the
-   certificate. A better start or outer iteration cannot bring a solve below that; only
-   cheaper layer solves can. Prints both times, the passes and the ratio (the solver's
-   DEBUG log splits each pass into C/W layers and NR).
+   certificate. A better start or outer iteration could save the confirming pass at
+   most; only cheaper layer solves can go lower. Prints both times, the passes and the
+   ratio (the solver's DEBUG log splits each pass into C/W layers and NR).
 
 Run: ``.venv/bin/python benchmarks/bench_strategies.py --peer storm --problems ""`` for
 the comparison alone; other grids with ``--skip-p1 --problems p3,p6 --cells

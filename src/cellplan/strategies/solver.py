@@ -810,8 +810,9 @@ def solve_structured(
     accuracy, uncapped: capped early passes would move away from a good start, after
     which the outer iteration needs as many passes as from scratch. Given the answer's
     own ``g`` and NR the solve takes two passes (one exact pass of the C and W layers
-    from cold, one that confirms it): the floor that a better start or outer iteration
-    cannot go below (``benchmarks/bench_strategies.py --oracle``; docs/benchmarks.md).
+    from cold, one that confirms it): the floor of this solver, which a better start or
+    outer iteration could lower by the confirming pass at most
+    (``benchmarks/bench_strategies.py --oracle``; docs/benchmarks.md).
     """
     t0 = time.perf_counter()
     live = mdp.live
