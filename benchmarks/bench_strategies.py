@@ -42,6 +42,7 @@ import functools
 import os
 import resource
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,7 +54,8 @@ from cellplan.errors import CellplanError
 from cellplan.strategies import sweeps
 from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
 from cellplan.strategies.model import LayeredMDP, build_model
-from cellplan.strategies.solver import solve, solve_structured
+from cellplan.strategies.section import SolverSpec
+from cellplan.strategies.solver import SolveResult, solve, solve_structured
 from cellplan.strategies.stencils import decode, table_stencil
 from cellplan.strategies.strategy import Strategy
 from cellplan.strategies.sweeps import sweep_policy
@@ -388,19 +390,30 @@ def main() -> None:
     print(f"end: {load()}")
 
 
+def _tolerance(sc: Any) -> float:
+    """The solver tolerance of scenario ``sc`` (the solver section's default without one)."""
+    return (sc.strategy.solver if sc.strategy is not None else SolverSpec()).tolerance
+
+
+def _timed(fn: Callable[[], SolveResult], repeat: int) -> tuple[list[float], SolveResult]:
+    """Wall times of ``repeat`` calls of ``fn`` and the last call's result."""
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        res = fn()
+        times.append(time.perf_counter() - t)
+    return times, res
+
+
 def compare_p1(n: int, generic: bool, storm: bool) -> None:
     """Problem 1 on an ``n x n`` grid: structured solve against the peers, one run."""
     sc, cell = load_workcell("strategies_p1")
-    tol = sc.strategy.solver.tolerance if sc.strategy is not None else 1e-6
+    tol = _tolerance(sc)
     t = time.perf_counter()
     mdp = build_model(sc, cell, [n, n])
     t_build = time.perf_counter() - t
     # Best of 3: the machine is shared, and the minimum is the least disturbed run.
-    times = []
-    for _ in range(3):
-        t = time.perf_counter()
-        res = solve(mdp, "structured", tol=tol)
-        times.append(time.perf_counter() - t)
+    times, res = _timed(lambda: solve(mdp, "structured", tol=tol), 3)
     t_struct = min(times)
     # CPU time of a one-thread solve: less sensitive to other jobs on the machine than the
     # wall time (it still includes their effect on the caches).
@@ -521,18 +534,10 @@ def oracle_floor(p: str, cells: list[int] | None) -> None:
     process."""
     sc, cell = load_workcell(f"strategies_{p}")
     mdp = build_model(sc, cell, cells)
-    tol = sc.strategy.solver.tolerance if sc.strategy is not None else 1e-6
-    shipped = []
-    for _ in range(2):
-        t = time.perf_counter()
-        res = solve_structured(mdp, tol)
-        shipped.append(time.perf_counter() - t)
+    tol = _tolerance(sc)
+    shipped, res = _timed(lambda: solve_structured(mdp, tol), 2)
     start = (res.gain, res.values[0])
-    floor = []
-    for _ in range(2):
-        t = time.perf_counter()
-        again = solve_structured(mdp, tol, start=start)
-        floor.append(time.perf_counter() - t)
+    floor, again = _timed(lambda: solve_structured(mdp, tol, start=start), 2)
     print(
         f"oracle {p} {tuple(int(v) for v in mdp.shape)}: shipped {min(shipped):.3f} s "
         f"({res.outer_iterations} passes, gain {res.gain:.9f}); from its own gain and NR "
