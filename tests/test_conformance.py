@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import gc
+import pickle
 
 import numpy as np
 import pytest
@@ -76,6 +77,19 @@ def test_planner_conformance(name, tmp_path):
     for suffix in (".csv", ".json", ".npz"):
         path = traj.save(tmp_path / f"traj{suffix}")
         assert Trajectory.load(path) == traj
+
+
+@pytest.mark.parametrize("name", sorted(PLANNERS))
+def test_result_pickles(name):
+    """A Result crosses to a multiprocessing or Dask worker (issue 36): no closures inside.
+    Pickling our own object only; cellplan never loads a pickle it did not write."""
+    first, _ = _two_runs(name)
+    copy = pickle.loads(pickle.dumps(first))
+    assert copy.status is first.status
+    assert copy.message == first.message
+    assert dict(copy.stats) == dict(first.stats)
+    assert copy.trajectory == first.trajectory
+    assert type(copy.solution) is type(first.solution)
 
 
 @pytest.mark.parametrize("name", sorted(n for n, s in PLANNERS.items() if s.deterministic))

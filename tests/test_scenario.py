@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from cellplan.errors import ScenarioError
-from cellplan.registry import scenario_names
+from cellplan.registry import resolve_scenario_path, scenario_names
 from cellplan.scenario import dump_scenario, json_schema, load_scenario, loads_scenario, parse_yaml
 
 BASE = """
@@ -290,3 +290,83 @@ def test_nesting_is_refused_before_composing():
         parse_yaml(deep, "f.yaml")
     ok = "[" * scenario_module.MAX_YAML_DEPTH + "]" * scenario_module.MAX_YAML_DEPTH
     assert parse_yaml(ok, "f.yaml") is not None
+
+
+# --- issue 36: strict numbers, merge keys -----------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "field"),
+    [
+        ("xmax: 50", "xmax: true", "workcell.bounds.xmax"),
+        ("min: [20, 0]", "min: [20, false]", "workcell.obstacles.wall.min[1]"),
+        ("start: [5, 5]", "start: [true, 5]", "robot.start[0]"),
+    ],
+)
+def test_a_boolean_is_not_a_number(old, new, field):
+    assert problems(BASE.replace(old, new)) == [f"{field}: expected a number, not true or false"]
+
+
+@pytest.mark.parametrize("version", ["true", "1.0", "'1'"])
+def test_format_version_is_the_integer_1(version):
+    (line,) = problems(BASE.replace("cellplan: 1", f"cellplan: {version}"))
+    assert line.startswith("cellplan: unsupported format version")
+
+
+def test_every_section_refuses_booleans_as_numbers():
+    """The check lives in StrictModel, so package sections get it too (not per field)."""
+    tiny = resolve_scenario_path("strategies_tiny").read_text(encoding="utf-8")
+    for old, new in [("speed: 2.5", "speed: true"), ("cells: [12, 12]", "cells: [12, true]")]:
+        (line,) = problems(tiny.replace(old, new))
+        assert line.endswith("expected a number, not true or false")
+
+
+MERGED = """
+cellplan: 1
+box: &box {type: box, min: [2, 30], max: [8, 36]}
+workcell:
+  bounds: {xmin: 0, ymin: 0, xmax: 50, ymax: 40}
+  obstacles:
+    wall: {<<: *box, min: [20, 0], max: [24, 20]}
+robot: {type: translating, shape: {<<: *box, min: [-1, -1], max: [1, 1]}, start: [5, 5]}
+parts:
+  P1: {shape: {<<: [{min: [-2, -1]}, *box], max: [2, 1]}}
+sources:
+  S1: {components: [*box]}
+destinations:
+  D1: {components: [{<<: *box, min: [40, 30], max: [46, 36]}]}
+"""
+
+
+def test_merge_keys_load_equal_to_the_expanded_file():
+    data = parse_yaml(MERGED)
+    del data["box"]  # the anchor's holder is not a scenario key
+    assert data == parse_yaml(BASE)
+    # explicit keys override merged ones; of several merged mappings the first wins
+    assert data["parts"]["P1"]["shape"] == {"type": "box", "min": [-2, -1], "max": [2, 1]}
+
+
+def test_merged_keys_may_be_overridden_but_explicit_ones_not_repeated():
+    assert parse_yaml("b: &b {x: 1}\nm: {<<: *b, x: 2}\n")["m"] == {"x": 2}
+    with pytest.raises(ScenarioError, match="duplicate key 'x'"):
+        parse_yaml("b: &b {x: 1}\nm: {<<: *b, x: 2, x: 3}\n")
+    with pytest.raises(ScenarioError, match="duplicate key '<<'"):
+        parse_yaml("b: &b {x: 1}\nm: {<<: *b, <<: *b}\n")
+
+
+@pytest.mark.parametrize("value", ["3", "[1, 2]", "[{x: 1}, text]", "null"])
+def test_a_merge_of_something_else_than_mappings_is_one_line_naming_it(value):
+    with pytest.raises(ScenarioError) as err:
+        parse_yaml(f"m: {{<<: {value}}}\n")
+    (problem,) = err.value.problems
+    assert "merge key (<<)" in problem.message and "\n" not in str(problem)
+
+
+def test_merge_limits_hold():
+    with pytest.raises(ScenarioError, match="into itself"):
+        parse_yaml("m: &r {<<: *r}\n")
+    chain = ["a0: &a0 {k0: 1}"] + [
+        f"a{i}: &a{i} {{<<: *a{i - 1}, k{i}: 1}}" for i in range(1, 2000)
+    ]
+    with pytest.raises(ScenarioError, match="expand to more than"):
+        parse_yaml("\n".join(chain))

@@ -112,8 +112,9 @@ def test_reproduce_one_paper_one_experiment(tmp_path, fake_papers):
     out = tmp_path / "out"
     args = ["reproduce", "assembly", "--runs", "2", "--serial", "-o", str(out)]
     result = CliRunner().invoke(cli(), [*args, "--only", "assembly.grid"])
-    assert result.exit_code == 0, result.output
-    assert "report written" in result.output
+    # the fake grid fails one run per shape: a sweep with failed runs exits 1 (issue 36)
+    assert result.exit_code == 1, result.output
+    assert "error: 2 of 12 runs failed; report written: " in result.output
     assert [p.name for p in (out / "data").glob("*.csv")] == ["assembly.grid.csv"]
     with (out / "data" / "assembly.grid.csv").open() as f:
         assert len(list(csv.DictReader(f))) == 3 * 2 * 2
@@ -194,7 +195,7 @@ def test_interrupt_is_one_line_with_the_cached_count(tmp_path, monkeypatch, caps
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(reproduce_cli, "reproduce", interrupted)
+    monkeypatch.setattr(reproduce_cli, "reproduce_sweep", interrupted)
     monkeypatch.setattr(
         sys, "argv", ["cellplan", "reproduce", "assembly", "-o", str(tmp_path / "out")]
     )

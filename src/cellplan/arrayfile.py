@@ -21,6 +21,7 @@ Anything wrong raises :class:`~cellplan.errors.PersistenceError` with one proble
 from __future__ import annotations
 
 import ast
+import math
 import operator
 import tokenize
 import zipfile
@@ -34,6 +35,7 @@ import numpy as np
 
 from cellplan import budget
 from cellplan.errors import PersistenceError, Problem
+from cellplan.fileio import open_input
 
 
 @dataclass(frozen=True)
@@ -101,6 +103,7 @@ def read_arrays(
     first: tuple[str, ...] = (),
     after_first: Callable[[dict[str, np.ndarray], MutableMapping[str, int]], None] | None = None,
     what: str = "a .npz archive",
+    working: Callable[[Mapping[str, int]], int] | None = None,
 ) -> dict[str, np.ndarray]:
     """Read and check every array of ``path`` against ``specs``.
 
@@ -115,6 +118,9 @@ def read_arrays(
         them (to bind sizes from their contents, e.g. metadata in a string array).
     what
         The kind of file, for messages (``not a strategy file (...)``).
+    working
+        Bytes the caller needs beside the arrays (its checks' temporaries), from the
+        sizes; counted with the arrays' bytes against the memory available.
     """
     where = str(path)
     limits = {} if limits is None else limits  # the caller may fill it after the first arrays
@@ -122,6 +128,9 @@ def read_arrays(
     def fail(field: str, message: str) -> PersistenceError:
         return PersistenceError([Problem(where, f"{field}: {message}" if field else message)])
 
+    # A device or FIFO (a link to /dev/zero, say) is refused before zipfile reads it
+    # without end; the archive then reads the regular file it was.
+    open_input(path).close()
     try:
         archive = zipfile.ZipFile(path)
     except FileNotFoundError:
@@ -151,15 +160,20 @@ def read_arrays(
         if unknown:
             raise fail(unknown[0], "unexpected array (not part of this file format)")
         order = [*first, *(n for n in specs if n not in first)]
-        total = sum(members[n].file_size for n in order)
-        budget.require(total, where, "to read")
-        for name in order:
+        # What the zip directory claims, before any member is opened.
+        budget.require(sum(members[n].file_size for n in order), where, "to read")
+        headers: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
+
+        def attempt(name: str, read_data: bool) -> None:
             spec = specs[name]
             try:
                 with archive.open(members[name]) as fh:
-                    out[name] = _read_member(
+                    shape, dtype = _read_header(
                         fh, name, spec, sizes, limits, fail, members[name].file_size
                     )
+                    headers[name] = (shape, dtype)
+                    if read_data:
+                        out[name] = _read_data(fh, name, spec, shape, dtype, sizes, fail)
             except PersistenceError:
                 raise
             except (
@@ -176,8 +190,23 @@ def read_arrays(
                 SyntaxError,
             ) as exc:
                 raise fail(name, f"unreadable ({_short(exc)})") from None
-            if name == (first[-1] if first else None) and after_first is not None:
-                after_first(out, sizes)
+
+        for name in first:
+            attempt(name, True)
+        if first and after_first is not None:
+            after_first(out, sizes)
+        rest = [n for n in order if n not in first]
+        # Every header before any data: the sizes the file declares are checked against
+        # their limits and the memory they need against the memory available while only
+        # a few hundred bytes of each member have been inflated (a small file of deflated
+        # zeros may declare gigabytes).
+        for name in rest:
+            attempt(name, False)
+        declared = sum(_nbytes(*headers[n]) for n in rest)
+        need = declared + (working(sizes) if working is not None else 0)
+        budget.require(need, where, "to read")
+        for name in rest:
+            attempt(name, True)
     return out
 
 
@@ -185,7 +214,7 @@ def _short(exc: BaseException) -> str:
     return " ".join(str(exc).split())[:120] or type(exc).__name__
 
 
-def _read_member(
+def _read_header(
     fh: IO[bytes],
     name: str,
     spec: ArraySpec,
@@ -193,7 +222,9 @@ def _read_member(
     limits: Mapping[str, tuple[int, int]],
     fail: Fail,
     stored: int,
-) -> np.ndarray:
+) -> tuple[tuple[int, ...], np.dtype]:
+    """The shape and dtype a member's ``.npy`` header declares, checked against ``spec``
+    and the sizes (a size met for the first time is bound here), before any data."""
     fmt = np.lib.format
     version = fmt.read_magic(fh)
     if version == (1, 0):
@@ -222,10 +253,27 @@ def _read_member(
         expected = evaluate(expr, sizes)
         if n != expected:
             raise fail(name, f"shape {shape}, expected axis {axis} ({expr}) to be {expected}")
-    count = int(np.prod(shape, dtype=np.int64))
-    nbytes = count * dtype.itemsize
-    if nbytes > stored:
+    if _nbytes(shape, dtype) > stored:
         raise fail(name, "data size does not match its header (truncated or padded)")
+    return shape, dtype
+
+
+def _nbytes(shape: tuple[int, ...], dtype: np.dtype) -> int:
+    """Bytes of an array (Python integers: a declared shape cannot wrap round)."""
+    return math.prod(shape) * dtype.itemsize
+
+
+def _read_data(
+    fh: IO[bytes],
+    name: str,
+    spec: ArraySpec,
+    shape: tuple[int, ...],
+    dtype: np.dtype,
+    sizes: Mapping[str, int],
+    fail: Fail,
+) -> np.ndarray:
+    """The data after a checked header: exactly its byte count, values within ``spec``."""
+    nbytes = _nbytes(shape, dtype)
     arr = np.empty(shape, dtype)
     view = arr.reshape(-1).view(np.uint8)
     got = fh.readinto(view.data) if nbytes else 0  # type: ignore[attr-defined]

@@ -6,20 +6,37 @@ a request that needs more than the memory available is refused with one line, e.
 ``cells 1024,1024,1024: needs about 190 GB for 17 modes; this machine has 24 GB
 available``. The estimates live beside the planners; this module only knows bytes.
 
-``CELLPLAN_MEMORY_LIMIT`` (bytes, or a size such as ``2GB``, ``512MiB``) lowers the
-memory cellplan assumes it may use, for machines shared with other work.
+``CELLPLAN_MEMORY_LIMIT`` (bytes, or a size such as ``2GB``, ``512MiB``) caps the whole
+process's memory (resident set), for machines shared with other work: what the process
+already holds (the interpreter and its libraries, about 200 MB) counts against it.
+
+Time is guarded the same way: each planner estimates the seconds of a request from its
+size (a per-cell or per-task cost measured once, beside the planner) and calls
+:func:`require_time`; more than the time limit (:data:`DEFAULT_TIME_LIMIT_S`, or
+``CELLPLAN_TIME_LIMIT``; ``none`` lifts it) is refused with one line.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
+import sys
 from pathlib import Path
 
 from cellplan.errors import ArgumentError, CellplanError, Problem
 
 #: Environment variable that caps the memory cellplan assumes it may use.
 LIMIT_VARIABLE = "CELLPLAN_MEMORY_LIMIT"
+
+#: Environment variable that sets the time limit (seconds, a duration such as ``2h``, or
+#: ``none``).
+TIME_LIMIT_VARIABLE = "CELLPLAN_TIME_LIMIT"
+
+DEFAULT_TIME_LIMIT_S = 3600.0
+"""Work estimated to take longer than this is refused unless ``CELLPLAN_TIME_LIMIT`` says
+otherwise: an hour is well past every bundled scenario and paper experiment, and short
+enough that a mistyped grid size is not left running overnight."""
 
 _UNITS = {
     "": 1,
@@ -45,6 +62,8 @@ def parse_bytes(text: str) -> int:
 
 def format_bytes(n: float) -> str:
     """A size for people: ``190 GB``, ``2.4 MB``, ``512 B`` (decimal units)."""
+    if n >= 1e15:  # beyond any machine; an estimate (a Python int) may exceed a float's range
+        return f"10^{len(str(int(n))) - 1} B"
     for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
         if n >= size:
             value = n / size
@@ -99,13 +118,31 @@ def _address_space_available() -> int | None:
     return max(0, soft - used)
 
 
+def resident_memory() -> int:
+    """Bytes this process holds in memory now (its resident set; 0 if the system won't say)."""
+    try:
+        fields = Path("/proc/self/statm").read_text().split()
+        return int(fields[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return 0
+    # The peak, in kB on Linux and bytes on macOS: an upper bound of the present size.
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak) * (1 if sys.platform == "darwin" else 1024)
+
+
 def available_memory() -> int:
     """Bytes of memory this process may still allocate without swapping.
 
     The smallest of: the kernel's ``MemAvailable``, the room left under a cgroup limit,
-    the room left under the address-space limit (``ulimit -v``), and
-    ``CELLPLAN_MEMORY_LIMIT``. Falls back to the physical memory when the system says
-    nothing (non-Linux).
+    the room left under the address-space limit (``ulimit -v``), and the room left under
+    ``CELLPLAN_MEMORY_LIMIT``: the limit less what this process already holds
+    (:func:`resident_memory`). Falls back to the physical memory when the system says
+    nothing (non-Linux). (``MemAvailable`` and the cgroup's usage already leave out what
+    this process holds.)
     """
     found = [
         v
@@ -120,11 +157,12 @@ def available_memory() -> int:
     text = os.environ.get(LIMIT_VARIABLE)
     if text:
         try:
-            found.append(parse_bytes(text))
+            limit = parse_bytes(text)
         except ValueError:
             raise ArgumentError(
                 f"expected a size such as 2GB or 512MiB, got {text!r}", LIMIT_VARIABLE
             ) from None
+        found.append(max(0, limit - resident_memory()))
     return min(found)
 
 
@@ -145,6 +183,75 @@ def require(
                     field,
                     f"needs about {format_bytes(need)}{extra}; this machine has "
                     f"{format_bytes(have)} available",
+                )
+            ]
+        )
+
+
+_DURATION_UNITS = {"": 1.0, "s": 1.0, "min": 60.0, "m": 60.0, "h": 3600.0}
+
+
+def parse_duration(text: str) -> float:
+    """``"600"``, ``"90s"``, ``"30min"``, ``"2h"`` as seconds; ``"none"`` as infinity.
+
+    ValueError for anything else (negative, zero, not finite, unknown unit).
+    """
+    if text.strip().lower() == "none":
+        return math.inf
+    match = re.fullmatch(r"\s*([0-9]+(?:\.[0-9]+)?)\s*([A-Za-z]*)\s*", text)
+    if match is None or match.group(2).lower() not in _DURATION_UNITS:
+        raise ValueError(f"not a duration: {text!r}")
+    seconds = float(match.group(1)) * _DURATION_UNITS[match.group(2).lower()]
+    if not 0 < seconds < math.inf:
+        raise ValueError(f"not a positive duration: {text!r}")
+    return seconds
+
+
+def format_duration(seconds: float) -> str:
+    """A duration for people: ``42 s``, ``12 min``, ``3.5 h``, ``2.1e+03 days``."""
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 2 * 3600:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 48 * 3600:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.3g} days"
+
+
+def time_limit() -> float:
+    """Seconds of work cellplan accepts: ``CELLPLAN_TIME_LIMIT``, or
+    :data:`DEFAULT_TIME_LIMIT_S`; infinity for ``none``."""
+    text = os.environ.get(TIME_LIMIT_VARIABLE)
+    if not text:
+        return DEFAULT_TIME_LIMIT_S
+    try:
+        return parse_duration(text)
+    except ValueError:
+        raise ArgumentError(
+            f"expected seconds, a duration such as 30min or 2h, or none; got {text!r}",
+            TIME_LIMIT_VARIABLE,
+        ) from None
+
+
+def require_time(
+    seconds: float, field: str, what: str = "", error: type[CellplanError] = ArgumentError
+) -> None:
+    """Refuse (``error`` naming ``field``) work estimated to take longer than the time limit.
+
+    ``seconds`` comes from a per-cell or per-task cost measured on the reference machine
+    and written beside the planner; ``what`` completes the message like :func:`require`'s:
+    ``would take about 3.5 h <what>; the time limit is 1.0 h (CELLPLAN_TIME_LIMIT=none
+    lifts it)``.
+    """
+    limit = time_limit()
+    if seconds > limit:
+        extra = f" {what}" if what else ""
+        raise error(
+            [
+                Problem(
+                    field,
+                    f"would take about {format_duration(seconds)}{extra}; the time limit is "
+                    f"{format_duration(limit)} ({TIME_LIMIT_VARIABLE}=none lifts it)",
                 )
             ]
         )

@@ -11,9 +11,11 @@ exits 70 with one line naming it (see :mod:`cellplan.cliutil` for every exit sta
 from __future__ import annotations
 
 import json
+import signal
 import sys
+import threading
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -25,10 +27,12 @@ from cellplan.cliutil import (
     EXIT_INTERRUPTED,
     JsonOpt,
     ScenarioArg,
+    check_inputs_kept,
     check_output,
     print_json,
+    scenario_file,
 )
-from cellplan.errors import ArgumentError, CellplanError
+from cellplan.errors import ArgumentError, CellplanError, Interrupted, printable
 
 app = typer.Typer(
     name="cellplan",
@@ -122,7 +126,7 @@ def validate(scenario: ScenarioArg, as_json: JsonOpt = False) -> None:
         print_json({"status": "valid", "message": "the scenario is valid", "summary": lines})
         return
     for key, value in lines.items():
-        out.print(f"{key:>22}: {value}", markup=False)
+        out.print(printable(f"{key:>22}: {value}"), markup=False)
 
 
 @app.command()
@@ -133,8 +137,9 @@ def show(scenario: ScenarioArg, output: OutputOpt = Path("workcell.png")) -> Non
     from cellplan.api import load
 
     check_image_path(output)
+    check_inputs_kept([("--output", output)], {"SCENARIO": scenario_file(scenario)})
     plots.save_scenario(load(scenario), output)
-    out.print(f"wrote {output}", markup=False)
+    out.print(printable(f"wrote {output}"), markup=False)
 
 
 @app.command()
@@ -155,6 +160,7 @@ def cspace(
     from cellplan.cspace import Grid, check_memory, free_bitmap
 
     check_image_path(output)
+    check_inputs_kept([("--output", output)], {"SCENARIO": scenario_file(scenario)})
     cell = load(scenario).workcell
     if carrying is not None and carrying not in cell.parts:
         raise ArgumentError(
@@ -176,7 +182,7 @@ def cspace(
         title_extra=f"carrying {carrying}" if carrying else "empty",
         carrying=carrying is not None,
     )
-    out.print(f"wrote {output}  (free fraction {free.mean():.3f})", markup=False)
+    out.print(printable(f"wrote {output}  (free fraction {free.mean():.3f})"), markup=False)
 
 
 @app.command()
@@ -185,7 +191,7 @@ def demo(output: OutputOpt = Path("cellplan-out")) -> None:
     from cellplan.demo import run_demo
 
     index = run_demo(output, console=console)
-    out.print(f"demo written: {index}", markup=False)
+    out.print(printable(f"demo written: {index}"), markup=False)
 
 
 def parse_cells(text: str, dim: int) -> tuple[int, ...]:
@@ -234,7 +240,52 @@ million wrong values gets 101 lines, not a million)."""
 
 
 def main() -> None:
-    """Entry point: run the app and turn every outcome into an exit status.
+    """Entry point: :func:`_dispatch` the command, with Ctrl-C made reliable.
+
+    Python turns SIGINT into ``KeyboardInterrupt`` wherever the main thread is; raised
+    inside a finaliser or a callback from compiled code (OMPL's, SQLite's), it is printed
+    as "Exception ignored" and the run goes on to exit 0. So SIGINT also sets a flag, a
+    swallowed interrupt is not printed, and a run that saw one ends with ``interrupted``
+    and status 130 whatever it was about to return.
+    """
+    interrupted = threading.Event()
+    previous_hook = sys.unraisablehook
+
+    def on_sigint(signum: int, frame: object) -> None:
+        interrupted.set()
+        raise KeyboardInterrupt
+
+    def unraisable(info: Any) -> None:
+        if isinstance(info.exc_value, KeyboardInterrupt):
+            interrupted.set()
+            return
+        previous_hook(info)
+
+    # A background job of a non-interactive shell starts with SIGINT ignored: keep that.
+    previous_handler = signal.getsignal(signal.SIGINT)
+    catch = previous_handler is signal.default_int_handler
+    if catch:
+        signal.signal(signal.SIGINT, on_sigint)
+    sys.unraisablehook = unraisable
+    try:
+        _dispatch()
+        code: str | int | None = 0
+    except SystemExit as exc:
+        code = exc.code
+    finally:
+        # main() may run in-process (tests, the fuzzers): leave the process as it was.
+        sys.unraisablehook = previous_hook
+        if catch:
+            signal.signal(signal.SIGINT, previous_handler)
+    if interrupted.is_set() and code != EXIT_INTERRUPTED:
+        # Swallowed on the way (the command went on): say it here, once.
+        console.print("interrupted", markup=False)
+        code = EXIT_INTERRUPTED
+    sys.exit(code)
+
+
+def _dispatch() -> None:
+    """Run the app and turn every outcome into an exit status.
 
     User errors (ours and the command-line parser's) become one line each, ``error:
     WHERE: what``, and exit 2; an unexpected exception is a bug: one line naming its
@@ -257,6 +308,9 @@ def main() -> None:
     except (typer.Abort, KeyboardInterrupt):
         console.print("interrupted", markup=False)
         sys.exit(EXIT_INTERRUPTED)
+    except Interrupted as exc:
+        console.print(printable(str(exc)), markup=False, highlight=False, soft_wrap=True)
+        sys.exit(EXIT_INTERRUPTED)
     except OSError as exc:
         # A path the user named cannot be read or written (a folder where a file is
         # expected, a missing parent, no permission): their input, not a bug.
@@ -278,14 +332,17 @@ def main() -> None:
             label="internal error (a bug in cellplan, please report it)",
         )
         sys.exit(EXIT_INTERNAL)
+    if code == EXIT_INTERRUPTED:  # typer's answer to a Ctrl-C it caught: no line of its own
+        console.print("interrupted", markup=False)
     sys.exit(code if isinstance(code, int) else 0)
 
 
 def _error_line(text: str, label: str = "error") -> None:
-    """Print ``label: text`` on stderr as one line, ``text`` never read as markup."""
+    """Print ``label: text`` on stderr as one line, ``text`` never read as markup nor
+    sent to the terminal with its control characters (:func:`cellplan.errors.printable`)."""
     from rich.text import Text
 
-    line = Text.assemble((label, "bold red"), ": ", " ".join(text.split()))
+    line = Text.assemble((label, "bold red"), ": ", printable(" ".join(text.split())))
     console.print(line, highlight=False, soft_wrap=True)
 
 

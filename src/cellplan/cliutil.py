@@ -10,10 +10,9 @@ to stderr.
 from __future__ import annotations
 
 import contextlib
-import json
-import math
+import os
 import sys
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -21,8 +20,10 @@ import typer
 from rich.console import Console
 
 from cellplan.core import Progress, Result
-from cellplan.errors import ArgumentError, Problem
+from cellplan.errors import ArgumentError, CellplanError, Problem, printable
+from cellplan.fileio import check_distinct, check_replaceable, dumps_json
 from cellplan.plots import GIF_SIZE, GIF_SIZE_RANGE
+from cellplan.registry import resolve_scenario_path
 
 EXIT_SOLVED = 0
 EXIT_NOT_SOLVED = 1
@@ -127,31 +128,19 @@ def finish(
         payload = result.summary()
         payload["outputs"] = files
         if extra:
-            payload.update(_clean(dict(extra)))
-        sys.stdout.write(json.dumps(payload, allow_nan=False) + "\n")
+            payload.update(dict(extra))
+        sys.stdout.write(dumps_json(payload) + "\n")
         sys.stdout.flush()
     else:
         line = summary if result.success else f"{result.status.value}: {result.message}. {summary}"
-        stdout().print(line, markup=False)
+        stdout().print(printable(line), markup=False)
     raise typer.Exit(EXIT_SOLVED if result.success else EXIT_NOT_SOLVED)
 
 
 def print_json(payload: Mapping[str, Any]) -> None:
     """Write one JSON object on stdout (non-finite numbers become null)."""
-    sys.stdout.write(json.dumps(_clean(dict(payload)), allow_nan=False) + "\n")
+    sys.stdout.write(dumps_json(dict(payload)) + "\n")
     sys.stdout.flush()
-
-
-def _clean(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, Mapping):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
-    if isinstance(value, Path):
-        return str(value)
-    return value
 
 
 def check_output(path: Path, option: str = "--output", folder: bool = False) -> Path:
@@ -166,14 +155,10 @@ def check_output(path: Path, option: str = "--output", folder: bool = False) -> 
     ArgumentError
         One line naming ``option``.
     """
-    import os
-
     if str(path) == "":
         raise ArgumentError("is empty; give a path", option)
     if folder and path.exists() and not path.is_dir():
         raise ArgumentError(f"{path} exists and is not a folder", option)
-    if not folder and path.is_dir():
-        raise ArgumentError(f"{path} is a folder; give a file name", option)
     for parent in path.absolute().parents:
         if parent.exists():
             if not parent.is_dir():
@@ -181,4 +166,46 @@ def check_output(path: Path, option: str = "--output", folder: bool = False) -> 
             if not os.access(parent, os.W_OK | os.X_OK):
                 raise ArgumentError(f"cannot write in {parent} (permission denied)", option)
             break
+    if not folder:
+        # A link, device, FIFO or folder is never replaced; nor a name too long to write.
+        check_replaceable(path, option)
     return path
+
+
+def check_inputs_kept(
+    outputs: Iterable[tuple[str, Path]], inputs: Mapping[str, Path | None]
+) -> None:
+    """Refuse, before any work, an output that would land on one of the command's inputs.
+
+    Parameters
+    ----------
+    outputs
+        ``(option, file)`` for every file the command writes (a folder output: each of
+        the names it writes there, see :func:`folder_files`).
+    inputs
+        ``option -> path`` of what the command reads or updates (a scenario argument
+        through :func:`scenario_file`); None stands for an input not given.
+
+    Raises
+    ------
+    ArgumentError
+        One line per output that is an input (the same file by any name: a link, a hard
+        link, a relative path).
+    """
+    check_distinct(outputs, {k: v for k, v in inputs.items() if v is not None})
+
+
+def scenario_file(arg: str | None) -> Path | None:
+    """The file a scenario argument names (a bundled scenario's own file for a name), or
+    None where it names none: that is reported when the scenario is loaded."""
+    if arg is None:
+        return None
+    try:
+        return resolve_scenario_path(arg)
+    except CellplanError:
+        return None
+
+
+def folder_files(option: str, folder: Path, names: Iterable[str]) -> list[tuple[str, Path]]:
+    """``(option, folder / name)`` for each file a command writes into an output folder."""
+    return [(option, folder / name) for name in names]

@@ -9,8 +9,28 @@ shows its traceback.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
+
+# C0 controls (tab and newline included), DEL, and C1 controls (U+0080-U+009F; a terminal
+# may read U+009B alone as ESC [).
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def printable(text: str) -> str:
+    """``text`` with every control character shown as an escape (``\\x1b``, ``\\u009b``).
+
+    Everything cellplan prints that may hold user input (a scenario's name, a key, a path,
+    an error line) goes through this, so the input cannot set the terminal's title, clear
+    the screen or change its colours, nor break a line in two.
+    """
+    return _CONTROL.sub(_escape, text)
+
+
+def _escape(match: re.Match[str]) -> str:
+    code = ord(match.group())
+    return f"\\x{code:02x}" if code < 0x80 else f"\\u{code:04x}"
 
 
 @dataclass(frozen=True)
@@ -56,6 +76,12 @@ class ArgumentError(CellplanError):
 
 class PersistenceError(CellplanError):
     """A saved artefact (strategy file, experience database, cache entry) is unusable."""
+
+
+class Interrupted(Exception):
+    """A command stopped by Ctrl-C that has more to say than ``interrupted`` (what is
+    kept, how to resume). The CLI prints its message as one line and exits 130. Not a
+    ``KeyboardInterrupt``: the command-line parser would turn that into a bare status."""
 
 
 def raise_if(problems: list[Problem], error: type[CellplanError] = ScenarioError) -> None:

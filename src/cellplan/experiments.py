@@ -42,6 +42,7 @@ import sys
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import CancelledError
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -52,10 +53,13 @@ from rich.markup import escape
 from cellplan.core import Experiment, RunSpec, Scalar
 from cellplan.errors import ArgumentError, Problem
 from cellplan.fileio import write_json, write_text
-from cellplan.scheduler import check_scheduler_address, connect_client
+from cellplan.scheduler import check_scheduler_address, connect_client, run_with_deadline
 
 CACHE_FORMAT = 1
 """Version of the cache-entry layout; part of every entry, checked on read."""
+
+MAX_ENTRY_BYTES = 1_000_000
+"""Largest cache entry read (a row of scalars is a few kB); a bigger file is damaged."""
 
 # Columns the runner adds to every row. The prefix keeps them apart from the
 # experiments' own columns (a planner row often has its own ``status``).
@@ -226,6 +230,23 @@ class SweepResult:
     command: str
     wall_s: float
     metadata: dict[str, Any]
+    lost: str = ""
+    """Why the sweep gave up on the runs still out (the Dask scheduler was lost, or no
+    worker was left); empty when every run finished, failed or was skipped by itself."""
+
+    @property
+    def n_runs(self) -> int:
+        return sum(len(r.rows) for r in self.runs)
+
+    @property
+    def n_failed(self) -> int:
+        """Runs that did not finish (failed, skipped, or lost with their worker)."""
+        return sum(r.n_failed for r in self.runs)
+
+    @property
+    def n_broken(self) -> int:
+        """Experiments whose ``make_runs`` failed (they have no rows)."""
+        return sum(1 for r in self.runs if r.error)
 
 
 @dataclass
@@ -379,6 +400,12 @@ def run_sweep(
     n_cached = sum(r.n_cached for r in results)
     with contextlib.ExitStack() as stack:
         client = None
+        if pending and not serial:
+            # Dask's loggers print tracebacks on stderr when the scheduler goes away, until
+            # its client is closed; the loss is reported once, as ``lost``, instead. Imported
+            # first, so that every logger it creates exists to be silenced.
+            importlib.import_module("distributed")
+            stack.enter_context(_quiet_loggers(*DASK_LOGGERS))
         if scheduler is not None and pending and not serial:
             # Probed, connected and asked once under deadlines, before the progress bar:
             # a wrong address is one --scheduler line, never a hang or a huge allocation.
@@ -392,6 +419,7 @@ def run_sweep(
                 tick(row["run_status"] != OK)
 
             deadline = None if time_budget_s is None else started + time_budget_s
+            lost = ""
             if serial or not pending:
                 scheduler_desc = "serial (in process)"
                 for item in pending:
@@ -400,7 +428,7 @@ def run_sweep(
                     else:
                         finish(item, execute_run(experiments[item.exp_index].run, item.spec))
             else:
-                scheduler_desc = _run_on_dask(
+                scheduler_desc, lost = _run_on_dask(
                     experiments,
                     pending,
                     finish,
@@ -416,7 +444,7 @@ def run_sweep(
     metadata.update(started=started_at, wall_s=round(wall, 3))
     for result in results:
         _write_outputs(result, metadata)
-    return SweepResult(results, outdir, scheduler_desc, command, wall, metadata)
+    return SweepResult(results, outdir, scheduler_desc, command, wall, metadata, lost)
 
 
 def _expand(exp: Experiment, runs: int, quick: bool) -> list[RunSpec]:
@@ -485,6 +513,24 @@ def _check_values(values: Any, spec: RunSpec) -> dict[str, Scalar]:
     return out
 
 
+NO_WORKER_TIMEOUT_S = 60.0
+"""Seconds a Dask sweep waits with no worker alive before it gives up on its runs.
+
+Long enough for a nanny to restart a killed worker or a cluster to scale up again; the
+runs left are then recorded as failed (not cached), so the same command resumes."""
+
+POLL_S = 1.0
+"""Seconds between two looks at the cluster while no run finishes."""
+
+WORKER_CHECK_TIMEOUT_S = 10.0
+"""Seconds the scheduler has to say how many workers it has (else: none)."""
+
+SCHEDULER_LOST = "the Dask scheduler was lost"
+
+DASK_LOGGERS = ("distributed", "tornado", "asyncio")
+"""Loggers silenced while a sweep holds a Dask client."""
+
+
 def _run_on_dask(
     experiments: Sequence[Experiment],
     pending: list[_Pending],
@@ -494,15 +540,22 @@ def _run_on_dask(
     workers: int | None,
     deadline: float | None,
     budget: float | None,
-) -> str:
-    """Run ``pending`` on Dask; call ``finish`` as each run completes. Returns a description.
+) -> tuple[str, str]:
+    """Run ``pending`` on Dask; call ``finish`` as each run completes.
 
     ``client``: connected to ``scheduler`` (:func:`~cellplan.scheduler.connect_client`),
     or ``None`` for a ``LocalCluster`` started here.
+
+    Returns
+    -------
+    tuple of str
+        A description of where the runs went, and why runs were abandoned (empty when
+        none was): the scheduler was lost, or no worker was alive for
+        :data:`NO_WORKER_TIMEOUT_S`. Abandoned runs are finished as failed rows.
     """
     import logging
 
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, LocalCluster
 
     with contextlib.ExitStack() as stack:
         if client is None:
@@ -533,30 +586,102 @@ def _run_on_dask(
             first = batch[0]
             key = f"cellplan-runs-{first.key[:16]}-{first.exp_index}-{first.run_index}-{len(batch)}"
             futures[client.submit(execute_batch, tasks, key=key, pure=False)] = batch
-        timeout = None if deadline is None else max(0.0, deadline - time.perf_counter())
-        done: set[Any] = set()
         try:
-            try:
-                for future in as_completed(futures, timeout=timeout):
-                    for item, row in zip(
-                        futures[future], _batch_rows(future, futures[future]), strict=True
-                    ):
-                        finish(item, row)
-                    done.add(future)
-            except TimeoutError:
-                for future, batch in futures.items():
-                    if future in done:
-                        continue
-                    if future.status == "finished":
-                        rows = _batch_rows(future, batch)
-                    else:
-                        rows = [_skipped(item.spec, budget) for item in batch]
-                    for item, row in zip(batch, rows, strict=True):
-                        finish(item, row)
+            lost = _collect(client, futures, finish, deadline, budget)
         finally:
             # Leave an existing cluster as we found it: cancel only our own leftover work.
-            client.cancel([f for f in futures if not f.done()])
-    return desc
+            if client.status == "running":
+                client.cancel([f for f in futures if not f.done()])
+    return desc, lost
+
+
+def _collect(
+    client: Any,
+    futures: dict[Any, list[_Pending]],
+    finish: Callable[[_Pending, dict[str, Scalar]], None],
+    deadline: float | None,
+    budget: float | None,
+) -> str:
+    """Finish every batch of ``futures`` as it completes; return why runs were abandoned.
+
+    Waits at most :data:`POLL_S` at a time. When nothing finished, it asks the
+    scheduler for its workers: with none alive for :data:`NO_WORKER_TIMEOUT_S` (or no
+    answer), the batches still out are finished as failed rows, so the sweep ends in a
+    bounded time and the next one recomputes them. Past ``deadline`` (the time budget)
+    they are skipped instead.
+    """
+    from distributed import wait
+
+    remaining = dict(futures)
+    lost = ""
+    alone_since: float | None = None
+    while remaining:
+        now = time.perf_counter()
+        if deadline is not None and now >= deadline:
+            for batch in remaining.values():
+                for item in batch:
+                    finish(item, _skipped(item.spec, budget))
+            return lost
+        step = POLL_S if deadline is None else min(POLL_S, deadline - now)
+        # A timeout, or cancelled futures (a lost scheduler): either way, each future's
+        # own state is read below.
+        with contextlib.suppress(TimeoutError, CancelledError):
+            wait(list(remaining), timeout=step, return_when="FIRST_COMPLETED")
+        finished = [f for f in remaining if f.done()]
+        for future in finished:
+            batch = remaining.pop(future)
+            rows = _batch_rows(future, batch)
+            if future.status == "cancelled" and client.status != "running":
+                lost = SCHEDULER_LOST
+            for item, row in zip(batch, rows, strict=True):
+                finish(item, row)
+        if finished or not remaining:
+            continue
+        if client.status != "running":
+            why = SCHEDULER_LOST
+        elif _live_workers(client) > 0:
+            alone_since = None
+            continue
+        else:
+            alone_since = now if alone_since is None else alone_since
+            if time.perf_counter() - alone_since < NO_WORKER_TIMEOUT_S:
+                continue
+            why = f"no Dask worker was alive for {NO_WORKER_TIMEOUT_S:g} s"
+        for batch in remaining.values():
+            for item in batch:
+                finish(item, _row(item.spec, FAILED, f"dask: not run: {why}", 0.0, {}))
+        return why
+    return lost
+
+
+def _live_workers(client: Any) -> int:
+    """Workers the scheduler knows now; 0 if it does not answer in time."""
+    try:
+        info = run_with_deadline(client.scheduler_info, WORKER_CHECK_TIMEOUT_S)
+    except Exception:  # no answer, or the connection broke: no worker can be reached
+        return 0
+    return len(info.get("workers", {}))
+
+
+@contextlib.contextmanager
+def _quiet_loggers(*names: str) -> Iterator[None]:
+    """Silence the named loggers (and their children) for the block, then restore them."""
+    import logging
+
+    saved = [(logging.getLogger(n), logging.getLogger(n).disabled) for n in names]
+    children = [
+        logging.getLogger(n)
+        for n in list(logging.root.manager.loggerDict)
+        if any(n.startswith(f"{p}.") for p in names)
+    ]
+    saved += [(lg, lg.disabled) for lg in children]
+    for lg, _ in saved:
+        lg.disabled = True
+    try:
+        yield
+    finally:
+        for lg, was in saved:
+            lg.disabled = was
 
 
 MAX_BATCH = 8
@@ -705,7 +830,11 @@ class RunCache:
         if not path.is_file():
             return None
         try:
-            entry = json.loads(path.read_text(encoding="utf-8"))
+            with path.open("rb") as f:
+                data = f.read(MAX_ENTRY_BYTES + 1)
+            if len(data) > MAX_ENTRY_BYTES:
+                raise ValueError("larger than any entry the runner writes")
+            entry = json.loads(data.decode("utf-8"))
             body = {k: entry[k] for k in ("format", "key", "spec", "row")}
             ok = (
                 entry["checksum"] == _checksum(body)
@@ -715,7 +844,9 @@ class RunCache:
                 and isinstance(body["row"], dict)
                 and body["row"].get("run_status") == OK
             )
-        except (OSError, ValueError, KeyError, TypeError):
+        # RecursionError: nesting deeper than the parser's stack (200,000 ``[``); ValueError
+        # also covers an integer of more than 4,300 digits and bytes that are not UTF-8.
+        except (OSError, ValueError, KeyError, TypeError, RecursionError):
             ok = False
         if not ok:
             self.last_corrupt = f"cache entry {path} is corrupted or belongs to another run"

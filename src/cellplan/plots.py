@@ -8,8 +8,10 @@ atomically.
 
 from __future__ import annotations
 
+import io
 import math
-from collections.abc import Mapping, Sequence
+import struct
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -80,7 +82,8 @@ GIF_SIZE_RANGE = (240, 2400)
 
 def check_gif_size(size: int | str, field: str = "--gif-size") -> int:
     """``size`` (an integer, or its text as typed) as an int if it lies in
-    :data:`GIF_SIZE_RANGE`; an :class:`ArgumentError` naming ``field`` otherwise."""
+    :data:`GIF_SIZE_RANGE` and one frame that wide fits in memory
+    (:func:`check_gif_memory`); an :class:`ArgumentError` naming ``field`` otherwise."""
     lo, hi = GIF_SIZE_RANGE
     value: int | None = None
     if isinstance(size, int) and not isinstance(size, bool):
@@ -91,6 +94,7 @@ def check_gif_size(size: int | str, field: str = "--gif-size") -> int:
         raise ArgumentError(
             f"expected a whole number of pixels from {lo} to {hi}, got {size!r}", field
         )
+    check_gif_memory(value, field=field)
     return value
 
 
@@ -142,33 +146,139 @@ def grid_shape(count: int, aspect: float, target: float = 1.6) -> tuple[int, int
     return math.ceil(count / cols), cols
 
 
+GIF_BYTES_PER_PIXEL = 24
+"""Memory per pixel of one GIF frame while it is drawn and written (:func:`save_gif`):
+matplotlib's RGBA canvas (4), the RGB copy (3), the padded frame and the previous one
+(3 + 3), the changed part cropped, its image and palette image (3 + 3 + 1), and Pillow's
+quantizer, which works on the crop (about 4). Measured peak of a 2400 x 2400 frame: see
+docs/reliability.md."""
+
+
+def check_gif_memory(width: int, height: int | None = None, field: str = "--gif-size") -> None:
+    """Refuse (naming ``field``) a GIF frame ``width`` pixels wide that cannot fit in memory.
+
+    :func:`save_gif` holds one or two frames at a time, whatever their number, so the
+    frame's size is the whole estimate. ``height`` defaults to ``width`` (the square
+    figures of the animations).
+    """
+    from cellplan import budget
+
+    pixels = width * (width if height is None else height)
+    budget.require(pixels * GIF_BYTES_PER_PIXEL, f"{field} {width}", "to draw one GIF frame")
+
+
 def save_gif(
-    frames: Sequence[np.ndarray], path: str | Path, fps: float = 8.0, hold_last: int = 4
+    frames: Iterable[np.ndarray], path: str | Path, fps: float = 8.0, hold_last: int = 4
 ) -> Path:
-    """Write RGB frames as an animated GIF (atomically); frames are padded to a common size."""
+    """Write RGB frames as an animated GIF (atomically), one frame at a time.
+
+    ``frames`` may be a generator: each frame is quantized and written as it comes, so
+    memory holds one or two frames however many there are (Pillow's ``save_all`` keeps
+    every frame until the end). A frame only stores the box where it differs from the one
+    before; an unchanged frame lengthens the previous one. Frames smaller than the largest
+    are padded with white to its size. The last frame is shown ``hold_last`` frames longer.
+    """
+    path = Path(path)
+    delay = max(1, round(100 / fps))  # GIF delays are in hundredths of a second
+    with atomic_path(path) as tmp, open(tmp, "wb") as out:
+        out.write(_GIF_HEAD)
+        previous: np.ndarray | None = None
+        pending: tuple[bytes, int] | None = None  # a frame's bytes wait for its delay
+        for frame in frames:
+            frame = np.asarray(frame)
+            if previous is None:
+                canvas = np.array(frame[..., :3], np.uint8)
+            else:
+                h = max(previous.shape[0], frame.shape[0])
+                w = max(previous.shape[1], frame.shape[1])
+                canvas = np.full((h, w, 3), 255, np.uint8)
+                canvas[: frame.shape[0], : frame.shape[1]] = frame[..., :3]
+            box = _changed_box(previous, canvas)
+            if box is None:
+                assert pending is not None
+                pending = (pending[0], pending[1] + delay)
+                continue
+            if pending is not None:
+                out.write(_gif_frame(*pending))
+            top, left, bottom, right = box
+            pending = (_encode_part(canvas[top:bottom, left:right], left, top), delay)
+            previous = canvas
+        if pending is None or previous is None:
+            raise ValueError("a GIF needs at least one frame")
+        out.write(_gif_frame(pending[0], pending[1] + hold_last * delay))
+        out.write(b";")
+        # The screen is as large as the largest frame, known only now.
+        out.seek(6)
+        out.write(struct.pack("<HH", previous.shape[1], previous.shape[0]))
+    return path
+
+
+# GIF89a, a logical screen whose size is written at the end and without a global colour
+# table (each frame has its own), and the NETSCAPE2.0 extension: loop forever.
+_GIF_HEAD = (
+    b"GIF89a"
+    + struct.pack("<HHBBB", 0, 0, 0, 0, 0)
+    + b"\x21\xff\x0bNETSCAPE2.0\x03\x01"
+    + struct.pack("<H", 0)
+    + b"\x00"
+)
+
+
+def _changed_box(previous: np.ndarray | None, canvas: np.ndarray) -> tuple[int, ...] | None:
+    """``(top, left, bottom, right)`` of the pixels that differ, the whole canvas for the
+    first frame or a new size, ``None`` when nothing changed."""
+    if previous is None or previous.shape != canvas.shape:
+        return (0, 0, canvas.shape[0], canvas.shape[1])
+    diff = np.any(previous != canvas, axis=2)
+    rows = np.flatnonzero(diff.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(diff.any(axis=0))
+    return (int(rows[0]), int(cols[0]), int(rows[-1]) + 1, int(cols[-1]) + 1)
+
+
+def _encode_part(rgb: np.ndarray, left: int, top: int) -> bytes:
+    """One image of a GIF (descriptor, local colour table, LZW data) at ``(left, top)``.
+
+    Pillow writes the part as a one-frame GIF (adaptive palette); its colour table and
+    image data are taken from that file and given the part's position.
+    """
     from PIL import Image
 
-    if not frames:
-        raise ValueError("a GIF needs at least one frame")
-    h = max(f.shape[0] for f in frames)
-    w = max(f.shape[1] for f in frames)
-    images = []
-    for f in frames:
-        canvas = np.full((h, w, 3), 255, np.uint8)
-        canvas[: f.shape[0], : f.shape[1]] = f
-        images.append(Image.fromarray(canvas).convert("P", palette=Image.Palette.ADAPTIVE))
-    images += [images[-1]] * hold_last
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        images[0].save(
-            tmp,
-            format="GIF",
-            save_all=True,
-            append_images=images[1:],
-            duration=int(1000 / fps),
-            loop=0,
-        )
-    return path
+    buffer = io.BytesIO()
+    image = Image.fromarray(np.ascontiguousarray(rgb)).convert("P", palette=Image.Palette.ADAPTIVE)
+    image.save(buffer, format="GIF", interlace=False)
+    data = buffer.getvalue()
+    flags = data[10]
+    table = b""
+    at = 13
+    if flags & 0x80:
+        size = 3 * 2 ** ((flags & 0x07) + 1)
+        table, at = data[at : at + size], at + size
+    while data[at] == 0x21:  # extensions Pillow may add: skipped
+        at += 2
+        while data[at]:
+            at += data[at] + 1
+        at += 1
+    if data[at] != 0x2C:
+        raise ValueError("Pillow wrote a GIF without an image")  # pragma: no cover
+    width, height, local = struct.unpack_from("<HHB", data, at + 5)
+    at += 10
+    if local & 0x80:
+        size = 3 * 2 ** ((local & 0x07) + 1)
+        table, at, flags = data[at : at + size], at + size, local
+    start = at
+    at += 1  # the LZW minimum code size, then sub-blocks up to an empty one
+    while data[at]:
+        at += data[at] + 1
+    descriptor = b"\x2c" + struct.pack("<HHHHB", left, top, width, height, 0x80 | (flags & 0x07))
+    return descriptor + table + data[start : at + 1]
+
+
+def _gif_frame(image: bytes, delay: int) -> bytes:
+    """A graphic control extension (``delay`` in 1/100 s, keep the frame: disposal 1) and
+    the image."""
+    return b"\x21\xf9\x04" + struct.pack("<BHBB", 0x04, min(delay, 0xFFFF), 0, 0) + image
 
 
 # --- workcell drawing ------------------------------------------------------------------------

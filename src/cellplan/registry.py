@@ -25,6 +25,7 @@ from pydantic import ValidationError
 
 from cellplan.core import Options, Package, PlannerSpec
 from cellplan.errors import ArgumentError, Problem, ScenarioError
+from cellplan.fileio import kind_of
 
 BUNDLED_DIR = Path(__file__).resolve().parent / "bundled_scenarios"
 
@@ -68,6 +69,9 @@ def resolve_scenario_path(path_or_name: str | Path) -> Path:
         return path
     if path.is_dir():
         raise ScenarioError([Problem(str(path_or_name), "is a folder, not a scenario file")])
+    if path.exists():  # a device, a FIFO or a socket, or a link to one: never read
+        what = kind_of(path.stat().st_mode)
+        raise ScenarioError([Problem(str(path_or_name), f"is {what}, not a scenario file")])
     if path.suffix == "" and path.parent == Path("."):
         return scenario_path(str(path))
     raise ScenarioError([Problem(str(path_or_name), "no such file")])

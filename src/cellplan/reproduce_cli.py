@@ -13,7 +13,8 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 
-from cellplan.errors import ArgumentError, Problem
+from cellplan.errors import ArgumentError, Interrupted, Problem
+from cellplan.experiments import SweepResult
 
 T = TypeVar("T")
 
@@ -81,8 +82,44 @@ def reproduce(
 
     ``runs`` overrides every paper's default count (:func:`paper_runs`); ``only``
     restricts the sweep to the named experiments (all must exist); ``time_budget_s``
-    is passed to :func:`~cellplan.experiments.run_sweep`.
+    is passed to :func:`~cellplan.experiments.run_sweep`. :func:`reproduce_sweep` also
+    returns the sweep (its failures decide the command's exit status).
     """
+    return reproduce_sweep(
+        papers,
+        outdir,
+        runs=runs,
+        quick=quick,
+        scheduler=scheduler,
+        serial=serial,
+        only=only,
+        fresh=fresh,
+        console=console,
+        title=title,
+        intro=intro,
+        extra=extra,
+        progress=progress,
+        time_budget_s=time_budget_s,
+    )[0]
+
+
+def reproduce_sweep(
+    papers: Sequence[str] | None,
+    outdir: Path,
+    runs: int | None = None,
+    quick: bool = False,
+    scheduler: str | None = None,
+    serial: bool = False,
+    only: Sequence[str] = (),
+    fresh: bool = False,
+    console: Any = None,
+    title: str = "cellplan: the three papers, reproduced",
+    intro: str = "",
+    extra: Sequence[Any] = (),
+    progress: bool = True,
+    time_budget_s: float | None = None,
+) -> tuple[Path, SweepResult]:
+    """:func:`reproduce`, returning the report's path and the sweep that filled it."""
     from cellplan.experiments import discover, run_sweep
     from cellplan.report import make_pieces, reproduce_command, write_report
 
@@ -121,7 +158,24 @@ def reproduce(
         return reproduce_command(exp, per_paper[exp.paper], quick, outdir, scheduler)
 
     pieces = make_pieces(sweep, command_for)
-    return write_report(outdir, found, pieces, sweep, title=title, intro=intro, extra=extra)
+    index = write_report(outdir, found, pieces, sweep, title=title, intro=intro, extra=extra)
+    return index, sweep
+
+
+def failure_line(sweep: SweepResult, index: Path, output: Path) -> str:
+    """The one line of a sweep whose runs did not all finish (exit status 1).
+
+    Says how many runs failed and why the sweep gave up on some (a lost scheduler, no
+    worker left), where the report is, and that the same command resumes: finished runs
+    are cached, failed ones are not.
+    """
+    why = f" ({sweep.lost})" if sweep.lost else ""
+    broken = f"; {sweep.n_broken} experiments could not list their runs" if sweep.n_broken else ""
+    return (
+        f"error: {sweep.n_failed} of {sweep.n_runs} runs failed{why}{broken}; "
+        f"report written: {index}; {cached_runs(output)} runs cached in {output / 'cache'}: "
+        "run the same command to retry the rest"
+    )
 
 
 def register(app: typer.Typer) -> None:
@@ -194,7 +248,7 @@ def register(app: typer.Typer) -> None:
             raise ArgumentError(problems)
         console = Console(stderr=True)
         try:
-            index = reproduce(
+            index, sweep = reproduce_sweep(
                 papers,
                 output,
                 runs=n_runs,
@@ -207,14 +261,18 @@ def register(app: typer.Typer) -> None:
             )
         except KeyboardInterrupt:
             cached = cached_runs(output)
-            console.print(
+            raise Interrupted(
                 f"interrupted; {cached} runs cached in {output / 'cache'}; "
-                "run the same command to resume",
+                "run the same command to resume"
+            ) from None
+        if sweep.n_failed or sweep.n_broken:
+            console.print(
+                failure_line(sweep, index, output),
                 highlight=False,
                 markup=False,
                 soft_wrap=True,
             )
-            raise typer.Exit(130) from None
+            raise typer.Exit(1)
         typer.echo(f"report written: {index}")
 
 

@@ -174,6 +174,11 @@ class LinkSpec(StrictModel):
         return data
 
 
+#: Most links of an arm: a C-space grid over more axes has at least 2^100 cells, beyond
+#: any memory, and its estimates need integers past a float's range (issue 36).
+MAX_LINKS = 100
+
+
 class ArmRobotSpec(StrictModel):
     """A planar n-link revolute chain; C = the joint angles.
 
@@ -188,7 +193,7 @@ class ArmRobotSpec(StrictModel):
     """robot kind"""
     base: Vec2 = (0.0, 0.0)
     """position of joint 1 (workcell units)"""
-    links: list[LinkSpec] = Field(min_length=1)
+    links: list[LinkSpec] = Field(min_length=1, max_length=MAX_LINKS)
     """the links, from the base"""
     joint_limits: list[tuple[float, float]] | None = None
     """per joint (lower, upper) in degrees (default: full turn, periodic)"""
@@ -343,12 +348,27 @@ it keeps the composer's recursion, in C or in Python, far from any stack limit."
 _BaseLoader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+_MERGE_VALUE = "a merge key (<<) takes a mapping (*name) or a list of mappings"
+#: A mapping's entries by constructed key: (key node, value node).
+_Pairs = dict[Any, tuple[yaml.Node, yaml.Node]]
+
+
 class _UniqueKeyLoader(_BaseLoader):
-    """Safe loader that rejects duplicate mapping keys instead of keeping the last one.
+    """Safe loader that rejects duplicate mapping keys instead of keeping the last one,
+    and expands merge keys (``<<``) within the same limits as aliases.
 
     :func:`parse_yaml` first counts the file's values and depth on the event stream (see
     :func:`_check_size`), so composing never starts on a file beyond the limits.
     """
+
+    def __init__(self, stream: Any) -> None:
+        super().__init__(stream)
+        # Each mapping's entries with its merges expanded, by node (nodes never change),
+        # and how many entries all expansions made: a chain of merges could otherwise
+        # build far more than MAX_YAML_NODES entries before the size check sees them.
+        self.merged: dict[int, _Pairs] = {}
+        self.merged_entries = 0
 
 
 _TOO_DEEP = f"YAML nested too deeply (more than {MAX_YAML_DEPTH} levels)"
@@ -383,8 +403,48 @@ def _check_size(text: str, source: str) -> None:
 
 
 def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
-    seen: dict[Any, yaml.Node] = {}
-    for key_node, _ in node.value:
+    """A mapping whose keys are plain names, each written once, with merge keys expanded.
+
+    A merge key (``<<: *base`` or ``<<: [*a, *b]``, YAML 1.1) copies the keys of the
+    mappings it names, as YAML specifies: a key written in the mapping itself overrides
+    a merged one, and of several merged mappings the first that has a key wins. Only keys
+    written twice in one mapping (``<<`` included) are duplicates; overriding a merged key
+    is the point of merging. The nodes are never changed, so an anchor merged in one place
+    reads the same everywhere else.
+    """
+    pairs = _merged_pairs(loader, node, deep, ())
+    return {key: loader.construct_object(value, deep=deep) for key, (_, value) in pairs.items()}
+
+
+def _merged_pairs(
+    loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool, open_nodes: tuple[int, ...]
+) -> _Pairs:
+    """``node``'s entries by constructed key, merges expanded (once per node, each level
+    holding one entry per distinct key however often its sources are repeated)."""
+    if id(node) in loader.merged:
+        return loader.merged[id(node)]
+    if id(node) in open_nodes:
+        raise yaml.constructor.ConstructorError(
+            None, None, "a merge key (<<) merges a mapping into itself", node.start_mark
+        )
+    explicit: _Pairs = {}
+    merge_key: yaml.Node | None = None
+    sources: list[yaml.MappingNode] = []
+    for key_node, value_node in node.value:
+        if key_node.tag == _MERGE_TAG:
+            if merge_key is not None:
+                raise yaml.constructor.ConstructorError(
+                    None, None, "duplicate key '<<'", key_node.start_mark
+                )
+            merge_key = key_node
+            items = value_node.value if isinstance(value_node, yaml.SequenceNode) else [value_node]
+            for item in items:
+                if not isinstance(item, yaml.MappingNode):
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"{_MERGE_VALUE}, not a {item.id}", item.start_mark
+                    )
+                sources.append(item)
+            continue
         key = loader.construct_object(key_node, deep=deep)
         if not isinstance(key, str | int | float | bool) and key is not None:
             raise yaml.constructor.ConstructorError(
@@ -393,11 +453,27 @@ def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: b
                 "a mapping key must be a plain name, not a list or mapping",
                 key_node.start_mark,
             )
-        if key in seen:
+        if key in explicit:
             mark = key_node.start_mark
             raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", mark)
-        seen[key] = key_node
-    return loader.construct_mapping(node, deep=deep)
+        explicit[key] = (key_node, value_node)
+    if not sources:
+        return explicit
+    pairs: _Pairs = {}
+    # Later sources first, so that earlier ones (then the explicit keys) overwrite them.
+    for source in reversed(sources):
+        pairs.update(_merged_pairs(loader, source, deep, (*open_nodes, id(node))))
+    pairs.update(explicit)
+    loader.merged_entries += len(pairs)
+    if loader.merged_entries > MAX_YAML_NODES:
+        raise yaml.constructor.ConstructorError(
+            None,
+            None,
+            f"its merge keys (<<) expand to more than {MAX_YAML_NODES:,} values",
+            merge_key.start_mark if merge_key is not None else node.start_mark,
+        )
+    loader.merged[id(node)] = pairs
+    return pairs
 
 
 _UniqueKeyLoader.add_constructor(
@@ -715,7 +791,8 @@ def scenario_from_data(data: Any, source: str = "<data>") -> Scenario:
         raise ScenarioError(
             [Problem("cellplan", f"missing format version (write 'cellplan: {SCHEMA_VERSION}')")]
         )
-    if data["cellplan"] != SCHEMA_VERSION:
+    # A boolean equals 1 in Python, and 1.0 too: the version is an integer, exactly.
+    if type(data["cellplan"]) is not int or data["cellplan"] != SCHEMA_VERSION:
         raise ScenarioError(
             [
                 Problem(

@@ -8,10 +8,11 @@ files and converted to radians by the code that consumes them.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import shapely
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, GetCoreSchemaHandler, model_validator
+from pydantic_core import CoreSchema, PydanticCustomError, core_schema
 from shapely.geometry.base import BaseGeometry
 
 COORD_LIMIT = 1e6
@@ -34,13 +35,57 @@ NAME_PATTERN = r"^[A-Za-z0-9_.\-]+$"
 Name = Annotated[str, Field(min_length=1, pattern=NAME_PATTERN)]
 
 
+BOOL_NOT_NUMBER = "expected a number, not true or false"
+"""The one refusal of a boolean where a scenario expects a number (see :class:`StrictModel`)."""
+
+
+def _refuse_bool(value: Any) -> Any:
+    if isinstance(value, bool):
+        raise PydanticCustomError("bool_not_number", BOOL_NOT_NUMBER)
+    return value
+
+
+def _numeric_literal(schema: dict[str, Any]) -> bool:
+    expected = schema.get("expected", [])
+    return any(isinstance(v, int | float) and not isinstance(v, bool) for v in expected)
+
+
+def strict_numbers(schema: Any) -> Any:
+    """``schema`` (a pydantic core schema) with booleans refused wherever it expects a number.
+
+    pydantic reads ``true`` as 1 for an ``int``, a ``float`` or ``Literal[1]``, so YAML's
+    ``cellplan: true`` passed as format version 1 and ``true`` as a coordinate. Every
+    ``int``, ``float`` and numeric-literal node is wrapped in a check that refuses a
+    boolean; integers and floats are otherwise read as before.
+    """
+    if isinstance(schema, list):
+        return [strict_numbers(item) for item in schema]
+    if not isinstance(schema, dict):
+        return schema
+    out = {key: strict_numbers(value) for key, value in schema.items()}
+    kind = out.get("type")
+    if kind in ("int", "float") or (kind == "literal" and _numeric_literal(out)):
+        return core_schema.no_info_before_validator_function(_refuse_bool, out)
+    return out
+
+
 class StrictModel(BaseModel):
-    """Base of every scenario model: unknown keys are errors, values are frozen."""
+    """Base of every scenario model: unknown keys are errors, values are frozen, and a
+    boolean is never a number (:func:`strict_numbers`)."""
 
     # A string literal under a field is its description in the JSON Schema.
     model_config = ConfigDict(
         extra="forbid", frozen=True, allow_inf_nan=False, use_attribute_docstrings=True
     )
+
+    @classmethod
+    def __get_pydantic_core_schema__(
+        cls, source: type[BaseModel], handler: GetCoreSchemaHandler
+    ) -> CoreSchema:
+        # The one place numeric types become strict: every section's model, core or
+        # contributed by a package, derives from this class.
+        schema: CoreSchema = strict_numbers(handler(source))
+        return schema
 
 
 class PolygonShape(StrictModel):
@@ -121,6 +166,7 @@ class Bounds(StrictModel):
 
 
 __all__ = [
+    "BOOL_NOT_NUMBER",
     "CELLS_RANGE",
     "COORD_LIMIT",
     "NAME_PATTERN",
@@ -139,4 +185,5 @@ __all__ = [
     "Shape",
     "StrictModel",
     "Vec2",
+    "strict_numbers",
 ]

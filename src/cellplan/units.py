@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellplan.errors import ArgumentError, Problem
+from cellplan.schema import COORD_LIMIT
 
 FloatArray = NDArray[np.float64]
 
@@ -73,17 +74,61 @@ def config_to_file(axis_names: Sequence[str], q: ArrayLike) -> FloatArray:
     return out
 
 
-def check_configurations(q: ArrayLike, axis_names: Sequence[str], name: str = "q") -> FloatArray:
-    """``q`` as a float ``(N, dim)`` array, or an :class:`ArgumentError` naming what is wrong.
+#: Kinds of numpy dtype a numeric argument may have: signed and unsigned integers and
+#: real floats. Booleans, complex numbers (whose imaginary part a float conversion drops),
+#: strings and objects are refused rather than converted.
+REAL_KINDS = "iuf"
 
-    Refuses a wrong shape, non-finite values, and angles beyond :data:`ANGLE_LIMIT`
-    (the usual sign of degrees passed where radians are expected).
+
+def real_array(value: ArrayLike, name: str, expected: str = "an array of numbers") -> FloatArray:
+    """``value`` as a C-contiguous float64 array, or an :class:`ArgumentError` naming ``name``.
+
+    Any real numeric dtype, layout or writability is accepted (a strided or read-only
+    array is copied only when it must be); finiteness and ranges are the caller's checks.
+    ``expected`` completes the refusal: ``expected <expected>, got dtype <U3``.
+    """
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):
+        raise ArgumentError([Problem(name, f"expected {expected}")]) from None
+    if arr.dtype.kind not in REAL_KINDS or (arr.dtype.kind == "f" and _holds_bool(value)):
+        got = "booleans" if arr.dtype.kind in "bf" else f"dtype {arr.dtype}"
+        raise ArgumentError([Problem(name, f"expected {expected}, got {got}")])
+    return np.asarray(arr, dtype=np.float64, order="C")
+
+
+def _holds_bool(value: Any) -> bool:
+    """Whether nested lists or tuples hold a boolean (numpy reads ``[True, 2.5]`` as floats)."""
+    if isinstance(value, list | tuple):
+        return any(_holds_bool(v) for v in value)
+    return isinstance(value, bool | np.bool_)
+
+
+def real_number(value: Any, name: str) -> float:
+    """``value`` as a finite Python float, or an :class:`ArgumentError` naming ``name``.
+
+    Accepts Python and numpy integers and floats; refuses booleans, arrays of more than
+    one value, text, NaN and infinities.
+    """
+    arr = real_array(value, name, "a number")
+    if arr.ndim != 0:
+        raise ArgumentError([Problem(name, f"expected one number, got shape {arr.shape}")])
+    number = float(arr)
+    if not math.isfinite(number):
+        raise ArgumentError([Problem(name, f"must be a finite number, got {number}")])
+    return number
+
+
+def check_configurations(q: ArrayLike, axis_names: Sequence[str], name: str = "q") -> FloatArray:
+    """``q`` as a C-contiguous float ``(N, dim)`` array, or an :class:`ArgumentError`.
+
+    Refuses a dtype that is not a real number (:func:`real_array`), a wrong shape,
+    non-finite values, positions beyond :data:`cellplan.schema.COORD_LIMIT` (no workcell
+    reaches them, and geometry there loses every digit) and angles beyond
+    :data:`ANGLE_LIMIT` (the usual sign of degrees passed where radians are expected).
     """
     dim = len(axis_names)
-    try:
-        arr = np.asarray(q, dtype=float)
-    except (TypeError, ValueError):
-        raise ArgumentError([Problem(name, "expected an array of numbers")]) from None
+    arr = real_array(q, name)
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != dim:
@@ -93,6 +138,21 @@ def check_configurations(q: ArrayLike, axis_names: Sequence[str], name: str = "q
     if not np.all(np.isfinite(arr)):
         raise ArgumentError([Problem(name, "contains NaN or infinite values")])
     mask = np.array(angular_axes(axis_names), dtype=bool)
+    if (~mask).any() and arr.size:
+        positions = np.abs(arr[:, ~mask])
+        if positions.max() > COORD_LIMIT:
+            row, col = np.unravel_index(int(np.argmax(positions)), positions.shape)
+            axis = [a for a, m in zip(axis_names, mask, strict=True) if not m][col]
+            value = arr[row, np.flatnonzero(~mask)[col]]
+            raise ArgumentError(
+                [
+                    Problem(
+                        name,
+                        f"position {axis}={value:g} is outside [-{COORD_LIMIT:g}, "
+                        f"{COORD_LIMIT:g}], beyond any workcell",
+                    )
+                ]
+            )
     if mask.any():
         angles = np.abs(arr[:, mask])
         if angles.size and angles.max() > ANGLE_LIMIT + 1e-9:

@@ -21,10 +21,11 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from numpy.typing import NDArray
 from shapely.geometry.base import BaseGeometry
 
-from cellplan import units
-from cellplan.errors import Problem, ScenarioError
+from cellplan import budget, units
+from cellplan.errors import ArgumentError, Problem, ScenarioError
 from cellplan.geometry import (
     BoolArray,
     FloatArray,
@@ -37,12 +38,26 @@ from cellplan.geometry import (
 )
 from cellplan.robots import PlanarArm, Robot, robot_from_spec
 from cellplan.scenario import Scenario, load_scenario
+from cellplan.schema import COORD_LIMIT
 
 AvoidSources = Literal["all", "none"] | Collection[str]
+IntArray = NDArray[np.int64]
 RegionTest = Literal["contact", "enclosure"]
 
 DEFAULT_CELLS = {"point": (128, 128), "translating": (128, 128), "rotating": (64, 64, 32)}
 DEFAULT_ARM_CELLS_PER_JOINT = 64
+
+MAX_MOTION_SAMPLES = 2**40
+"""Most samples one :meth:`Workcell.motion_collides` call may check, whatever memory says.
+
+It keeps every count exact in float64 and int64 (a step of 1e-300 once made
+``ceil(travel / step)`` wrap to a negative int64 and the motion through a wall pass as
+free); below it, the memory estimate (:func:`cellplan.budget.require`) decides."""
+
+_MOTION_BYTES_UNCHECKED = 16 * 2**20
+"""Motion checks estimated below this many bytes skip the memory check: asking the system
+(:func:`cellplan.budget.available_memory` reads ``/proc``) takes about 90 us, longer
+than a short motion's whole check, and 16 MiB fits wherever cellplan runs."""
 
 
 @dataclass(frozen=True)
@@ -202,7 +217,8 @@ class Workcell:
     # --- batched queries ---------------------------------------------------------------------
 
     def configurations(self, q: FloatArray, name: str = "q") -> FloatArray:
-        """``q`` as a checked ``(N, dim)`` array: the right shape, finite, angles in radians.
+        """``q`` as a checked ``(N, dim)`` float64 array: real numbers of the right shape,
+        finite, positions within :data:`cellplan.schema.COORD_LIMIT`, angles in radians.
 
         Every public query calls this first, so a configuration written in degrees (a
         joint angle of 90) is refused with one line saying angles are radians here
@@ -239,12 +255,13 @@ class Workcell:
         """``(N,)``: does the robot (with the carried part) touch an obstacle or leave the bounds?
 
         Configurations outside the joint limits count as colliding. ``margin``
-        (a number, or one per body with the part last) demands extra clearance.
-        Angles are radians (see :func:`configurations`).
+        (a number, or one per body with the part last; finite and not negative) demands
+        extra clearance. Angles are radians (see :func:`configurations`). Bad arguments
+        raise :class:`~cellplan.errors.ArgumentError`.
         """
         q = self.configurations(q)
         bodies, poses = self.posed_bodies(q, carrying)
-        margins = np.broadcast_to(np.asarray(margin, float), (len(bodies.bodies),))
+        margins = _margins(margin, len(bodies.bodies))
         hit = (
             body_gaps(bodies, poses, self.prepared_obstacles(avoid_sources), margins, exact=False)
             <= 0.0
@@ -285,15 +302,23 @@ class Workcell:
         are checked with a clearance margin of ``step / 2``, so a motion reported
         free is free everywhere along the segment, not only at the samples.
         Periodic axes take the short way round.
+
+        ``step`` must be a finite positive number. The number of samples and their memory
+        are estimated before anything is allocated: more than :data:`MAX_MOTION_SAMPLES`,
+        or more memory than is available (:func:`cellplan.budget.require`), raises an
+        :class:`~cellplan.errors.ArgumentError` naming ``step``.
         """
         q0 = self.configurations(q0, "q0")
         q1 = self.configurations(q1, "q1")
-        if not step > 0:
-            raise ValueError("step must be positive")
+        step = units.real_number(step, "step")
+        if step <= 0:
+            raise ArgumentError([Problem("step", f"must be positive, got {step:g}")])
+        if len(q0) != len(q1):
+            raise ArgumentError([Problem("q1", f"has {len(q1)} configurations; q0 has {len(q0)}")])
         d = self.robot.difference(q0, q1)
         reach = self.part(carrying).reach() if carrying is not None else 0.0
         travel = self.robot.workspace_step(d, reach)
-        counts = np.maximum(1, np.ceil(travel / step).astype(np.int64)) + 1
+        counts = self._sample_counts(travel, step, carrying)
         seg = np.repeat(np.arange(len(q0)), counts)
         offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
         t = (np.arange(counts.sum()) - np.repeat(offsets, counts)) / np.repeat(counts - 1, counts)
@@ -301,6 +326,35 @@ class Workcell:
         margin = step / 2 if certified else 0.0
         hit = self.collides(samples, carrying, avoid_sources, margin=margin)
         return np.logical_or.reduceat(hit, offsets)
+
+    def _sample_counts(self, travel: FloatArray, step: float, carrying: str | None) -> IntArray:
+        """Samples per motion (both ends included), refused before any allocation when
+        their number or their memory is too large (see :meth:`motion_collides`)."""
+        # Float arithmetic first: ceil(travel / step) may be inf or beyond int64.
+        with np.errstate(over="ignore"):
+            counts = np.maximum(1.0, np.ceil(travel / step)) + 1.0
+        total = float(counts.sum()) if len(counts) else 0.0
+        if not total <= MAX_MOTION_SAMPLES:
+            longest = float(travel.max())
+            raise ArgumentError(
+                [
+                    Problem(
+                        "step",
+                        f"{step:g} needs more than {MAX_MOTION_SAMPLES:,} samples (the longest "
+                        f"motion moves {longest:.4g} units); use a larger step",
+                    )
+                ]
+            )
+        bodies = len(self.robot.bodies.bodies) + (carrying is not None)
+        # Per sample, float64 values alive at once at worst: the index and parameter
+        # arrays (5), the interpolated configuration and its temporaries (5 per axis),
+        # and the posed bodies with their copies (3 per body, three times over).
+        per_sample = 8 * (5 + 5 * self.robot.dim + 9 * (bodies + 1))
+        need = total * per_sample
+        if need > _MOTION_BYTES_UNCHECKED:
+            what = f"to check {total:,.0f} samples of {len(counts)} motion(s)"
+            budget.require(need, "step", what)
+        return counts.astype(np.int64)
 
     def in_region(
         self,
@@ -317,26 +371,31 @@ class Workcell:
         the end-effector point (and carried part), as the strategies paper does
         for problems 5-6. Contact means touching; enclosure means entirely inside
         one component (touching its boundary from inside does not count).
-        ``component`` restricts the test to one component. ``offset`` moves the region
-        by ``(dx, dy)`` (a region on a conveyor belt, Section VI-1 of the strategies paper).
+        ``component`` restricts the test to one component (an index, ``0 <= component <
+        len(components)``). ``offset`` moves the region by ``(dx, dy)`` (a region on a
+        conveyor belt, Section VI-1 of the strategies paper), each finite and within
+        :data:`cellplan.schema.COORD_LIMIT`.
         """
         region = self.region(name)
+        if kind not in ("contact", "enclosure"):
+            raise ValueError(f"kind must be 'contact' or 'enclosure', not {kind!r}")
         q = self.configurations(q)
+        indices = range(len(region.components)) if component is None else [component]
+        if component is not None:
+            _check_component(component, len(region.components))
+        shift = None if offset is None else _offset(offset)
         bodies, poses = self._region_bodies(q, carrying)
-        if offset is not None:
+        if shift is not None:
             # Moving the region by d is moving every posed body by -d.
             poses = poses.copy()
-            poses[..., 0] -= offset[0]
-            poses[..., 1] -= offset[1]
-        indices = range(len(region.components)) if component is None else [component]
+            poses[..., 0] -= shift[0]
+            poses[..., 1] -= shift[1]
         out = np.zeros(len(q), bool)
         for i in indices:
             if kind == "contact":
                 out |= _gap(bodies, poses, region.components[i]) <= 0.0
-            elif kind == "enclosure":
-                out |= _gap(bodies, poses, region.complements[i]) > 0.0
             else:
-                raise ValueError(f"kind must be 'contact' or 'enclosure', not {kind!r}")
+                out |= _gap(bodies, poses, region.complements[i]) > 0.0
         return out
 
     def _region_bodies(self, q: FloatArray, carrying: str | None) -> tuple[RigidBodies, FloatArray]:
@@ -364,13 +423,63 @@ class Workcell:
         self, q: FloatArray, carrying: str | None = None
     ) -> tuple[list[BaseGeometry], BaseGeometry | None]:
         """Shapely geometry of the robot's bodies and of the carried part at one configuration."""
-        bodies, poses = self.posed_bodies(np.asarray(q, float)[None, :], carrying)
+        q = self.configurations(q)
+        if len(q) != 1:
+            raise ArgumentError([Problem("q", f"expected one configuration, got {len(q)}")])
+        bodies, poses = self.posed_bodies(q, carrying)
         geoms = [
             b.transformed(p).to_shapely() for b, p in zip(bodies.bodies, poses[0], strict=True)
         ]
         if carrying is None:
             return geoms, None
         return geoms[:-1], geoms[-1]
+
+
+def _margins(margin: float | FloatArray, count: int) -> FloatArray:
+    """``margin`` (one number, or one per body) as ``(count,)`` finite, non-negative values."""
+    arr = units.real_array(margin, "margin", "a number or one number per body")
+    if arr.ndim > 1 or (arr.ndim == 1 and len(arr) not in (1, count)):
+        raise ArgumentError(
+            [Problem("margin", f"expected one number or {count} (one per body), got {arr.shape}")]
+        )
+    if not np.all(np.isfinite(arr)):
+        raise ArgumentError([Problem("margin", "contains NaN or infinite values")])
+    if np.any(arr < 0):
+        raise ArgumentError([Problem("margin", "must not be negative (it is extra clearance)")])
+    return np.array(np.broadcast_to(arr, (count,)))
+
+
+def _check_component(component: int, count: int) -> None:
+    """Refuse a component index that is not a whole number in ``[0, count)``."""
+    if isinstance(component, bool) or not isinstance(component, int | np.integer):
+        raise ArgumentError([Problem("component", f"expected an index, got {component!r}")])
+    if not 0 <= component < count:
+        raise ArgumentError(
+            [
+                Problem(
+                    "component",
+                    f"{component} is not in [0, {count - 1}]: the region has "
+                    f"{count} component{'s' if count > 1 else ''}",
+                )
+            ]
+        )
+
+
+def _offset(offset: tuple[float, float]) -> FloatArray:
+    """``offset`` as two finite numbers within :data:`cellplan.schema.COORD_LIMIT`."""
+    arr = units.real_array(offset, "offset", "(dx, dy)")
+    if arr.shape != (2,):
+        raise ArgumentError([Problem("offset", f"expected (dx, dy), got shape {arr.shape}")])
+    if not np.all(np.isfinite(arr)) or np.abs(arr).max() > COORD_LIMIT:
+        raise ArgumentError(
+            [
+                Problem(
+                    "offset",
+                    f"each value must be finite and within [-{COORD_LIMIT:g}, {COORD_LIMIT:g}]",
+                )
+            ]
+        )
+    return arr
 
 
 def _gap(bodies: RigidBodies, poses: FloatArray, obstacles: ShapeSet) -> FloatArray:

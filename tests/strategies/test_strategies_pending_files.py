@@ -237,10 +237,11 @@ def _pick_both_of_twice(a: dict) -> None:
             lambda a: a.__setitem__("out_ptr", a["out_ptr"][:20]),
             rf"out_ptr: shape \(20,\), expected axis 0 \(O \+ 1\) to be {OPTIONS + 1}",
         ),
-        # fewer rows of tf (M - 1, the fewest FMP options a file may have) than options
+        # fewer rows of tf (M - 1, the fewest FMP options a file may have) than options:
+        # every header is checked before any data, so out_ptr's length is named first
         (
             lambda a: a.__setitem__("tf", a["tf"][: M - 1]),
-            rf"opt_ptr: value {OPTIONS} above {M - 1}",
+            rf"out_ptr: shape \({OPTIONS + 1},\), expected axis 0 \(O \+ 1\) to be {M}",
         ),
     ],
 )

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from strategies_helpers import tiny
 
+import cellplan
 from cellplan.errors import ArgumentError, PersistenceError
 from cellplan.strategies.points import query
 from cellplan.strategies.strategy import FMP, STAY, Strategy, solve_scenario
@@ -170,3 +173,14 @@ def test_queries_follow_replaced_values(solved):
         q, 0, np.nan_to_num(copy.values, nan=0.0), copy.mdp.live, False, after.model, out
     )
     assert copy.action(q, 0) == expect
+
+
+def test_strategy_pickles_after_queries_and_still_answers():
+    """The compiled query kernel is left out of the pickle and rebuilt (issue 36)."""
+    result = cellplan.plan(cellplan.load("strategies_tiny"), "strategies")
+    strategy = result.solution
+    q, mode = result.trajectory.q[0], int(result.trajectory.mode[0])
+    action = strategy.action(q, mode)  # builds the query cache (a compiled kernel)
+    copy = pickle.loads(pickle.dumps(strategy))
+    assert copy.action(q, mode) == action
+    assert np.array_equal(copy.values, strategy.values, equal_nan=True)

@@ -21,6 +21,7 @@ input. Options are ``None`` unless given, so the defaults are the scenario secti
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -30,10 +31,27 @@ from cellplan.cliutil import (
     JsonOpt,
     ScenarioArg,
     as_flags,
+    check_inputs_kept,
     check_output,
     finish,
+    folder_files,
     progress_bar,
     progress_enabled,
+    scenario_file,
+)
+from cellplan.fileio import staged_folder
+
+#: Every file ``adapt`` may write into its output folder (module docstring).
+OUTPUT_FILES = (
+    "paths.csv",
+    "paths.png",
+    "tasks.csv",
+    "graph.graphml",
+    "ratio.png",
+    "costs.png",
+    "graph.png",
+    "snapshots.png",
+    "summary.json",
 )
 
 if TYPE_CHECKING:
@@ -106,11 +124,19 @@ def run_adapt_command(
         parse_options(planner("adaptive"), given)
     check_output(output, "--output", folder=True)
     if db is not None:
-        check_output(db, "--db")
+        # The database is reached through links (one lock per file, whatever its name),
+        # so what must be a regular file or absent is the file it resolves to.
+        check_output(Path(os.path.realpath(db)), "--db")
+    check_inputs_kept(
+        folder_files("--output", output, OUTPUT_FILES),
+        {"SCENARIO": scenario_file(scenario_arg), "--db": db},
+    )
     setup = load(scenario_arg)
     with progress_bar(progress_enabled(as_json), "adapt", counts=True) as progress, as_flags():
         result = plan(setup, "adaptive", progress=progress, **given)
-    outputs = write_outputs(result, output)
+    with staged_folder(output, keep={"--db": db} if db is not None else None) as stage:
+        staged = write_outputs(result, stage)
+    outputs = {name: output / path.relative_to(stage) for name, path in staged.items()}
     summary = (
         f"{result.message}; wrote {output}"
         if result.success

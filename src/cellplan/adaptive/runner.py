@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from cellplan import units
+from cellplan import budget, units
 from cellplan.adaptive.adapt import Adapter, Hook, Settings, TaskResult, derive_seed
 from cellplan.adaptive.experience import ExperiencePlanner
 from cellplan.adaptive.graph import ExperienceGraph
@@ -71,16 +71,28 @@ def _task_seed(sec: AdaptiveSection) -> int:
     return sec.tasks.seed if isinstance(sec.tasks, RandomTasks) else 0
 
 
+SECONDS_PER_TASK = 0.1
+"""Seconds per task, its Solve-only baseline included, for the time estimate: 55 ms
+measured (``cellplan adapt adaptive_fig4``, 10 and 80 tasks, on the shared 2-core machine
+at load about 4), rounded up."""
+
+
 def task_count(scenario: Scenario, tasks: int | None) -> int:
-    """Number of tasks of the run (``tasks`` overrides the section's)."""
+    """Number of tasks of the run (``tasks`` overrides the section's), refused when their
+    estimated time passes the time limit (:func:`cellplan.budget.require_time`)."""
     sec = _section(scenario)
     if tasks is not None:
         if tasks < 1:
             raise ArgumentError("must be at least 1", "tasks")
         if isinstance(sec.tasks, list) and tasks > len(sec.tasks):
             raise ArgumentError(f"the scenario lists only {len(sec.tasks)} tasks", "tasks")
+        budget.require_time(tasks * SECONDS_PER_TASK, "tasks", f"for {tasks} tasks")
         return tasks
-    return len(sec.tasks) if isinstance(sec.tasks, list) else sec.tasks.count
+    n = len(sec.tasks) if isinstance(sec.tasks, list) else sec.tasks.count
+    budget.require_time(
+        n * SECONDS_PER_TASK, "adaptive.tasks.count", f"for {n} tasks", ScenarioError
+    )
+    return n
 
 
 def choose_goal(

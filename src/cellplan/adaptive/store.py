@@ -47,6 +47,7 @@ robot or scenario, a damaged one, or one that is not an experience database, wit
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import functools
 import hashlib
@@ -54,6 +55,7 @@ import json
 import math
 import os
 import sqlite3
+import stat
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -63,7 +65,7 @@ import numpy as np
 
 from cellplan.adaptive.graph import EDGE_STATUSES, ExperienceGraph
 from cellplan.errors import PersistenceError, Problem
-from cellplan.fileio import atomic_path, fsync_path
+from cellplan.fileio import atomic_path, fsync_path, kind_of, name_max
 from cellplan.geometry import ShapeSet
 from cellplan.scenario import Scenario
 from cellplan.workcell import Workcell
@@ -191,39 +193,58 @@ def shape_from_json(data: Mapping[str, Any]) -> ShapeSet:
 
 
 class DatabaseLock:
-    """The one-writer lock of a database: ``flock`` on the sidecar ``<db>.lock``.
+    """The one-writer lock of a database: ``flock`` on a sidecar file and on the database.
 
     An OS file lock, not a lock row or SQLite's own locking, because the kernel drops it
     when its process dies however it dies (``kill -9`` included): no stale lock is ever
     left to clear by hand, and a second process learns who holds it, from the PID the
-    holder writes into the file. SQLite's locks are released between transactions (each
-    task commits), so they cannot keep a second run from interleaving its tasks.
+    holder writes into the sidecar. SQLite's locks are released between transactions
+    (each task commits), so they cannot keep a second run from interleaving its tasks.
 
-    The lock is taken without waiting; a second opener gets a
+    The lock belongs to the file, not to the name it was reached by:
+
+    * the database path is resolved first (symbolic links followed), and the sidecar
+      is ``<resolved path>.lock``: two names linked to one database share one sidecar.
+      It serialises the creation of a database that does not exist yet;
+    * once the database exists, its own inode is locked too (:meth:`lock_database`), so
+      a hard link, which no path resolution can see, meets the same lock.
+
+    Neither file is opened through a final symbolic link (``O_NOFOLLOW``), and neither
+    is written unless it is a regular file: a sidecar planted as a link to another file
+    is refused, never truncated. ``flock`` locks are independent of the POSIX record
+    locks SQLite takes on the database, so the two do not interfere.
+
+    The locks are taken without waiting; a second opener gets a
     :class:`~cellplan.errors.PersistenceError` naming the holder. :meth:`release`
-    removes the file while still holding the lock; an opener that locked a file
+    removes the sidecar while still holding the lock; an opener that locked a sidecar
     removed meanwhile sees its inode gone from the path and tries again.
     """
 
     def __init__(self, db: Path) -> None:
-        self.path = db.with_name(db.name + ".lock")
+        self.given = db
+        self.db = Path(os.path.realpath(db))
+        self.path = self.db.with_name(self.db.name + ".lock")
+        self.db_fd: int | None = None
+        _require_regular_or_absent(self.db, db)
+        longest = len(os.fsencode(f".{self.db.name}.creating-journal"))
+        if longest > name_max(self.db.parent):
+            raise PersistenceError(
+                [
+                    Problem(
+                        str(db),
+                        f"the file name is too long: the database needs files named up to "
+                        f"{longest} bytes beside it, more than this file system takes",
+                    )
+                ]
+            )
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            fd = _open_regular(self.path, os.O_RDWR | os.O_CREAT, db)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 holder = _lock_holder(fd)
                 os.close(fd)
-                who = f"process {holder}" if holder else "another process"
-                raise PersistenceError(
-                    [
-                        Problem(
-                            str(db),
-                            f"in use by {who} (one run at a time per database); "
-                            "wait for it to finish or use another --db file",
-                        )
-                    ]
-                ) from None
+                raise self._busy(f"process {holder}" if holder else "another process") from None
             except BaseException:
                 os.close(fd)
                 raise
@@ -233,9 +254,46 @@ class DatabaseLock:
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         self.fd: int | None = fd
+        try:
+            if self.db.exists():
+                self.lock_database()
+        except BaseException:
+            self.release()
+            raise
+
+    def _busy(self, who: str) -> PersistenceError:
+        return PersistenceError(
+            [
+                Problem(
+                    str(self.given),
+                    f"in use by {who} (one run at a time per database); "
+                    "wait for it to finish or use another --db file",
+                )
+            ]
+        )
+
+    def lock_database(self) -> None:
+        """Lock the database file's inode (again, after :func:`create_database` renamed a
+        new file into place). Refuses a database that another process holds through any
+        name, a hard link included."""
+        fd = _open_regular(self.db, os.O_RDONLY, self.given)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise self._busy("another process, through another name (a hard link)") from None
+        except BaseException:
+            os.close(fd)
+            raise
+        if self.db_fd is not None:
+            os.close(self.db_fd)
+        self.db_fd = fd
 
     def release(self) -> None:
-        """Remove the lock file and unlock (idempotent)."""
+        """Remove the sidecar and unlock both files (idempotent)."""
+        if self.db_fd is not None:
+            os.close(self.db_fd)
+            self.db_fd = None
         if self.fd is None:
             return
         with contextlib.suppress(OSError):
@@ -243,6 +301,53 @@ class DatabaseLock:
                 self.path.unlink()
         os.close(self.fd)
         self.fd = None
+
+
+def _require_regular_or_absent(path: Path, given: Path) -> None:
+    """Refuse a database path that exists and is not a regular file (a device, a FIFO,
+    a socket, a folder): creating the database would rename a new file onto it."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return
+    if not stat.S_ISREG(mode):
+        raise PersistenceError(
+            [
+                Problem(
+                    str(given),
+                    f"is {kind_of(mode)}, not a database file; cellplan replaces only "
+                    "regular files",
+                )
+            ]
+        )
+
+
+def _open_regular(path: Path, flags: int, given: Path) -> int:
+    """Open ``path`` without following a final link and without blocking on a FIFO, and
+    refuse it unless it is a regular file; the descriptor, switched to blocking."""
+    with contextlib.suppress(FileNotFoundError):
+        # Looked at before opening too: opening a device can have effects of its own.
+        mode = os.lstat(path).st_mode
+        if not stat.S_ISREG(mode):
+            raise PersistenceError(
+                [Problem(str(given), f"{path} is {kind_of(mode)}, not a regular file")]
+            )
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o666)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise PersistenceError(
+                [Problem(str(given), f"{path} is a symbolic link; cellplan does not follow it")]
+            ) from None
+        raise
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        raise PersistenceError(
+            [Problem(str(given), f"{path} is {kind_of(mode)}, not a regular file")]
+        )
+    os.set_blocking(fd, True)
+    return fd
 
 
 def _same_file(fd: int, path: Path) -> bool:
@@ -401,7 +506,13 @@ def check_database(conn: sqlite3.Connection, where: str) -> None:
         if have != want:
             raise fail(f"is damaged: the columns of table {table} are not cellplan's")
     stored = conn.execute("SELECT value FROM meta WHERE key = 'digest'").fetchone()
-    if stored is not None and stored[0] != content_digest(conn):
+    if stored is None:
+        # Every database cellplan writes has one; without it any edit would pass.
+        raise fail(
+            "has no content checksum (meta 'digest'): every database cellplan writes has "
+            "one, so this file was changed outside cellplan; start a new database"
+        )
+    if stored[0] != content_digest(conn):
         raise fail(
             "is damaged: its contents do not match their checksum "
             "(changed outside cellplan, or corrupted on disk)"
@@ -684,11 +795,14 @@ class ExperienceStore:
                 raise PersistenceError([Problem(where, "is a folder, not a database file")])
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._lock = DatabaseLock(self.path)
-            if not self._holds_schema():
-                create_database(self.path, self._sig)
-            self.conn = sqlite3.connect(self.path, isolation_level=None)
+            # From here on the database is reached by its resolved path, the one locked.
+            real = self._lock.db
+            if not self._holds_schema(real):
+                create_database(real, self._sig)
+                self._lock.lock_database()
+            self.conn = sqlite3.connect(real, isolation_level=None)
             check_database(self.conn, where)
-            _check_writable_format(self.path)
+            _check_writable_format(real)
             self._check_signature()
             # Only now, with the file known to be ours and whole, is anything written.
             self.conn.execute("PRAGMA journal_mode=WAL")
@@ -715,20 +829,20 @@ class ExperienceStore:
 
     # --- opening ---------------------------------------------------------------------------
 
-    def _holds_schema(self) -> bool:
+    def _holds_schema(self, path: Path) -> bool:
         """Whether the file exists and has a schema: a missing or empty file, or a whole
         SQLite page 1 with no tables at all (what an older cellplan killed during creation
         left), holds nothing and is created afresh. Anything else is checked (and a file
         cut short, or not SQLite, refused) by :func:`check_database`."""
-        if not self.path.exists() or self.path.stat().st_size == 0:
+        if not path.exists() or path.stat().st_size == 0:
             return False
-        with self.path.open("rb") as fh:
+        with path.open("rb") as fh:
             header = fh.read(100)
         page = int.from_bytes(header[16:18], "big") if len(header) == 100 else 0
         page = 65536 if page == 1 else page
-        if not header.startswith(b"SQLite format 3\0") or self.path.stat().st_size < max(page, 512):
+        if not header.startswith(b"SQLite format 3\0") or path.stat().st_size < max(page, 512):
             return True  # not an SQLite file, or cut short in its first page: refused later
-        conn = sqlite3.connect(self.path, isolation_level=None)
+        conn = sqlite3.connect(path, isolation_level=None)
         try:
             return conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0] > 0
         finally:

@@ -23,10 +23,21 @@ from cellplan.assembly.layout import DEFAULT_FILL
 from cellplan.assembly.options import STEP_MAX_RULE, GradientOptions, SequentialOptions
 from cellplan.assembly.run import MAX_FRAMES
 from cellplan.assembly.section import GeneratorSpec
-from cellplan.cliutil import GifSizeOpt, JsonOpt, check_output
+from cellplan.cliutil import (
+    GifSizeOpt,
+    JsonOpt,
+    check_inputs_kept,
+    check_output,
+    folder_files,
+    scenario_file,
+)
 from cellplan.errors import ArgumentError, Problem
+from cellplan.fileio import staged_folder
 
 ALGORITHMS = ("gradient", "sequential", "control")
+
+#: Every file ``assemble`` writes into its output folder.
+OUTPUT_FILES = ("sequence.png", "assembly.gif", "trajectory.csv", "metrics.json")
 
 
 def _default(model: type[BaseModel], field: str) -> Any:
@@ -144,6 +155,9 @@ def register(app: typer.Typer) -> None:
             problems.extend(exc.problems)
         try:
             check_output(output, "--output", folder=True)
+            check_inputs_kept(
+                folder_files("--output", output, OUTPUT_FILES), {"FILE": scenario_file(scenario)}
+            )
         except ArgumentError as exc:
             problems.extend(exc.problems)
         options: dict[str, Any] = {
@@ -183,6 +197,10 @@ def register(app: typer.Typer) -> None:
             result = api.plan(setup, name, progress=progress, **options)
             if progress is not None:
                 progress(1.0, 1.0, f"{result.status.value}; drawing {frames} frames")
-            files = write_outputs(result, output, frames, width)
+            # Written into a staging folder, moved in whole: an error leaves --output as it was.
+            keep = {"FILE": file} if (file := scenario_file(scenario)) else None
+            with staged_folder(output, keep=keep) as stage:
+                staged = write_outputs(result, stage, frames, width)
+        files = {key: output / path.relative_to(stage) for key, path in staged.items()}
         summary = f"{result.message}; wrote {output}" if result.success else f"wrote {output}"
         finish(result, as_json, summary, outputs=files, extra={"scenario": setup.name})

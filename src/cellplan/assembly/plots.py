@@ -6,7 +6,7 @@ atomically by its helpers.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -165,19 +165,22 @@ def save_animation(
 
     size = check_gif_size(GIF_SIZE if size is None else size, "size")
     last = len(path) - 1
-    images = []
-    for idx in _moments(path, frames):
-        fig, axes = new_figure(size=4.8)
-        ax = axes[0][0]
-        draw_configuration(ax, problem, path, idx, title)
-        if times is not None:
-            unit = f" {time_unit}" if time_unit else ""
-            frame_counter(ax, f"t = {float(times[idx]):.3g}{unit} (step {idx} / {last})")
-        else:
-            frame_counter(ax, f"step {idx} / {last}")
-        images.append(figure_to_rgb(fig, size))
-        plt.close(fig)
-    return save_gif(images, out, fps=10.0)
+
+    def images() -> Iterator[Array]:  # drawn one at a time, as save_gif writes them
+        for idx in _moments(path, frames):
+            fig, axes = new_figure(size=4.8)
+            ax = axes[0][0]
+            draw_configuration(ax, problem, path, idx, title)
+            if times is not None:
+                unit = f" {time_unit}" if time_unit else ""
+                frame_counter(ax, f"t = {float(times[idx]):.3g}{unit} (step {idx} / {last})")
+            else:
+                frame_counter(ax, f"step {idx} / {last}")
+            rgb = figure_to_rgb(fig, size)
+            plt.close(fig)
+            yield rgb
+
+    return save_gif(images(), out, fps=10.0)
 
 
 def save_errorbars(

@@ -9,7 +9,7 @@ are ``None`` here and passed on only when given, so the CLI holds no default of 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -20,13 +20,17 @@ from cellplan.cliutil import (
     JsonOpt,
     ScenarioArg,
     as_flags,
+    check_inputs_kept,
     check_output,
     finish,
+    folder_files,
     progress_bar,
     progress_enabled,
+    scenario_file,
     stdout,
 )
-from cellplan.errors import ArgumentError, CellplanError
+from cellplan.errors import ArgumentError, CellplanError, printable
+from cellplan.fileio import staged_folder, write_json
 from cellplan.strategies.planners import (
     MAX_STAGES,
     SIMULATE_SEED,
@@ -37,6 +41,10 @@ from cellplan.strategies.planners import (
 if TYPE_CHECKING:
     from cellplan.setup import Setup
     from cellplan.strategies.strategy import Strategy
+
+#: Every file ``simulate`` may write into its output folder (``frame_NNN.png``: one per
+#: segment of the sample path).
+SIMULATE_FILES = ("trajectory.csv", "frame_*.png", "frames.png", "simulation.gif", "metrics.json")
 
 StrategyOpt = Annotated[
     Path, typer.Option("--strategy", help="strategy file from 'cellplan solve'")
@@ -71,6 +79,11 @@ def _check_suffix(path: Path, allowed: tuple[str, ...], option: str) -> None:
     if path.suffix.lower() not in allowed:
         raise ArgumentError(f"expected a {' or '.join(allowed)} file, got {path.name!r}", option)
     check_output(path, option)
+
+
+def _existing(inputs: Mapping[str, Path | None]) -> dict[str, Path]:
+    """The inputs given, to keep unreplaced."""
+    return {k: v for k, v in inputs.items() if v is not None}
 
 
 def _load_strategy(path: Path, setup: Setup) -> Strategy:
@@ -121,6 +134,7 @@ def solve_command(
     from cellplan.core import Status
 
     _check_suffix(output, (".npz",), "--output")
+    check_inputs_kept([("--output", output)], {"SCENARIO": scenario_file(scenario)})
     given: dict[str, Any] = {
         "cells": _cells(cells),
         "method": method,
@@ -180,7 +194,6 @@ def simulate_command(
     as_json: JsonOpt = False,
 ) -> None:
     """Simulate the assembly process under a strategy: trajectory.csv, frames, GIF, metrics."""
-    from cellplan.fileio import write_json
     from cellplan.plots import GIF_SIZE, check_gif_size
     from cellplan.strategies import plots
     from cellplan.strategies.simulate import simulate_result
@@ -189,43 +202,50 @@ def simulate_command(
         raise ArgumentError("only with --gif (the default)", "--gif-size")
     width = check_gif_size(GIF_SIZE if gif_size is None else gif_size)
     check_output(output, "--output", folder=True)
+    inputs = {"SCENARIO": scenario_file(scenario), "--strategy": strategy}
+    check_inputs_kept(folder_files("--output", output, SIMULATE_FILES), inputs)
     setup = _load(scenario)
     strat = _load_strategy(strategy, setup)
     given: dict[str, Any] = {"policy": policy, "max_wait": max_wait}
     bar = progress_bar(progress_enabled(as_json), "simulating", counts=True)
-    with as_flags(), bar as progress:
-        result = simulate_result(
-            strat,
-            SIMULATE_STAGES if stages is None else stages,
-            SIMULATE_SEED if seed is None else seed,
-            cell=setup.workcell,
-            progress=progress,
-            **{k: v for k, v in given.items() if v is not None},
-        )
+    with bar as progress:
+        with as_flags():
+            result = simulate_result(
+                strat,
+                SIMULATE_STAGES if stages is None else stages,
+                SIMULATE_SEED if seed is None else seed,
+                cell=setup.workcell,
+                progress=progress,
+                **{k: v for k, v in given.items() if v is not None},
+            )
         sim = result.solution
         assert result.trajectory is not None
         n = len(sim.actions)
         if progress is not None:
             progress(n, n, f"drawing {len(sim.segments())} frames")
-        output.mkdir(parents=True, exist_ok=True)
-        outputs: dict[str, Path] = {"trajectory": result.trajectory.save(output / "trajectory.csv")}
-        frames = plots.plot_frames(strat, setup.workcell, sim, output)
-        outputs["frames"] = frames[-1]
-        if gif:
-            outputs["gif"] = plots.save_animation(
-                strat, setup.workcell, sim, output / "simulation.gif", size=width
-            )
-    metrics: dict[str, Any] = dict(sim.metrics())
-    metrics.update(policy=result.options["policy"], seed=result.options["seed"], gain=strat.gain)
-    outputs["metrics"] = write_json(
-        output / "metrics.json",
-        {
-            "status": str(result.status),
-            "message": result.message,
-            "metrics": metrics,
-            "requests": [vars(r) for r in sim.requests],
-        },
-    )
+        metrics: dict[str, Any] = dict(sim.metrics())
+        metrics.update(
+            policy=result.options["policy"], seed=result.options["seed"], gain=strat.gain
+        )
+        # Every file is written into a staging folder and moved into place only when all
+        # are written: a full disk or an error leaves --output as it was.
+        with staged_folder(output, keep=_existing(inputs)) as stage:
+            names = {"trajectory": result.trajectory.save(stage / "trajectory.csv").name}
+            names["frames"] = plots.plot_frames(strat, setup.workcell, sim, stage)[-1].name
+            if gif:
+                names["gif"] = plots.save_animation(
+                    strat, setup.workcell, sim, stage / "simulation.gif", size=width
+                ).name
+            names["metrics"] = write_json(
+                stage / "metrics.json",
+                {
+                    "status": str(result.status),
+                    "message": result.message,
+                    "metrics": metrics,
+                    "requests": [vars(r) for r in sim.requests],
+                },
+            ).name
+    outputs = {key: output / name for key, name in names.items()}
     m = metrics
     summary = (
         f"{int(m['served'])} requests served, mean waiting time {m['mean_wait']:.2f} "
@@ -268,6 +288,9 @@ def plot_command(
     from cellplan.strategies import plots
 
     _check_suffix(output, (".png", ".svg", ".pdf"), "--output")
+    check_inputs_kept(
+        [("--output", output)], {"SCENARIO": scenario_file(scenario), "--strategy": strategy}
+    )
     setup = _load(scenario)
     strat = _load_strategy(strategy, setup)
     try:
@@ -276,7 +299,7 @@ def plot_command(
         raise ArgumentError(list(exc.problems)) from None
     cell = setup.workcell
     plots.plot_mode(strat, cell, m, output, fixed=cell.robot.start)
-    stdout().print(f"wrote {output}", markup=False)
+    stdout().print(printable(f"wrote {output}"), markup=False)
 
 
 COMMANDS: tuple[tuple[str, Callable[..., None]], ...] = (

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import MutableMapping
+from collections.abc import Mapping, MutableMapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
@@ -52,10 +52,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cellplan.arrayfile import ArraySpec, read_arrays
-from cellplan.errors import PersistenceError, Problem
+from cellplan.errors import PersistenceError, Problem, ScenarioError
 from cellplan.schema import CELLS_RANGE
+from cellplan.strategies.model import build_model, estimate_memory
 from cellplan.strategies.section import MAX_NOISE_OUTCOMES, MAX_PENDING, MAX_PERIOD
 from cellplan.strategies.stencils import MAX_DIM
+from cellplan.strategies.transitions import forbid_snapping
+from cellplan.workcell import Workcell
 
 if TYPE_CHECKING:
     from cellplan.strategies.model import Mode
@@ -72,6 +75,13 @@ MAX_ACTIONS = 62
 MAX_CELLS = 2**40
 #: The metadata string's length limit (characters).
 MAX_META_CHARS = 1_000_000
+#: The largest magnitude of any loss, time or value in a strategy file: the square root
+#: of the largest float64, so that a product of two (the solver's ``D g``) or a sum over
+#: any grid (at most 2^40 cells) stays finite (docs/reliability.md, issue 36).
+MAX_MAGNITUDE = 1e150
+#: The arrays :func:`check_geometry` compares with the model of the scenario: the moves,
+#: the free space of each move class, the collision-free moves and the live states.
+GEOMETRY_ARRAYS = ("disp", "nact", "vcls", "free", "valid", "live")
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Name = Annotated[str, Field(max_length=200)]
@@ -182,8 +192,15 @@ SIZE_LIMITS: dict[str, tuple[int | str, int | str]] = {
 }
 
 
-def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any], dict]:
+def read_strategy(
+    path: str | Path, scenario: Any = None, cell: Workcell | None = None
+) -> tuple[dict[str, Any], dict]:
     """Read and check a strategy file; returns ``(meta, arrays)``.
+
+    With ``scenario``, the metadata is checked against it before any other array is
+    inflated (its digest, modes and C-space box), and the arrays against the model
+    cellplan builds itself for it on the file's grid (:func:`check_geometry`; ``cell`` is
+    the scenario's workcell, built from it when not given).
 
     Raises
     ------
@@ -248,6 +265,17 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
         for key, (lo, hi) in SIZE_LIMITS.items():
             limits[key] = (_size(lo, known), _size(hi, known))
         found["meta"] = meta
+        if scenario is not None:  # before the arrays it sizes are inflated
+            _check_scenario(meta, scenario, fail, found.get("pending"))
+            found["cell"] = cell if cell is not None else Workcell.from_scenario(scenario)
+            _check_box(meta, found["cell"], fail)
+
+    def working(known: Mapping[str, int]) -> int:
+        need = check_memory(known)
+        if scenario is not None:
+            est = estimate_memory(scenario, found["cell"], found["meta"].grid.shape)
+            need += est.terms["model"] + est.terms["building"] + est.terms["tables"]
+        return need
 
     arrays = read_arrays(
         path,
@@ -257,14 +285,25 @@ def read_strategy(path: str | Path, scenario: Any = None) -> tuple[dict[str, Any
         first=("meta",),
         after_first=from_meta,
         what="a strategy file",
+        working=working,
     )
     meta: StrategyMeta = found["meta"]
     pending: list[PendingKey] | None = found.get("pending")
     _check_consistency(meta, arrays, sizes, fail, pending)
+    _check_magnitudes(meta, arrays, fail)
     if scenario is not None:
-        _check_scenario(meta, sizes, scenario, fail, pending)
+        check_geometry(meta, arrays, scenario, found["cell"], fail)
     del arrays["meta"]
     return meta.model_dump(), arrays
+
+
+def check_memory(sizes: Mapping[str, int]) -> int:
+    """Bytes the checks of :func:`read_strategy` allocate beside the arrays: the class
+    bitmap of every mode, its negation and the mask (bool ``(M, N)`` each), the values at
+    the live states and their NaN test (float64 and bool ``(M, N)``), the valid masks
+    shifted and compared (int64 and bool ``(K, N)``)."""
+    M, N, K = sizes["M"], sizes["N"], sizes["K"]
+    return (3 + 8 + 1) * M * N + (8 + 1) * K * N
 
 
 def _size(value: int | str, sizes: MutableMapping[str, int]) -> int:
@@ -506,6 +545,124 @@ def _check_consistency(
     del M, N
 
 
+def _check_magnitudes(meta: StrategyMeta, a: dict, fail: Any) -> None:
+    """Losses, times, values and the gain within what a solve can produce.
+
+    ``L``, the most one stage can lose by (7), is the largest ``cost`` or the largest
+    finite FMP time plus the largest rework (``out_cost``); the gain, an average of
+    stage losses, lies in ``[0, L]``; a value (the expected loss to come, relative to a
+    reference state) is at most ``S L / p`` in magnitude, for ``S`` live states, each
+    entered an expected ``1 / p`` times at most, ``p`` the rarest event's probability
+    (the smallest positive branch, FMP outcome or landing probability); every number is
+    at most :data:`MAX_MAGNITUDE`.
+    """
+    tf = a["tf"]
+    finite_tf = tf[np.isfinite(tf)]
+    for name, arr in (("cost", a["cost"]), ("tf", finite_tf), ("out_cost", a["out_cost"])):
+        if arr.size and float(arr.max()) > MAX_MAGNITUDE:
+            raise fail(f"{name}: value {float(arr.max()):.3g} above {MAX_MAGNITUDE:.0e}")
+    rework = float(a["out_cost"].max()) if a["out_cost"].size else 0.0
+    fmp = float(finite_tf.max()) if finite_tf.size else 0.0
+    loss = max(float(a["cost"].max()), fmp + rework)
+    if not 0.0 <= meta.gain <= loss * (1 + 1e-9):
+        raise fail(
+            f"meta.gain: {meta.gain:.6g} outside [0, {loss:.6g}], the most one stage can lose"
+        )
+    probs = np.concatenate([a["branch_prob"], a["out_prob"], a["noise_prob"]])
+    rarest = float(probs[probs > 0].min())
+    states = int(a["live"].sum())
+    bound = min(states * loss / rarest, MAX_MAGNITUDE)
+    values = a["values"][a["live"]]
+    worst = float(np.abs(values).max()) if values.size else 0.0
+    if worst > bound:
+        raise fail(
+            f"values: magnitude {worst:.3g} above {bound:.3g} ({states} live states x the "
+            f"most one stage can lose, {loss:.3g}, / the rarest event's probability, "
+            f"{rarest:.3g})"
+        )
+
+
+def _check_box(meta: StrategyMeta, cell: Workcell, fail: Any) -> None:
+    """The grid's box is the robot's C-space box (:meth:`cellplan.cspace.Grid.for_robot`)."""
+    robot = cell.robot
+    grid = meta.grid
+    if len(grid.shape) != robot.dim:
+        raise fail(
+            f"meta.grid.shape: {len(grid.shape)} axes, the scenario's robot has {robot.dim}; "
+            "solve this scenario again"
+        )
+    box = (list(map(float, robot.lower)), list(map(float, robot.upper)), list(robot.periodic))
+    if (grid.lower, grid.upper, grid.periodic) != box:
+        raise fail(
+            "meta.grid: the box (lower, upper, periodic) differs from the scenario robot's "
+            "C-space box; solve this scenario again"
+        )
+
+
+def check_geometry(
+    meta: StrategyMeta, a: Mapping[str, np.ndarray], scenario: Any, cell: Workcell, fail: Any
+) -> None:
+    """The moves, free space, collision-free moves and live states of the file are those
+    cellplan computes itself for ``scenario`` on the file's grid.
+
+    A digest is not a proof: a strategy solved for another workcell (an obstacle left
+    out) and given this scenario's digest, or one with blocked cells marked free, would
+    otherwise drive the robot through an obstacle. This builds the model as ``solve``
+    does (:func:`~cellplan.strategies.model.build_model` on ``meta.grid.shape``, without
+    snapping moves when the file says ``no-snap``), about what ``cellplan validate``
+    spends, and compares :data:`GEOMETRY_ARRAYS` and where FMP is allowed (``tf``).
+    """
+    shape = list(meta.grid.shape)
+    try:
+        mdp = build_model(scenario, cell, shape)
+        if meta.transitions == "no-snap":
+            mdp = forbid_snapping(mdp)
+    except ScenarioError as exc:
+        problem = exc.problems[0]
+        raise fail(
+            f"the scenario cannot be solved on this file's grid {shape} ({problem.field}: "
+            f"{problem.message}); solve this scenario again"
+        ) from None
+    mine: dict[str, np.ndarray] = {name: np.asarray(getattr(mdp, name)) for name in GEOMETRY_ARRAYS}
+    mine["tf"] = np.isfinite(mdp.tf)
+    theirs = dict(a) | {"tf": np.isfinite(a["tf"])}
+    for name in (*GEOMETRY_ARRAYS, "tf"):
+        ours, file = mine[name], np.asarray(theirs[name])
+        if ours.shape != file.shape:
+            raise fail(
+                f"{name}: shape {file.shape}, the scenario's model on this grid has "
+                f"{ours.shape}; this file does not match the scenario's geometry (solve it "
+                "again)"
+            )
+        differ = ours != file
+        if not differ.any():
+            continue
+        where = ""
+        if name in ("free", "valid", "live", "tf") and file.ndim == 2:
+            row, flat = (int(i) for i in np.argwhere(differ)[0])
+            idx = tuple(int(i) for i in np.unravel_index(flat, tuple(shape)))
+            centre = mdp.lower + (np.asarray(idx) + 0.5) * mdp.spacing
+            what = (
+                "move class"
+                if name in ("free", "valid")
+                else "mode"
+                if name == "live"
+                else "option"
+            )
+            label = mdp.modes[row].label if name == "live" else str(row)
+            q = ", ".join(f"{v:.4g}" for v in centre)
+            where = f" (first: {what} {label}, cell {idx}, q = ({q}))"
+            if name == "free" and (file & ~ours).any():
+                where = (
+                    f"; it marks free {int((file & ~ours).sum())} cells the workcell blocks" + where
+                )
+        raise fail(
+            f"{name}: {int(differ.sum())} entries differ from the model cellplan computes "
+            f"for this scenario on its grid{where}; this file does not match the "
+            "scenario's geometry (solve it again)"
+        )
+
+
 def _check_outcomes(a: dict, R: int, M: int, per_phase: int, fail: Any) -> None:
     """The FMP outcomes follow the model's rules (Section V, and VI-3 for failures), at
     every phase of a time-varying model (Section VI-1: ``per_phase`` modes a phase; the
@@ -596,7 +753,6 @@ def _without(waiting: tuple[str, ...], w: str) -> tuple[str, ...]:
 
 def _check_scenario(
     meta: StrategyMeta,
-    sizes: dict[str, int],
     scenario: Any,
     fail: Any,
     pending: list[PendingKey] | None = None,

@@ -27,6 +27,7 @@ that can never be served.
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -1261,7 +1262,9 @@ def estimate_memory(
     # whose fill grows as its size to the 4/3 (PERIODIC_FILL).
     lu_fill = STATIONARY_FILL * places
     if P > 1:
-        lu_fill = max(lu_fill, int(PERIODIC_FILL * float(M * N) ** (4 / 3)))
+        # (M N)^(4/3) as M N times its integer cube root: no float overflows on any grid.
+        cube_root = int(math.exp(math.log(M * N) / 3)) + 1
+        lu_fill = max(lu_fill, int(PERIODIC_FILL * M * N * cube_root))
     building = N * (bitmaps + 8 * (PS + PD) + 8 * (2 * d + 3) + 2 * K + 8 * (d + 1))
     if P > 1:
         # The phase-0 model (its tf float64, live bool (M0, N)), the phases' fields (the

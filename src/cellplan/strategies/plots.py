@@ -7,6 +7,7 @@ matplotlib is imported lazily through :mod:`cellplan.plots`.
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -369,21 +370,24 @@ def save_animation(
     size = base.check_gif_size(size, "size")
     n = len(sim.modes)
     ks = np.unique(np.linspace(0, n - 1, min(n, max_frames)).astype(int))
-    frames = []
-    for k in ks:
-        fig, axes = base.new_figure(size=4.8)
-        ax = axes[0, 0]
-        mode = strategy.mdp.modes[int(sim.modes[k])]
-        highlight = mode_regions(mode)
-        offsets = region_offsets(strategy, int(sim.modes[k]))
-        base.draw_workcell(ax, cell, highlight=highlight, labels=False, offsets=offsets)
-        draw_belts(ax, strategy, cell)
-        tool = cell.robot.tool_pose(sim.q[max(0, k - 30) : k + 1])[:, :2]
-        ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.0)
-        base.draw_robot(ax, cell, sim.q[k], carried_part(mode))
-        base.frame_counter(ax, f"stage {k:>{len(str(n - 1))}d} / {n - 1}")
-        title = wrap_title(f"mode {mode.label}", 56)
-        ax.set_title(title, fontsize=9 if "\n" not in title else 8)
-        frames.append(base.figure_to_rgb(fig, size))
-        plt.close(fig)
-    return base.save_gif(frames, path, fps=8.0)
+
+    def frames() -> Iterator[np.ndarray]:  # drawn one at a time, as save_gif writes them
+        for k in ks:
+            fig, axes = base.new_figure(size=4.8)
+            ax = axes[0, 0]
+            mode = strategy.mdp.modes[int(sim.modes[k])]
+            highlight = mode_regions(mode)
+            offsets = region_offsets(strategy, int(sim.modes[k]))
+            base.draw_workcell(ax, cell, highlight=highlight, labels=False, offsets=offsets)
+            draw_belts(ax, strategy, cell)
+            tool = cell.robot.tool_pose(sim.q[max(0, k - 30) : k + 1])[:, :2]
+            ax.plot(tool[:, 0], tool[:, 1], "-", color=base.COLORS["path"], lw=1.0)
+            base.draw_robot(ax, cell, sim.q[k], carried_part(mode))
+            base.frame_counter(ax, f"stage {k:>{len(str(n - 1))}d} / {n - 1}")
+            title = wrap_title(f"mode {mode.label}", 56)
+            ax.set_title(title, fontsize=9 if "\n" not in title else 8)
+            rgb = base.figure_to_rgb(fig, size)
+            plt.close(fig)
+            yield rgb
+
+    return base.save_gif(frames(), path, fps=8.0)

@@ -31,6 +31,16 @@ if TYPE_CHECKING:
 _SUM_TOL = 1e-9
 
 MAX_REQUESTS = 1000
+#: Smallest arrival probability per stage: the idle stretch between requests lasts
+#: ``1 / P`` stages, and the solver takes differences of values of that size; at
+#: ``P >= sqrt(eps)`` (float64's ``eps``, so about 1.5e-8) half of float64's digits
+#: survive them (measured on strategies_tiny: 1e-9 solves, 1e-12 fails in the solver's
+#: least squares). A rate is checked by the probability it gives, ``1 - exp(-rate dt)``.
+MIN_ARRIVAL = math.sqrt(2.0**-52)
+#: Longest fine motion (and rework time, Section VI-3), in stages: ``t_f`` at any point of
+#: the workcell at most this many stage times (measured on strategies_tiny: 1e6 stages
+#: solve in a second, 1e9 in seconds, 1e12 no longer converges, 1e308 overflows).
+MAX_FMP_STAGES = 10**6
 """Most requestable (part, source, destination) triples: ``2R + 1`` modes, each a layer
 of the grid. The paper's largest problem has 72; 1,000 requests on the tiny workcell
 validate in about 10 s."""
@@ -429,6 +439,7 @@ class StrategySection(StrictModel):
                     f"has {len(self.home)} entries; the C-space has dimension {dim}",
                 )
             )
+        problems.extend(self._check_magnitudes(scenario))
         problems.extend(self._check_failures(scenario))
         problems.extend(self._check_noise(scenario))
         problems.extend(self._check_pending(scenario))
@@ -437,6 +448,54 @@ class StrategySection(StrictModel):
             problems.extend(self._check_changes(scenario, "destination"))
         if self.source_change is not None and not problems:
             problems.extend(self._check_changes(scenario, "source"))
+        return problems
+
+    def _check_magnitudes(self, scenario: Scenario) -> list[Problem]:
+        """Numbers the solver can work with: the arrival probability at least
+        :data:`MIN_ARRIVAL`, every fine-motion and rework time at most
+        :data:`MAX_FMP_STAGES` stage times (``t_f`` at the workcell corner farthest from its
+        point)."""
+        problems: list[Problem] = []
+        arrival = self.arrival.per_stage(self.stage_time)
+        if arrival < MIN_ARRIVAL:
+            key = "probability" if self.arrival.probability is not None else "rate"
+            problems.append(
+                Problem(
+                    f"strategy.arrival.{key}",
+                    f"gives an arrival probability of {arrival:.3g} per stage; at least "
+                    f"{MIN_ARRIVAL:.3g} (a request every {1 / MIN_ARRIVAL:.3g} stages)",
+                )
+            )
+        longest = MAX_FMP_STAGES * self.stage_time
+        b = scenario.workcell.bounds
+        corners = [(x, y) for x in (b.xmin, b.xmax) for y in (b.ymin, b.ymax)]
+        specs = {"strategy.fine_motion": self.fine_motion} | {
+            f"strategy.fine_motion_regions.{name}": spec
+            for name, spec in self.fine_motion_regions.items()
+        }
+        for field, spec in specs.items():
+            far = 0.0
+            if spec.point is not None and spec.rate > 0:
+                px, py = spec.point
+                far = max(math.hypot(x - px, y - py) for x, y in corners)
+            t_f = spec.time + spec.rate * far
+            if not t_f <= longest:
+                problems.append(
+                    Problem(
+                        field,
+                        f"a fine motion of up to {t_f:.3g} time units; at most {MAX_FMP_STAGES:,} "
+                        f"stages of {self.stage_time:g} ({longest:.3g})",
+                    )
+                )
+        for i, failure in enumerate(self.failures):
+            if failure.rework is not None and not failure.rework <= longest:
+                problems.append(
+                    Problem(
+                        f"strategy.failures.{i}.rework",
+                        f"{failure.rework:.3g} time units; at most {MAX_FMP_STAGES:,} stages "
+                        f"of {self.stage_time:g} ({longest:.3g})",
+                    )
+                )
         return problems
 
     @staticmethod

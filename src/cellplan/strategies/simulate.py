@@ -33,7 +33,8 @@ from cellplan import units
 from cellplan.core import Progress, Result, Status
 from cellplan.strategies.baselines import home_values, per_request_values
 from cellplan.strategies.execution import Executor
-from cellplan.strategies.model import NR
+from cellplan.strategies.model import NR, LayeredMDP, Mode
+from cellplan.strategies.periodic import region_offset
 from cellplan.strategies.planners import MAX_STAGES
 from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
 from cellplan.trajectory import Event, Trajectory
@@ -430,9 +431,7 @@ def default_start(strategy: Strategy) -> np.ndarray:
     return np.asarray(centres[np.argmin(np.linalg.norm(centres - mid, axis=1))])
 
 
-def region_test(
-    strategy: Strategy, cell: Any, regions: str
-) -> Callable[[np.ndarray, int], np.ndarray]:
+def region_test(strategy: Strategy, cell: Any, regions: str) -> RegionTest:
     """The exact FMP region test of a workcell: ``(configurations, mode) -> bool array``.
 
     W modes test the source (empty robot), C modes the destination with the carried part,
@@ -440,23 +439,30 @@ def region_test(
     (:meth:`~cellplan.workcell.Workcell.in_region`). In a time-varying model (Section VI-1)
     a region on a belt is tested where it is at the layer's phase.
     """
-    from cellplan.strategies.periodic import region_offset
+    return RegionTest(strategy.mdp, cell, regions)
 
-    mdp = strategy.mdp
-    modes = mdp.modes
 
-    def test(points: np.ndarray, m: int) -> np.ndarray:
-        mode = modes[m]
+@dataclass(frozen=True, eq=False)
+class RegionTest:
+    """:func:`region_test`'s callable; a module-level class, not a closure, so that a
+    strategy holding it (and the planner's :class:`~cellplan.core.Result`) pickles."""
+
+    mdp: LayeredMDP
+    cell: Any
+    regions: str
+
+    def __call__(self, points: np.ndarray, m: int) -> np.ndarray:
+        mode = self.mdp.modes[m]
         if mode.kind == "W":
             region, part = mode.source, None
         elif mode.kind == "X":
             region, part = mode.reject, mode.part
         else:
             region, part = mode.destination, mode.part
-        offset = region_offset(mdp, region, m)
-        return np.asarray(cell.in_region(points, region, regions, None, part, offset), dtype=bool)
-
-    return test
+        offset = region_offset(self.mdp, region, m)
+        return np.asarray(
+            self.cell.in_region(points, region, self.regions, None, part, offset), dtype=bool
+        )
 
 
 def compare_policies(
@@ -657,11 +663,34 @@ def simulate_result(
         learn=learn,
         progress=progress,
     )
+    collision = first_collision(strategy, sim, cell) if cell is not None else None
+    if collision is not None and collision[0] > 0:
+        # The same run (same seed, same draws) stopped at the sample that collides.
+        sim = simulate(
+            strategy,
+            collision[0],
+            int(seed),
+            policy=policy,
+            start=q0,
+            start_mode=start_mode,
+            cell=cell,
+            regions=regions or str(strategy.meta.get("regions", "contact")),
+            home=home_q,
+            learn=learn,
+        )
+    elif collision is not None:
+        raise ArgumentError([Problem("start", f"collides with the workcell ({collision[1]})")])
     bound = float(max_wait) if max_wait is not None else wait_bound(strategy)
     metrics = sim.metrics()
     stats = {k: v for k, v in metrics.items() if np.isfinite(v)}
     stats["wait_bound"] = bound
     status, message = _verdict(strategy, sim, metrics, bound)
+    if collision is not None:
+        status = Status.FAILED
+        message = (
+            f"stage {collision[0]}: {collision[1]}; the run stops there (the strategy does "
+            "not match this workcell: solve the scenario again)"
+        )
     meta: dict[str, str | int | float | bool] = {
         "scenario": str(strategy.meta.get("scenario_name", "")),
         "policy": policy,
@@ -678,6 +707,71 @@ def simulate_result(
         trajectory=to_trajectory(strategy, sim, cell, meta),
         options={"stages": int(stages), "seed": int(seed), "policy": policy, "max_wait": bound},
     )
+
+
+#: Samples of a checked motion per grid cell it crosses (:func:`first_collision`).
+SAMPLES_PER_CELL = 4
+#: Segments checked in one batch (bounds the samples held at once).
+COLLISION_BATCH = 4096
+
+
+def carried_part(mode: Mode) -> str | None:
+    """The part the robot holds in ``mode``: C and X modes (Section VI-3) and a Q mode
+    that carries a request (Section VI-2) hold one."""
+    if mode.kind in ("C", "X") or (mode.kind == "Q" and mode.part):
+        return mode.part
+    return None
+
+
+def first_collision(strategy: Strategy, sim: Simulation, cell: Any) -> tuple[int, str] | None:
+    """The first sample of a run whose motion there collides with the workcell, exactly.
+
+    The check the grid cannot give for a strategy it did not build: each stage's straight
+    motion ``q[k] -> q[k + 1]`` (and the start) is tested against the workcell's
+    obstacles and bounds (the sources are not obstacles here: the robot picks inside
+    them) with the part of the stage's mode, sampled :data:`SAMPLES_PER_CELL` times per
+    grid cell of workspace travel (:meth:`~cellplan.workcell.Workcell.motion_collides`).
+    A strategy solved for this workcell never collides (its free cells are collision-free
+    in their whole box, cspace.py); one that does was solved for another.
+
+    Returns ``(k, description)`` for the first colliding sample ``k`` (0: the start), or
+    None.
+    """
+    mdp = strategy.mdp
+    modes = mdp.modes
+    names = tuple(cell.robot.axis_names)
+    cell_travel = cell.robot.workspace_step(np.diag(np.asarray(mdp.spacing, float)))
+    step = float(cell_travel[cell_travel > 0].min()) / SAMPLES_PER_CELL
+    q, ms = sim.q, sim.modes
+
+    def describe(k: int, m: int) -> str:
+        part = carried_part(modes[m])
+        holding = f" carrying {part}" if part else ""
+        shown = ", ".join(f"{n} {v:.4g}" for n, v in zip(names, q[k], strict=True))
+        return f"the robot{holding} collides with the workcell at {shown} in mode {modes[m].label}"
+
+    m0 = int(ms[0])
+    if cell.collides(q[:1], carried_part(modes[m0]), "none")[0]:
+        return 0, describe(0, m0)
+    moved = np.flatnonzero(np.any(q[1:] != q[:-1], axis=1))
+    parts = np.array([carried_part(modes[int(m)]) or "" for m in ms[:-1]], dtype=object)
+    first: int | None = None
+    for part in sorted(set(parts[moved].tolist())):
+        ks = moved[parts[moved] == part]
+        for lo in range(0, len(ks), COLLISION_BATCH):
+            batch = ks[lo : lo + COLLISION_BATCH]
+            if first is not None and batch[0] >= first:
+                break
+            hit = cell.motion_collides(
+                q[batch], q[batch + 1], step, part or None, "none", certified=False
+            )
+            if hit.any():
+                k = int(batch[np.argmax(hit)])
+                first = k if first is None else min(first, k)
+                break
+    if first is None:
+        return None
+    return first + 1, describe(first + 1, int(ms[first]))
 
 
 def _configuration(

@@ -309,6 +309,11 @@ class Strategy:
             self.__dict__["_query_cache"] = cached
         return cached
 
+    def __getstate__(self) -> dict[str, Any]:
+        """What pickling keeps: everything but the query cache, whose compiled kernel does
+        not pickle and is rebuilt on the first query (:meth:`_query_args`)."""
+        return {k: v for k, v in self.__dict__.items() if k != "_query_cache"}
+
     def attach(self, cell: Any) -> Strategy:
         """Confirm every FMP that :meth:`action` returns with the workcell's exact region test.
 

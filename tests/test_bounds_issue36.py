@@ -1,0 +1,77 @@
+"""Issue 36 bounds: the memory limit counts the process, time is estimated, GIFs stream."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cellplan import budget, plots
+from cellplan.errors import ArgumentError
+
+
+def test_the_memory_limit_counts_what_the_process_already_holds(monkeypatch):
+    held = budget.resident_memory()
+    assert held > 10**7  # the interpreter with numpy: tens of MB at least
+    monkeypatch.setenv(budget.LIMIT_VARIABLE, str(held + 50 * 10**6))
+    assert budget.available_memory() <= 50 * 10**6 + 10**6
+
+
+def test_time_limit_refuses_in_one_line_and_can_be_lifted(monkeypatch):
+    monkeypatch.delenv(budget.TIME_LIMIT_VARIABLE, raising=False)
+    assert budget.time_limit() == budget.DEFAULT_TIME_LIMIT_S
+    with pytest.raises(ArgumentError, match=r"^x: would take about 2\.8 h for y; the time"):
+        budget.require_time(10_000, "x", "for y")
+    monkeypatch.setenv(budget.TIME_LIMIT_VARIABLE, "none")
+    budget.require_time(1e300, "x")
+    monkeypatch.setenv(budget.TIME_LIMIT_VARIABLE, "2min")
+    assert budget.time_limit() == 120
+    monkeypatch.setenv(budget.TIME_LIMIT_VARIABLE, "soon")
+    with pytest.raises(ArgumentError, match=budget.TIME_LIMIT_VARIABLE):
+        budget.time_limit()
+
+
+def test_a_million_tasks_are_refused_by_their_time(tmp_path):
+    from cellplan.adaptive.runner import task_count
+    from cellplan.api import load
+    from cellplan.errors import CellplanError
+
+    setup = load("adaptive_fig4")
+    with pytest.raises(CellplanError, match=r"^tasks: would take about 27\.8 h"):
+        task_count(setup.scenario, 1_000_000)
+
+
+def test_a_gif_frame_that_cannot_fit_is_refused_without_drawing(monkeypatch):
+    monkeypatch.setenv(budget.LIMIT_VARIABLE, str(budget.resident_memory() + 60 * 10**6))
+    assert plots.check_gif_size(640) == 640  # 9.8 MB
+    with pytest.raises(ArgumentError, match=r"^--gif-size 2400: needs about 138 MB to draw"):
+        plots.check_gif_size(2400)
+
+
+def test_gif_frames_stream_and_decode_to_what_was_drawn(tmp_path: Path):
+    colours = [(255, 255, 255), (200, 30, 30), (30, 30, 200)]
+    drawn: list[np.ndarray] = []
+
+    def frames() -> Iterator[np.ndarray]:
+        for i in range(6):
+            f = np.full((40, 50, 3), 255, np.uint8)
+            f[5 * i : 5 * i + 8, 10:30] = colours[1 + i % 2]
+            if i == 3:
+                f = drawn[-1].copy()  # unchanged: lengthens the frame before
+            drawn.append(f)
+            yield f
+
+    path = plots.save_gif(frames(), tmp_path / "a.gif", fps=10.0, hold_last=4)
+    with Image.open(path) as im:
+        assert im.size == (50, 40) and im.info.get("loop") == 0
+        shown, durations = [], []
+        for k in range(im.n_frames):
+            im.seek(k)
+            shown.append(np.asarray(im.convert("RGB")))
+            durations.append(im.info["duration"])
+    expected = [drawn[i] for i in (0, 1, 2, 4, 5)]
+    assert all(np.array_equal(a, b) for a, b in zip(shown, expected, strict=True))
+    assert durations == [100, 100, 200, 100, 500]
