@@ -195,6 +195,7 @@ def test_killing_the_scheduler_mid_sweep_exits_1_in_one_line_and_resumes(
     check_resume(cluster, out, done)
 
 
+@pytest.mark.slow  # a real cluster; the rule is covered fast below (and the scheduler test)
 def test_killing_every_worker_mid_sweep_ends_in_bounded_time_and_resumes(
     cluster: Cluster, tmp_path: Path
 ) -> None:
@@ -207,3 +208,55 @@ def test_killing_every_worker_mid_sweep_ends_in_bounded_time_and_resumes(
 
     cluster.start_workers(1)
     check_resume(cluster, out, done)
+
+
+# --- the same rules without a cluster (fast; the tests above are the real thing) ----------------
+
+
+class _Future:
+    """A Dask future whose run never finishes (its worker is gone)."""
+
+    status = "pending"
+
+    def done(self) -> bool:
+        return False
+
+
+class _Client:
+    """A client whose scheduler answers, or is lost, with no worker."""
+
+    def __init__(self, status: str) -> None:
+        self.status = status
+
+    def scheduler_info(self) -> dict[str, dict[str, object]]:
+        return {"workers": {}}
+
+
+@pytest.mark.parametrize(
+    ("status", "why"),
+    [("running", "no Dask worker was alive for 0.05 s"), ("closed", "the Dask scheduler was lost")],
+)
+def test_runs_still_out_fail_in_bounded_time_when_the_cluster_is_gone(
+    status: str, why: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import distributed
+
+    from cellplan import experiments as ex
+    from cellplan.core import RunSpec
+
+    monkeypatch.setattr(ex, "NO_WORKER_TIMEOUT_S", 0.05)
+    monkeypatch.setattr(ex, "POLL_S", 0.01)
+    monkeypatch.setattr(
+        distributed, "wait", lambda futures, timeout, return_when: time.sleep(timeout)
+    )
+    batches = {
+        _Future(): [ex._Pending(0, i, RunSpec("x", {"n": i}, i), f"k{i}") for i in range(3)],
+        _Future(): [ex._Pending(0, 3, RunSpec("x", {"n": 3}, 3), "k3")],
+    }
+    rows: list[dict[str, object]] = []
+    start = time.monotonic()
+    lost = ex._collect(_Client(status), batches, lambda item, row: rows.append(row), None, None)
+    assert lost == why
+    assert time.monotonic() - start < 30  # a hang guard: the no-worker wait is 0.05 s
+    assert [r["run_status"] for r in rows] == [ex.FAILED] * 4
+    assert {r["run_error"] for r in rows} == {f"dask: not run: {why}"}

@@ -22,6 +22,7 @@ within a bound (:func:`wait_bound`; docs/strategies.md, "Simulation status").
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -650,10 +651,10 @@ def simulate_result(
             [Problem("start", "lies outside the strategy's domain (no live state there)")]
         )
     home_q = _configuration(home, strategy.meta.get("home"), names, "home")
-    sim = simulate(
+    run = functools.partial(
+        simulate,
         strategy,
-        int(stages),
-        int(seed),
+        seed=int(seed),
         policy=policy,
         start=q0,
         start_mode=start_mode,
@@ -661,23 +662,12 @@ def simulate_result(
         regions=regions or str(strategy.meta.get("regions", "contact")),
         home=home_q,
         learn=learn,
-        progress=progress,
     )
+    sim = run(int(stages), progress=progress)
     collision = first_collision(strategy, sim, cell) if cell is not None else None
     if collision is not None and collision[0] > 0:
         # The same run (same seed, same draws) stopped at the sample that collides.
-        sim = simulate(
-            strategy,
-            collision[0],
-            int(seed),
-            policy=policy,
-            start=q0,
-            start_mode=start_mode,
-            cell=cell,
-            regions=regions or str(strategy.meta.get("regions", "contact")),
-            home=home_q,
-            learn=learn,
-        )
+        sim = run(collision[0])
     elif collision is not None:
         raise ArgumentError([Problem("start", f"collides with the workcell ({collision[1]})")])
     bound = float(max_wait) if max_wait is not None else wait_bound(strategy)
