@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from fuzz_harness import fuzz_settings
+from fuzz_harness import FailureLog, fuzz_settings
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -253,6 +253,8 @@ class TestWorkcellQueriesFuzz:
     @pytest.mark.slow
     @pytest.mark.parametrize("name", SCENARIOS)
     def test_thousands(self, name: str) -> None:
+        log = FailureLog("api", name)
+
         @fuzz_settings(SLOW_EXAMPLES)
         @given(
             damage=damages(),
@@ -261,10 +263,14 @@ class TestWorkcellQueriesFuzz:
             seed=st.integers(0, 2**16),
         )
         def case(damage: Damage, value: Any, n: int, seed: int) -> None:
-            check_damaged_configurations(name, damage, n, seed)
-            check_scalar(name, value, n, seed)
+            def both() -> None:
+                check_damaged_configurations(name, damage, n, seed)
+                check_scalar(name, value, n, seed)
+
+            log.check(both)
 
         case()
+        log.finish()
 
     def test_every_scalar_once(self) -> None:
         """Each listed scalar on the tiny scenario (the fuzzing above samples them)."""

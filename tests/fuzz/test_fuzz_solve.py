@@ -116,10 +116,17 @@ def mismatched_strategy(draw: st.DrawFn, solved: dict[str, Path]) -> dict[str, n
     return arrays
 
 
-@pytest.mark.parametrize("examples", [FAST_EXAMPLES])
+@pytest.mark.parametrize(
+    "examples", [FAST_EXAMPLES, pytest.param(SLOW_EXAMPLES, marks=pytest.mark.slow)]
+)
 def test_mismatched_strategies_never_collide_with_exit_0(solved, work, examples):
+    log = FailureLog("mismatched-strategy", f"strategies_tiny x{examples}")
+
     @fuzz_settings(examples)
     @given(arrays=mismatched_strategy(solved))
+    def draw(arrays: dict[str, np.ndarray]) -> None:
+        log.check(lambda: check(arrays))
+
     def check(arrays: dict[str, np.ndarray]) -> None:
         path = work / "mismatch.npz"
         np.savez_compressed(path, **arrays)
@@ -133,4 +140,5 @@ def test_mismatched_strategies_never_collide_with_exit_0(solved, work, examples)
             )
             assert not setup.workcell.collides(traj, None, "none").any(), r.describe()
 
-    check()
+    draw()
+    log.finish()
