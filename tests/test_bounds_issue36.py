@@ -75,3 +75,15 @@ def test_gif_frames_stream_and_decode_to_what_was_drawn(tmp_path: Path):
     expected = [drawn[i] for i in (0, 1, 2, 4, 5)]
     assert all(np.array_equal(a, b) for a, b in zip(shown, expected, strict=True))
     assert durations == [100, 100, 200, 100, 500]
+
+
+def test_long_accepted_work_is_announced_in_one_note_line(cellplan, monkeypatch):
+    """Work estimated past budget.NOTICE_SECONDS says so on stderr, even off a terminal."""
+    monkeypatch.setattr(budget, "NOTICE_SECONDS", 0.0)
+    r = cellplan("validate", "strategies_tiny")
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("note: strategy.cells "), r.stderr
+    assert "of work to build the model of 5 modes" in lines[0]
+    monkeypatch.setattr(budget, "NOTICE_SECONDS", budget.DEFAULT_TIME_LIMIT_S)
+    assert cellplan("validate", "strategies_tiny").stderr == ""

@@ -8,7 +8,8 @@ import shapely
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cellplan.errors import ScenarioError
+from cellplan.errors import ArgumentError, ScenarioError
+from cellplan.registry import scenario_path
 from cellplan.scenario import load_scenario
 from cellplan.workcell import Workcell, load_workcell
 from workcells import rotating_cell
@@ -182,3 +183,20 @@ def test_with_obstacles_changes_the_environment_only():
     assert closed.collides(q, avoid_sources="none")[0]
     assert P1.free(q, avoid_sources="none")[0]  # the original is unchanged
     assert "plug" in closed.obstacle_geometries and "plug" not in P1.obstacles
+
+
+def test_unknown_names_in_queries_are_one_line_naming_the_argument():
+    """A name the workcell does not have is the caller's mistake, reported as such."""
+    cell = Workcell.from_scenario(load_scenario(scenario_path("strategies_tiny")))
+    q = np.array([[1.0, 1.0]])
+    cases = [
+        (lambda: cell.collides(q, "P9"), "carrying", "unknown part 'P9'"),
+        (lambda: cell.collides(q, None, ["S9"]), "avoid_sources", "unknown sources ['S9']"),
+        (lambda: cell.in_region(q, "R9"), "name", "unknown region 'R9'"),
+        (lambda: cell.in_region(q, "S1", kind="touching"), "kind", "must be 'contact' or"),
+    ]
+    for call, field, message in cases:
+        with pytest.raises(ArgumentError) as exc:
+            call()
+        (problem,) = exc.value.problems
+        assert problem.field == field and problem.message.startswith(message), problem

@@ -13,11 +13,15 @@ already holds (the interpreter and its libraries, about 200 MB) counts against i
 Time is guarded the same way: each planner estimates the seconds of a request from its
 size (a per-cell or per-task cost measured once, beside the planner) and calls
 :func:`require_time`; more than the time limit (:data:`DEFAULT_TIME_LIMIT_S`, or
-``CELLPLAN_TIME_LIMIT``; ``none`` lifts it) is refused with one line.
+``CELLPLAN_TIME_LIMIT``; ``none`` lifts it) is refused with one line. Accepted work
+estimated at :data:`NOTICE_SECONDS` or more is announced, through the ``cellplan`` logger
+(a warning; the command line prints it as one ``note:`` line on stderr), so a long
+``validate`` or ``solve`` says what it is doing even where no progress bar is drawn.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
@@ -32,6 +36,14 @@ LIMIT_VARIABLE = "CELLPLAN_MEMORY_LIMIT"
 #: Environment variable that sets the time limit (seconds, a duration such as ``2h``, or
 #: ``none``).
 TIME_LIMIT_VARIABLE = "CELLPLAN_TIME_LIMIT"
+
+#: Work estimated to take at least this long (seconds) is announced before it starts.
+#: Estimates are pessimistic (the strategies model's per-cell cost was measured on a 2-D
+#: grid whose moves span many cells; P6's 3-D model is estimated at 89 s and builds in
+#: about 9 s), so the bar is set where no bundled scenario reaches it.
+NOTICE_SECONDS = 120.0
+
+log = logging.getLogger(__name__)
 
 DEFAULT_TIME_LIMIT_S = 3600.0
 """Work estimated to take longer than this is refused unless ``CELLPLAN_TIME_LIMIT`` says
@@ -244,6 +256,17 @@ def require_time(
     lifts it)``.
     """
     limit = time_limit()
+    if NOTICE_SECONDS <= seconds <= limit:
+        extra = f" {what}" if what else ""
+        log.warning(
+            "%s: about %s of work%s (the time limit, %s=%s, is %s)",
+            field,
+            format_duration(seconds),
+            extra,
+            TIME_LIMIT_VARIABLE,
+            os.environ.get(TIME_LIMIT_VARIABLE, "unset"),
+            format_duration(limit),
+        )
     if seconds > limit:
         extra = f" {what}" if what else ""
         raise error(

@@ -11,6 +11,7 @@ exits 70 with one line naming it (see :mod:`cellplan.cliutil` for every exit sta
 from __future__ import annotations
 
 import json
+import logging
 import signal
 import sys
 import threading
@@ -267,6 +268,9 @@ def main() -> None:
     if catch:
         signal.signal(signal.SIGINT, on_sigint)
     sys.unraisablehook = unraisable
+    notes = _NoteHandler()
+    library_log = logging.getLogger("cellplan")
+    library_log.addHandler(notes)
     try:
         _dispatch()
         code: str | int | None = 0
@@ -275,6 +279,7 @@ def main() -> None:
     finally:
         # main() may run in-process (tests, the fuzzers): leave the process as it was.
         sys.unraisablehook = previous_hook
+        library_log.removeHandler(notes)
         if catch:
             signal.signal(signal.SIGINT, previous_handler)
     if interrupted.is_set() and code != EXIT_INTERRUPTED:
@@ -282,6 +287,18 @@ def main() -> None:
         console.print("interrupted", markup=False)
         code = EXIT_INTERRUPTED
     sys.exit(code)
+
+
+class _NoteHandler(logging.Handler):
+    """The library's warnings (long work announced, :data:`cellplan.budget.NOTICE_SECONDS`)
+    as one ``note:`` line each on stderr, input escaped like every line printed."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = " ".join(printable(record.getMessage()).split())
+        console.print(f"note: {text}", markup=False, highlight=False, soft_wrap=True)
 
 
 def _dispatch() -> None:

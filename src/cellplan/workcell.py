@@ -211,7 +211,9 @@ class Workcell:
         names = list(avoid_sources)
         unknown = [s for s in names if s not in self.sources]
         if unknown:
-            raise ValueError(f"unknown sources {unknown}; known: {list(self.sources)}")
+            raise ArgumentError(
+                f"unknown sources {unknown}; known: {list(self.sources)}", "avoid_sources"
+            )
         return names
 
     # --- batched queries ---------------------------------------------------------------------
@@ -243,7 +245,9 @@ class Workcell:
         try:
             return self.parts[name]
         except KeyError:
-            raise ValueError(f"unknown part {name!r}; known: {list(self.parts)}") from None
+            raise ArgumentError(
+                f"unknown part {name!r}; known: {list(self.parts)}", "carrying"
+            ) from None
 
     def collides(
         self,
@@ -378,7 +382,7 @@ class Workcell:
         """
         region = self.region(name)
         if kind not in ("contact", "enclosure"):
-            raise ValueError(f"kind must be 'contact' or 'enclosure', not {kind!r}")
+            raise ArgumentError(f"must be 'contact' or 'enclosure', not {kind!r}", "kind")
         q = self.configurations(q)
         indices = range(len(region.components)) if component is None else [component]
         if component is not None:
@@ -415,7 +419,9 @@ class Workcell:
             return self.sources[name]
         if name in self.destinations:
             return self.destinations[name]
-        raise ValueError(f"unknown region {name!r}; known: {[*self.sources, *self.destinations]}")
+        raise ArgumentError(
+            f"unknown region {name!r}; known: {[*self.sources, *self.destinations]}", "name"
+        )
 
     # --- geometry for drawing ----------------------------------------------------------------
 

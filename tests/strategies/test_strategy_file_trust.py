@@ -272,6 +272,9 @@ def test_format_bytes_never_overflows():
             "fine_motion: {time: 1.5, point: [15, 26], rate: 1e308}",
             "strategy.fine_motion",
         ),
+        # a stage's loss (stage time x urgency) bounds the values a solve writes
+        ("strategy:\n", "strategy:\n  stage_time: 1.0e+7\n", "strategy.stage_time"),
+        ("strategy:\n", "strategy:\n  urgency: {P1: 1.0e+9}\n", "strategy.urgency.P1"),
     ],
 )
 def test_validate_refuses_what_solve_cannot_solve(cellplan, tmp_path, old, new, field):

@@ -41,6 +41,12 @@ MIN_ARRIVAL = math.sqrt(2.0**-52)
 #: the workcell at most this many stage times (measured on strategies_tiny: 1e6 stages
 #: solve in a second, 1e9 in seconds, 1e12 no longer converges, 1e308 overflows).
 MAX_FMP_STAGES = 10**6
+#: Longest stage (time units) and largest urgency weight (Section VI-2). A stage's loss is
+#: at most ``stage_time x urgency x max_pending``, and a strategy file's values are held to
+#: ``live states x that loss / the rarest probability`` and to 1e150 (fileformat.py): with
+#: both at most 1e6, every value a solve can produce is a value its own file accepts.
+MAX_STAGE_TIME = 1e6
+MAX_URGENCY = 1e6
 """Most requestable (part, source, destination) triples: ``2R + 1`` modes, each a layer
 of the grid. The paper's largest problem has 72; 1,000 requests on the tiny workcell
 validate in about 10 s."""
@@ -250,7 +256,9 @@ class SolverSpec(StrictModel):
 class StrategySection(StrictModel):
     """Settings of the ``strategy:`` section (the strategies paper)."""
 
-    stage_time: PositiveFloat = Field(default=1.0, description="Delta t, time units per stage")
+    stage_time: Annotated[PositiveFloat, Field(le=MAX_STAGE_TIME)] = Field(
+        default=1.0, description="Delta t, time units per stage"
+    )
     speed: PositiveFloat = Field(
         description="translation per unit time (workspace units); for arms, degrees per unit time"
     )
@@ -306,7 +314,7 @@ class StrategySection(StrictModel):
         default=1,
         description="most requests open at once (Section VI-2); 1: one at a time (Section V)",
     )
-    urgency: dict[Name, PositiveFloat] = Field(
+    urgency: dict[Name, Annotated[PositiveFloat, Field(le=MAX_URGENCY)]] = Field(
         default_factory=dict,
         description="per part: weight of its open requests in the loss (Section VI-2; default 1)",
     )
