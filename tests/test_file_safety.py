@@ -310,3 +310,19 @@ def test_a_full_disk_leaves_no_half_written_output(full_disk: Path, tmp_path: Pa
     r = _cellplan("assemble", "discs_seven", "--frames", "40", "-o", str(out))
     assert r.returncode == 2 and "No space left on device" in _one_line(r)
     assert list(full_disk.iterdir()) == []
+
+
+def test_a_sweep_on_a_full_disk_leaves_no_folder_behind(full_disk: Path) -> None:
+    with open(full_disk / "filler", "wb") as fh:  # what is left of 256 KiB, filled
+        with contextlib.suppress(OSError):
+            fh.write(b"\0" * (1 << 20))
+    out = full_disk / "report"
+    tests = Path(__file__).parent
+    r = subprocess.run(
+        [sys.executable, str(tests / "sweep_cli_driver.py"), "reproduce", "assembly",
+         "--runs", "3", "--serial", "-o", str(out)],
+        capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(tests)},
+    )  # fmt: skip
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().splitlines()[-1] == "error: output: No space left on device"
+    assert sorted(p.name for p in full_disk.iterdir()) == ["filler"]

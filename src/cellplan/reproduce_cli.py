@@ -7,6 +7,7 @@ before any work; a bad one is one line naming the option and exit status 2
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
@@ -247,6 +248,7 @@ def register(app: typer.Typer) -> None:
         if problems or papers is None:
             raise ArgumentError(problems)
         console = Console(stderr=True)
+        created = not output.exists()
         try:
             index, sweep = reproduce_sweep(
                 papers,
@@ -259,6 +261,12 @@ def register(app: typer.Typer) -> None:
                 fresh=fresh,
                 console=console,
             )
+        except OSError:
+            # A full disk or an unwritable place before any run was kept: leave no folder
+            # behind that was not there (a cache with runs in it stays, to resume from).
+            if created and cached_runs(output) == 0:
+                shutil.rmtree(output, ignore_errors=True)
+            raise
         except KeyboardInterrupt:
             cached = cached_runs(output)
             raise Interrupted(
