@@ -8,6 +8,7 @@ atomically.
 
 from __future__ import annotations
 
+import gc
 import io
 import math
 import struct
@@ -186,6 +187,10 @@ def save_gif(
         pending: tuple[bytes, int] | None = None  # a frame's bytes wait for its delay
         for frame in frames:
             frame = np.asarray(frame)
+            # A drawn frame's figure is a web of reference cycles that only the cycle
+            # collector frees; left to its own pace it let RSS grow by 1-4 MB a frame
+            # (1200 px, 40 frames: 326 MB with, 253 MB without the growth).
+            gc.collect()
             if previous is None:
                 canvas = np.array(frame[..., :3], np.uint8)
             else:
