@@ -47,7 +47,7 @@ def run_demo(
     """
     from rich.console import Console
 
-    from cellplan.reproduce_cli import check_output_dir, reproduce
+    from cellplan.reproduce_cli import check_output_dir, reproduce_sweep
 
     output = check_output_dir(Path(output))
     console = console if console is not None else Console(stderr=True)
@@ -66,7 +66,7 @@ def run_demo(
             f"ran the showcase ({len(pictures.items)} items) in {time.perf_counter() - t0:.1f} s",
             highlight=False,
         )
-    return reproduce(
+    index, _ = reproduce_sweep(
         None,
         output,
         runs=DEMO_RUNS,
@@ -78,6 +78,7 @@ def run_demo(
         extra=extra,
         time_budget_s=SWEEP_BUDGET_S,
     )
+    return index
 
 
 def draw_bundled_workcells(folder: Path) -> Any:

@@ -63,47 +63,6 @@ def check_output_dir(path: Path) -> Path:
     return check_output(path, "--output", folder=True)
 
 
-def reproduce(
-    papers: Sequence[str] | None,
-    outdir: Path,
-    runs: int | None = None,
-    quick: bool = False,
-    scheduler: str | None = None,
-    serial: bool = False,
-    only: Sequence[str] = (),
-    fresh: bool = False,
-    console: Any = None,
-    title: str = "cellplan: the three papers, reproduced",
-    intro: str = "",
-    extra: Sequence[Any] = (),
-    progress: bool = True,
-    time_budget_s: float | None = None,
-) -> Path:
-    """Discover, sweep and report the experiments of ``papers``; return ``outdir/index.html``.
-
-    ``runs`` overrides every paper's default count (:func:`paper_runs`); ``only``
-    restricts the sweep to the named experiments (all must exist); ``time_budget_s``
-    is passed to :func:`~cellplan.experiments.run_sweep`. :func:`reproduce_sweep` also
-    returns the sweep (its failures decide the command's exit status).
-    """
-    return reproduce_sweep(
-        papers,
-        outdir,
-        runs=runs,
-        quick=quick,
-        scheduler=scheduler,
-        serial=serial,
-        only=only,
-        fresh=fresh,
-        console=console,
-        title=title,
-        intro=intro,
-        extra=extra,
-        progress=progress,
-        time_budget_s=time_budget_s,
-    )[0]
-
-
 def reproduce_sweep(
     papers: Sequence[str] | None,
     outdir: Path,
@@ -120,7 +79,18 @@ def reproduce_sweep(
     progress: bool = True,
     time_budget_s: float | None = None,
 ) -> tuple[Path, SweepResult]:
-    """:func:`reproduce`, returning the report's path and the sweep that filled it."""
+    """Discover, sweep and report the experiments of ``papers``.
+
+    ``runs`` overrides every paper's default count (:func:`paper_runs`); ``only``
+    restricts the sweep to the named experiments (all must exist); ``time_budget_s``
+    is passed to :func:`~cellplan.experiments.run_sweep`.
+
+    Returns
+    -------
+    tuple
+        ``outdir/index.html``, and the sweep that filled it (its failures decide the
+        command's exit status).
+    """
     from cellplan.experiments import discover, run_sweep
     from cellplan.report import make_pieces, reproduce_command, write_report
 
