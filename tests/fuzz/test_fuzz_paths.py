@@ -342,6 +342,16 @@ def _form(path: Path, form: str) -> Path:
     return path
 
 
+def _within(entry: str, written: list[str]) -> bool:
+    """Whether a changed entry belongs to a written path: the path itself, what is inside
+    it or beside it under its name (``exp.sqlite-wal``, ``exp.sqlite.lock``), or a
+    folder created to hold it (``new`` for ``new/exp.sqlite``)."""
+    return any(
+        entry == a or entry.startswith((a + "/", a + ".", a + "-")) or a.startswith(entry + "/")
+        for a in written
+    )
+
+
 def _case(
     command: Command, kinds: dict[str, str], form: str, world: dict[str, Path | None]
 ) -> None:
@@ -388,7 +398,7 @@ def _case(
                 # adapt commits each task to its database as it goes; outputs that fail
                 # to write after the run leave those tasks there, to resume from.
                 db = os.path.relpath(os.path.realpath(inputs["--db"]), sandbox.resolve())
-                changed = {k for k in changed if not k.startswith(db)}
+                changed = {k for k in changed if not _within(k, [db])}
             assert not changed, f"exit 2 changed {sorted(changed)}: {description}"
         else:
             written = [output, *([inputs["--db"]] if "--db" in inputs else [])]
@@ -397,10 +407,7 @@ def _case(
                 for p in written
                 if Path(os.path.realpath(sandbox)) in Path(os.path.realpath(p)).parents
             ]
-            outside = {
-                k for k in changed
-                if not any(k == a or k.startswith((a + "/", a + ".")) for a in allowed)
-            }  # fmt: skip
+            outside = {k for k in changed if not _within(k, allowed)}
             assert not outside, f"changed outside the output: {sorted(outside)}; {description}"
     finally:
         shutil.rmtree(base, ignore_errors=True)
