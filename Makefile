@@ -19,7 +19,7 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/cellplan demo -o cellplan-out
 
-# The suite runs on every core (pytest-xdist): on CI's 2 cores that is 6 min, not 11.
+# The suite runs on every core (pytest-xdist): on 2 cores about 8 min, about half of one core's time.
 TEST_WORKERS ?= auto
 test: $(STAMP)
 	$(BIN)/python -m pytest -n $(TEST_WORKERS)
