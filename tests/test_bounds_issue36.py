@@ -87,3 +87,13 @@ def test_long_accepted_work_is_announced_in_one_note_line(cellplan, monkeypatch)
     assert "of work to build the model of 5 modes" in lines[0]
     monkeypatch.setattr(budget, "NOTICE_SECONDS", budget.DEFAULT_TIME_LIMIT_S)
     assert cellplan("validate", "strategies_tiny").stderr == ""
+
+
+def test_the_second_gif_check_names_the_flag():
+    """The pictures check a frame's memory again after planning; on the command line the
+    refusal names --gif-size, as the first check does, not the library's ``size``."""
+    from cellplan.cliutil import as_flags
+
+    with pytest.raises(ArgumentError) as exc, as_flags({"size": "--gif-size"}):
+        plots.check_gif_size(10**9, "size")
+    assert [p.field for p in exc.value.problems] == ["--gif-size"]

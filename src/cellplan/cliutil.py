@@ -52,17 +52,19 @@ ScenarioArg = Annotated[
 
 
 @contextlib.contextmanager
-def as_flags() -> Iterator[None]:
+def as_flags(names: Mapping[str, str] | None = None) -> Iterator[None]:
     """Name the library's option problems as the command-line flags that set them.
 
     ``plan(..., max_sweeps=-1)`` reports ``max_sweeps: ...``; on the command line the
-    same problem reads ``--max-sweeps: ...``. Duplicate lines are dropped.
+    same problem reads ``--max-sweeps: ...``. ``names`` maps an argument whose flag is
+    named otherwise (``{"size": "--gif-size"}``). Duplicate lines are dropped.
     """
+    renamed = dict(names or {})
     try:
         yield
     except ArgumentError as exc:
         flagged = [
-            Problem("--" + p.field.replace("_", "-"), p.message)
+            Problem(renamed.get(p.field) or "--" + p.field.replace("_", "-"), p.message)
             if p.field and not p.field.startswith("-")
             else p
             for p in exc.problems

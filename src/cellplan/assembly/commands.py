@@ -26,6 +26,7 @@ from cellplan.assembly.section import GeneratorSpec
 from cellplan.cliutil import (
     GifSizeOpt,
     JsonOpt,
+    as_flags,
     check_inputs_kept,
     check_output,
     folder_files,
@@ -199,7 +200,8 @@ def register(app: typer.Typer) -> None:
                 progress(1.0, 1.0, f"{result.status.value}; drawing {frames} frames")
             # Written into a staging folder, moved in whole: an error leaves --output as it was.
             keep = {"FILE": file} if (file := scenario_file(scenario)) else None
-            with staged_folder(output, keep=keep) as stage:
+            # The pictures check the GIF's memory again, now that the plan holds its own.
+            with as_flags({"size": "--gif-size"}), staged_folder(output, keep=keep) as stage:
                 staged = write_outputs(result, stage, frames, width)
         files = {key: output / path.relative_to(stage) for key, path in staged.items()}
         summary = f"{result.message}; wrote {output}" if result.success else f"wrote {output}"

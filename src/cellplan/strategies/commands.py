@@ -229,7 +229,10 @@ def simulate_command(
         )
         # Every file is written into a staging folder and moved into place only when all
         # are written: a full disk or an error leaves --output as it was.
-        with staged_folder(output, keep=_existing(inputs)) as stage:
+        with (
+            as_flags({"size": "--gif-size"}),
+            staged_folder(output, keep=_existing(inputs)) as stage,
+        ):
             names = {"trajectory": result.trajectory.save(stage / "trajectory.csv").name}
             names["frames"] = plots.plot_frames(strat, setup.workcell, sim, stage)[-1].name
             if gif:
