@@ -15,6 +15,7 @@ always counts as an obstacle: robots stay inside the bounds.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -230,7 +231,10 @@ class Workcell:
 
     def posed_bodies(self, q: FloatArray, carrying: str | None) -> tuple[RigidBodies, FloatArray]:
         """Bodies (robot, then the carried part) and their poses ``(N, B, 3)``."""
-        q = self.configurations(q)
+        return self._posed_bodies(self.configurations(q), carrying)
+
+    def _posed_bodies(self, q: FloatArray, carrying: str | None) -> tuple[RigidBodies, FloatArray]:
+        # ``q`` checked by the caller: the queries check it once per call.
         poses = self.robot.body_poses(q)
         bodies = self.robot.bodies
         if carrying is not None:
@@ -263,8 +267,17 @@ class Workcell:
         extra clearance. Angles are radians (see :func:`configurations`). Bad arguments
         raise :class:`~cellplan.errors.ArgumentError`.
         """
-        q = self.configurations(q)
-        bodies, poses = self.posed_bodies(q, carrying)
+        return self._collides(self.configurations(q), carrying, avoid_sources, margin)
+
+    def _collides(
+        self,
+        q: FloatArray,
+        carrying: str | None,
+        avoid_sources: AvoidSources,
+        margin: float | FloatArray,
+    ) -> BoolArray:
+        # ``q`` checked by the caller (:meth:`collides`, or samples between checked ends).
+        bodies, poses = self._posed_bodies(q, carrying)
         margins = _margins(margin, len(bodies.bodies))
         hit = (
             body_gaps(bodies, poses, self.prepared_obstacles(avoid_sources), margins, exact=False)
@@ -284,7 +297,7 @@ class Workcell:
         """``(N,)`` distance from the robot (and carried part) to the nearest obstacle or the
         workcell boundary; 0 on contact and outside the joint limits."""
         q = self.configurations(q)
-        bodies, poses = self.posed_bodies(q, carrying)
+        bodies, poses = self._posed_bodies(q, carrying)
         gap = body_gaps(bodies, poses, self.prepared_obstacles(avoid_sources), exact=True)
         gap = np.maximum(gap, 0.0)
         gap[~self.robot.within_limits(q)] = 0.0
@@ -328,7 +341,7 @@ class Workcell:
         t = (np.arange(counts.sum()) - np.repeat(offsets, counts)) / np.repeat(counts - 1, counts)
         samples = self.robot.wrap(q0[seg] + t[:, None] * d[seg])
         margin = step / 2 if certified else 0.0
-        hit = self.collides(samples, carrying, avoid_sources, margin=margin)
+        hit = self._collides(samples, carrying, avoid_sources, margin)
         return np.logical_or.reduceat(hit, offsets)
 
     def _sample_counts(self, travel: FloatArray, step: float, carrying: str | None) -> IntArray:
@@ -404,7 +417,7 @@ class Workcell:
 
     def _region_bodies(self, q: FloatArray, carrying: str | None) -> tuple[RigidBodies, FloatArray]:
         if not isinstance(self.robot, PlanarArm):
-            return self.posed_bodies(q, carrying)
+            return self._posed_bodies(q, carrying)
         tool = self.robot.tool_pose(q)[:, None, :]
         shapes: tuple[ShapeSet, ...] = (ShapeSet.point(),)
         poses = tool
@@ -443,6 +456,10 @@ class Workcell:
 
 def _margins(margin: float | FloatArray, count: int) -> FloatArray:
     """``margin`` (one number, or one per body) as ``(count,)`` finite, non-negative values."""
+    if isinstance(margin, float) and math.isfinite(margin) and margin >= 0.0:
+        # One plain number (the default 0.0): checked without numpy, which costs a
+        # single-configuration query about a fifth of its time.
+        return np.full(count, margin)
     arr = units.real_array(margin, "margin", "a number or one number per body")
     if arr.ndim > 1 or (arr.ndim == 1 and len(arr) not in (1, count)):
         raise ArgumentError(
