@@ -161,7 +161,7 @@ def test_duplicate_keys_are_rejected():
             {"type": "disc", "center": [1, 1], "radius": -2},
             "workcell.obstacles.wall.radius: must be greater than 0 (got -2)",
         ),
-        ("cellplan", 2, "cellplan: unsupported format version 2; this cellplan reads 1"),
+        ("cellplan", 3, "cellplan: unsupported format version 3; this cellplan reads 1 and 2"),
     ],
 )
 def test_each_problem_is_one_line_naming_the_field(path, value, expected):

@@ -131,15 +131,78 @@ def validate(scenario: ScenarioArg, as_json: JsonOpt = False) -> None:
 
 
 @app.command()
-def show(scenario: ScenarioArg, output: OutputOpt = Path("workcell.png")) -> None:
+def show(
+    scenario: ScenarioArg,
+    output: OutputOpt = Path("workcell.png"),
+    view: Annotated[str, typer.Option(help="3-D cells: iso, front, side or top")] = "iso",
+) -> None:
     """Draw the scenario: the workcell, the robot at its start carrying a part, and what
     each section adds (discs' starts and goals, adaptive goals and workcell changes)."""
     from cellplan import plots
     from cellplan.api import load
+    from cellplan.workcell3d import Workcell3D
 
     check_image_path(output)
     check_inputs_kept([("--output", output)], {"SCENARIO": scenario_file(scenario)})
-    plots.save_scenario(load(scenario), output)
+    setup = load(scenario)
+    cell = setup.workcell if setup.has_robot else None
+    if isinstance(cell, Workcell3D):
+        from cellplan.scene3d import cell_scene
+        from cellplan.view3d import draw_png
+
+        carrying = next(iter(cell.parts), None)
+        title = f"{setup.name}: {cell.robot.arm.name} at its start" + (
+            f", carrying {carrying}" if carrying else ""
+        )
+        draw_png(cell_scene(cell, carrying=carrying, title=title), output, view=view)
+    else:
+        if view != "iso":
+            raise ArgumentError(
+                "views apply to 3-D cells; a 2-D workcell is drawn from above", "--view"
+            )
+        plots.save_scenario(setup, output)
+    out.print(printable(f"wrote {output}"), markup=False)
+
+
+@app.command()
+def view(
+    scenario: ScenarioArg,
+    output: OutputOpt = Path("cell.html"),
+    trajectory: Annotated[
+        Path | None,
+        typer.Option(help="a trajectory of the scenario's robot to play (CSV, JSON or NPZ)"),
+    ] = None,
+) -> None:
+    """Write an interactive 3-D viewer page of a 3-D cell: one self-contained HTML file
+    (no network), where the cell can be rotated and a trajectory played."""
+    from cellplan.api import load
+    from cellplan.scene3d import cell_scene
+    from cellplan.trajectory import Trajectory
+    from cellplan.view3d import write_viewer
+    from cellplan.workcell3d import Workcell3D
+
+    if output.suffix.lower() not in (".html", ".htm"):
+        raise ArgumentError(f"the viewer is an HTML page; got {output.suffix!r}", "--output")
+    check_output(output)
+    inputs = {"SCENARIO": scenario_file(scenario), "--trajectory": trajectory}
+    check_inputs_kept([("--output", output)], inputs)
+    setup = load(scenario)
+    cell = setup.workcell if setup.has_robot else None
+    if not isinstance(cell, Workcell3D):
+        raise ArgumentError("the viewer shows 3-D cells (bounds with zmin and zmax)", "SCENARIO")
+    if trajectory is None:
+        scene = cell_scene(cell, title=f"{setup.name} (start)")
+    else:
+        traj = Trajectory.load(trajectory)
+        if traj.dim != cell.robot.dim:
+            raise ArgumentError(
+                f"has {traj.dim} columns; the robot has {cell.robot.dim} joints", "--trajectory"
+            )
+        unit = "s" if traj.time_unit == "s" else traj.time_unit
+        scene = cell_scene(
+            cell, traj.q, traj.t, title=f"{setup.name}: {trajectory.name}", time_label=f"t ({unit})"
+        )
+    write_viewer(scene, output)
     out.print(printable(f"wrote {output}"), markup=False)
 
 

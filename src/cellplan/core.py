@@ -251,6 +251,9 @@ class Package:
     draw
         ``draw(setup, ax) -> [legend handles]``: draws the package's section onto the
         workcell picture of ``cellplan show`` (discs' starts and goals, goals and changes).
+    workcells
+        The kinds of workcell (``"2d"``, ``"3d"``) its section and planners work in; a
+        scenario of another kind with the package's section is refused with one line.
     """
 
     name: str
@@ -266,6 +269,7 @@ class Package:
     describe: Callable[[Setup], Mapping[str, str]] | None = None
     showcase: Callable[[Any], Sequence[ShowcaseItem]] | None = None
     draw: Callable[[Setup, Any], Sequence[Any]] | None = None
+    workcells: tuple[str, ...] = ("2d",)
 
 
 # --- experiments -----------------------------------------------------------------------------

@@ -42,8 +42,9 @@ from numpy.typing import NDArray
 from scipy import fft as sp_fft
 
 from cellplan.geometry import BoolArray, FloatArray, ShapeSet, body_gaps, raster_touching
-from cellplan.robots import PlanarArm, Robot, as_batch
+from cellplan.robots import RigidRobot, Robot, as_batch
 from cellplan.schema import CELLS_RANGE as _CELLS_RANGE
+from cellplan.validity import ValiditySpace
 from cellplan.workcell import AvoidSources, RegionTest, Workcell
 
 # Sub-sampling of a rotation slice: the sampling gap may add at most this
@@ -143,7 +144,7 @@ Method = Literal["auto", "fft", "exact"]
 
 
 def free_bitmap(
-    cell: Workcell,
+    cell: ValiditySpace,
     grid: Grid,
     carrying: str | None = None,
     avoid_sources: AvoidSources = "all",
@@ -165,7 +166,25 @@ def free_bitmap(
         ``"fft"`` for translating, point and rotating robots; ``"exact"`` for any;
         ``"auto"`` picks FFT where it applies.
     """
-    return ~obstacle_bitmap(cell, grid, cell.obstacle_set(avoid_sources), carrying, method)
+    if _method(cell, method) == "exact":
+        check_memory(cell, grid, carrying, "exact")
+        return ~_exact_bitmap(cell, grid, carrying, avoid_sources)
+    planar = _planar(cell)
+    return ~obstacle_bitmap(planar, grid, planar.obstacle_set(avoid_sources), carrying, method)
+
+
+def _planar(cell: ValiditySpace) -> Workcell:
+    """The FFT method's workcell: planar, with a rigid robot (:func:`_method` chose it)."""
+    if not isinstance(cell, Workcell):
+        raise ValueError("the FFT method applies to planar workcells only")
+    return cell
+
+
+def _method(cell: ValiditySpace, method: Method) -> Method:
+    """``auto``: the FFT method where it applies (rigid planar robots), else exact."""
+    if method == "auto":
+        return "fft" if isinstance(cell.robot, RigidRobot) else "exact"
+    return method
 
 
 def obstacle_bitmap(
@@ -179,17 +198,16 @@ def obstacle_bitmap(
     to keep the robot within the bounds)."""
     robot = cell.robot
     check_memory(cell, grid, carrying, method)
-    if method == "auto":
-        method = "exact" if isinstance(robot, PlanarArm) else "fft"
+    method = _method(cell, method)
     if method == "fft":
-        if isinstance(robot, PlanarArm):
+        if not isinstance(robot, RigidRobot):
             raise ValueError("the FFT method applies to rigid robots only")
         return _fft_bitmap(cell, grid, obstacles, carrying)
-    return _exact_bitmap(cell, grid, obstacles, carrying)
+    return _exact_obstacle_bitmap(cell, grid, obstacles, carrying)
 
 
 def region_bitmap(
-    cell: Workcell,
+    cell: ValiditySpace,
     grid: Grid,
     name: str,
     kind: RegionTest = "contact",
@@ -204,8 +222,17 @@ def region_bitmap(
 
 
 def _exact_bitmap(
+    cell: ValiditySpace, grid: Grid, carrying: str | None, avoid_sources: AvoidSources
+) -> BoolArray:
+    """Blocked cells by the space's own conservative box test (any workcell)."""
+    hit = cell.box_collides(grid.points(), grid.spacing / 2, carrying, avoid_sources)
+    return hit.reshape(grid.shape)
+
+
+def _exact_obstacle_bitmap(
     cell: Workcell, grid: Grid, obstacles: ShapeSet, carrying: str | None
 ) -> BoolArray:
+    """Blocked cells against an arbitrary planar obstacle set."""
     robot = cell.robot
     half = grid.spacing / 2
     margins = list(robot.body_displacement_bounds(half))
@@ -274,7 +301,7 @@ def _fft_sizes(
 
 
 def estimate_memory(
-    cell: Workcell, grid: Grid, carrying: str | None = None, method: Method = "auto"
+    cell: ValiditySpace, grid: Grid, carrying: str | None = None, method: Method = "auto"
 ) -> int:
     """Bytes :func:`free_bitmap` allocates at its peak on ``grid`` (before allocating).
 
@@ -287,13 +314,9 @@ def estimate_memory(
     three bool ``(N,)`` masks. ``B`` counts the robot's bodies and the carried part.
     """
     n_total = int(np.prod(grid.shape, dtype=object))
-    if method == "auto":
-        method = "exact" if isinstance(cell.robot, PlanarArm) else "fft"
-    if method == "exact":
-        bodies = len(cell.robot.bodies.bodies) + (carrying is not None)
-        d = grid.ndim
-        return n_total * (24 * d + 48 * bodies + 8 * bodies + 3)
-    sz = _fft_sizes(cell, grid, carrying)
+    if _method(cell, method) == "exact":
+        return n_total * cell.check_bytes(carrying)
+    sz = _fft_sizes(_planar(cell), grid, carrying)
     raster = (sz.n[0] + 2 * sz.u[0]) * (sz.n[1] + 2 * sz.u[1])
     half = sz.fft[0] * (sz.fft[1] // 2 + 1)
     slice_cells = grid.shape[0] * grid.shape[1]
@@ -301,7 +324,7 @@ def estimate_memory(
 
 
 def check_memory(
-    cell: Workcell,
+    cell: ValiditySpace,
     grid: Grid,
     carrying: str | None = None,
     method: Method = "auto",

@@ -22,6 +22,8 @@ from shapely.geometry.base import BaseGeometry
 from cellplan import units
 from cellplan.errors import ArgumentError
 from cellplan.fileio import atomic_path
+from cellplan.scenario3d import planar_workcell
+from cellplan.workcell import Workcell
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -30,7 +32,7 @@ if TYPE_CHECKING:
     from cellplan.cspace import Grid
     from cellplan.setup import Setup
     from cellplan.trajectory import Trajectory
-    from cellplan.workcell import Workcell
+    from cellplan.validity import ValiditySpace
 
 COLORS = {
     "obstacle": "#6b6b6b",
@@ -447,7 +449,7 @@ def save_scenario(setup: Setup, path: str | Path) -> Path:
     sc = setup.scenario
     handles: list[Any] = [Patch(color=COLORS["obstacle"], label="obstacle")]
     if setup.has_robot:
-        cell = setup.workcell
+        cell = setup.planar_workcell
         draw_workcell(ax, cell)
         carrying = next(iter(cell.parts), None)
         draw_robot(ax, cell, cell.robot.start, carrying)
@@ -459,9 +461,10 @@ def save_scenario(setup: Setup, path: str | Path) -> Path:
         if carrying is not None:
             handles.append(Patch(color=COLORS["part"], label=f"carried part {carrying}"))
     else:
-        b = sc.workcell.bounds
+        spec = planar_workcell(sc)
+        b = spec.bounds
         ax.add_patch(_rect(b.xmin, b.ymin, b.xmax, b.ymax))
-        for name, shape in sc.workcell.obstacles.items():
+        for name, shape in spec.obstacles.items():
             geom = shape.to_shapely()
             draw_geometry(ax, geom, facecolor=COLORS["obstacle"], edgecolor="black", lw=0.8)
             _label(ax, geom, name, "black")
@@ -536,7 +539,7 @@ def cspace_legend(fig: Figure, carrying: bool) -> None:
 
 
 def save_cspace(
-    cell: Workcell,
+    cell: ValiditySpace,
     grid: Grid,
     free: np.ndarray,
     path: str | Path,
@@ -553,9 +556,7 @@ def save_cspace(
     names = cell.robot.axis_names
     if grid.ndim == 2:
         fig, axes = new_figure(ncols=2, size=5.0)
-        draw_workcell(axes[0, 0], cell)
-        draw_robot(axes[0, 0], cell, cell.robot.start)
-        axes[0, 0].set_title("workcell")
+        _workspace_panel(axes[0, 0], cell, labels=True)
         draw_cspace_slice(
             axes[0, 1],
             grid,
@@ -578,16 +579,15 @@ def save_cspace(
     ncols = min(3, len(picks)) + 1
     nrows = math.ceil(len(picks) / (ncols - 1))
     fig, axes = new_figure(ncols=ncols, nrows=nrows, size=3.6)
-    draw_workcell(axes[0, 0], cell, labels=False)
-    draw_robot(axes[0, 0], cell, cell.robot.start)
-    axes[0, 0].set_title("workcell", fontsize=9)
+    _workspace_panel(axes[0, 0], cell, labels=False)
     for r in range(1, nrows):
         axes[r, 0].axis("off")
     third = grid.axis(2)
-    unit = "" if names[2] in ("x", "y") else " deg"
+    angle = cell.robot.angular[2]
+    unit = " deg" if angle else ""
     for idx, k in enumerate(picks):
         ax = axes[idx // (ncols - 1), 1 + idx % (ncols - 1)]
-        value = third[k] if names[2] in ("x", "y") else units.degrees(third[k])
+        value = units.degrees(third[k]) if angle else third[k]
         draw_cspace_slice(
             ax,
             grid,
@@ -600,6 +600,18 @@ def save_cspace(
     fig.suptitle(f"free configurations ({title_extra}), {free.mean():.1%} of {grid.size} cells")
     cspace_legend(fig, carrying)
     return save_figure(fig, path)
+
+
+def _workspace_panel(ax: Any, cell: ValiditySpace, labels: bool) -> None:
+    """The planar workcell with its robot at the start; a 3-D cell has its own picture
+    (``cellplan show``), so the panel says so."""
+    if isinstance(cell, Workcell):
+        draw_workcell(ax, cell, labels=labels)
+        draw_robot(ax, cell, cell.robot.start)
+        ax.set_title("workcell", fontsize=None if labels else 9)
+        return
+    ax.axis("off")
+    ax.text(0.5, 0.5, "3-D cell:\nsee cellplan show", ha="center", va="center", fontsize=11)
 
 
 # --- trajectories ----------------------------------------------------------------------------

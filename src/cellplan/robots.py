@@ -38,8 +38,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cellplan import units
+from cellplan.errors import Problem, ScenarioError
 from cellplan.geometry import BoolArray, FloatArray, RigidBodies, ShapeSet, wrap_angle
 from cellplan.scenario import PointRobotSpec, RobotSpec, RotatingRobotSpec, TranslatingRobotSpec
+from cellplan.scenario3d import UrdfRobotSpec
 
 
 def as_batch(q: FloatArray, dim: int) -> FloatArray:
@@ -75,6 +77,11 @@ class Robot(ABC):
     @abstractmethod
     def tool_pose(self, q: FloatArray) -> FloatArray:
         """``(N, 3)`` pose of the gripper frame."""
+
+    @property
+    def angular(self) -> tuple[bool, ...]:
+        """Which axes are angles (every axis but ``x`` and ``y``)."""
+        return units.angular_axes(self.axis_names)
 
     def within_limits(self, q: FloatArray) -> BoolArray:
         """Boolean ``(N,)``: each non-periodic coordinate within ``[lower, upper]``."""
@@ -401,6 +408,10 @@ def robot_from_spec(spec: RobotSpec, bounds: tuple[float, float, float, float]) 
     if isinstance(spec, RotatingRobotSpec):
         x, y, th = spec.start
         return rotating_robot(ShapeSet.from_spec(spec.shape), (x, y, units.radians(th)), bounds)
+    if isinstance(spec, UrdfRobotSpec):
+        raise ScenarioError(
+            [Problem("robot.type", "a URDF robot needs a 3-D workcell (cellplan.workcell3d)")]
+        )
     eo = spec.end_effector_orientation
     limits = spec.joint_limits
     return planar_arm(

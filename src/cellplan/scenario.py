@@ -38,14 +38,29 @@ import shapely
 import yaml
 from pydantic import (
     BaseModel,
+    Discriminator,
     Field,
     SerializerFunctionWrapHandler,
+    Tag,
     ValidationError,
     create_model,
     model_serializer,
 )
 
 from cellplan.errors import Problem, ScenarioError
+from cellplan.scenario3d import (
+    UNION_CHOOSERS,
+    UNION_TAGS,
+    AnyShape,
+    UrdfRobotSpec,
+    Workcell3DSpec,
+    check_references_3d,
+    is_3d,
+    planar,
+    planar_workcell,
+    shape_dimension,
+    workcell_dimension,
+)
 from cellplan.schema import (
     NAME_PATTERN,
     Bounds,
@@ -91,7 +106,11 @@ __all__ = [
     "section_keys",
 ]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+"""The format version cellplan writes. Version 2 added 3-D cells and URDF robots
+(:mod:`cellplan.scenario3d`); every version-1 file reads unchanged."""
+SCHEMA_VERSIONS = (1, 2)
+"""The format versions cellplan reads."""
 
 MAX_FILE_BYTES = 10_000_000
 """Largest scenario file read; a workcell description is kilobytes, so more is a mistake."""
@@ -204,7 +223,7 @@ class ArmRobotSpec(StrictModel):
 
 
 RobotSpec = Annotated[
-    PointRobotSpec | TranslatingRobotSpec | RotatingRobotSpec | ArmRobotSpec,
+    PointRobotSpec | TranslatingRobotSpec | RotatingRobotSpec | ArmRobotSpec | UrdfRobotSpec,
     Field(discriminator="type"),
 ]
 
@@ -212,8 +231,8 @@ RobotSpec = Annotated[
 class PartSpec(StrictModel):
     """A part's shape in the gripper frame; while carried it moves rigidly with the gripper."""
 
-    shape: Shape = Field(
-        description="the part in the gripper frame (workcell units)",
+    shape: AnyShape = Field(
+        description="the part in the gripper frame (workcell units; a solid in a 3-D cell)",
         examples=[{"type": "box", "min": [-2, -0.5], "max": [2, 0.5]}],
     )
 
@@ -221,10 +240,11 @@ class PartSpec(StrictModel):
 class RegionSpec(StrictModel):
     """A source or destination: one or more disjoint components."""
 
-    components: list[Shape] = Field(
+    components: list[AnyShape] = Field(
         min_length=1,
         max_length=1000,
-        description="disjoint shapes (workcell units); a part may be picked or placed at any",
+        description="disjoint shapes (workcell units; solids in a 3-D cell); a part may be "
+        "picked or placed at any",
         examples=[[{"type": "box", "min": [2, 2], "max": [6, 5]}]],
     )
 
@@ -258,16 +278,21 @@ class ScenarioBase(StrictModel):
     optional fields by :func:`build_scenario_model`.
     """
 
-    cellplan: Literal[1] = Field(description="scenario format version", examples=[1])
+    cellplan: Literal[1, 2] = Field(
+        description="scenario format version (2 for 3-D cells)", examples=[2]
+    )
     name: str = Field(default="", max_length=200, description="short name", examples=["my-cell"])
     description: str = Field(
         default="", max_length=10_000, description="what the scenario shows (free text)"
     )
-    workcell: WorkcellSpec = Field(description="bounds and static obstacles")
+    workcell: Annotated[
+        Annotated[WorkcellSpec, Tag("2d")] | Annotated[Workcell3DSpec, Tag("3d")],
+        Discriminator(workcell_dimension),
+    ] = Field(description="bounds and static obstacles (3-D when the bounds name zmin, zmax)")
     robot: RobotSpec | None = Field(
         default=None,
-        description="the robot: point, translating, rotating or a planar arm (angles in "
-        "degrees); none for disc assembly",
+        description="the robot: point, translating, rotating, a planar arm, or a URDF arm "
+        "in a 3-D cell (angles in degrees); none for disc assembly",
     )
     parts: dict[Name, PartSpec] = Field(
         default_factory=dict,
@@ -597,9 +622,12 @@ def format_location(loc: Iterable[Any], data: Any) -> str:
     """
     parts: list[str] = []
     node = data
-    for item in loc:
+    loc = list(loc)
+    for pos, item in enumerate(loc):
         if item == "[key]":
             continue  # the key itself is wrong; the path already ends with it
+        if isinstance(node, dict) and node.get("type") == item and pos + 1 < len(loc):
+            continue  # a union's tag, even where a key has the same name (robot.urdf)
         same = _keys_matching(node, item) if isinstance(node, dict) else []
         if same:
             # pydantic reports a key true as 1 and a key null as 'None': name it as written
@@ -643,7 +671,7 @@ def _is_union_tag(item: str, node: Any) -> bool:
     model class (``RandomTasks``; every field name is lower case)."""
     return (
         (isinstance(node, dict) and node.get("type") == item)
-        or item in {"function-after", "function-before", "tagged-union"}
+        or item in {"function-after", "function-before", "tagged-union", *UNION_TAGS}
         or "[" in item
         or (item[:1].isupper() and item.isidentifier())
     )
@@ -740,11 +768,19 @@ def _model_at(loc: tuple[Any, ...], data: Any, root: type[BaseModel]) -> type[Ba
     """The pydantic model that validates the node at ``loc`` of ``data`` (None if unclear)."""
     tp: Any = root
     node = data
-    for item in loc:
+    for pos, item in enumerate(loc):
         tp = _resolve(tp, node)
         if isinstance(tp, type) and issubclass(tp, BaseModel):
-            if item not in tp.model_fields:
-                if isinstance(node, dict) and (node.get("type") == item or "-" in str(item)):
+            # A tag that is also a key (robot.urdf) is the tag unless there is more to walk.
+            tag = (
+                isinstance(node, dict)
+                and node.get("type") == item
+                and (pos + 1 < len(loc) or not isinstance(node.get(item), dict | list))
+            )
+            if tag or item not in tp.model_fields:
+                if isinstance(node, dict) and (
+                    node.get("type") == item or "-" in str(item) or item in UNION_TAGS
+                ):
                     continue  # a union tag pydantic puts in the location
                 return None
             tp = tp.model_fields[item].annotation
@@ -763,9 +799,21 @@ def _model_at(loc: tuple[Any, ...], data: Any, root: type[BaseModel]) -> type[Ba
 
 
 def _resolve(tp: Any, node: Any) -> Any:
-    """Unwrap ``Annotated`` and ``Optional``; pick a union member by the node's ``type``."""
+    """Unwrap ``Annotated`` and ``Optional``; pick a union member by the node's ``type``,
+    or by a callable discriminator (2-D or 3-D) when the union has one."""
     while get_origin(tp) is Annotated:
         tp = get_args(tp)[0]
+    if get_origin(tp) in (Union, types.UnionType):
+        tags = {
+            m.tag: a
+            for a in get_args(tp)
+            if get_origin(a) is Annotated
+            for m in get_args(a)[1:]
+            if isinstance(m, Tag)
+        }
+        choose = UNION_CHOOSERS.get(frozenset(tags))
+        if choose is not None:
+            return _resolve(tags[choose(node)], node)
     if get_origin(tp) in (Union, types.UnionType):
         members = [a for a in get_args(tp) if a is not type(None)]
         members = [_resolve(a, node) for a in members]
@@ -783,8 +831,13 @@ def _resolve(tp: Any, node: Any) -> Any:
     return tp
 
 
-def scenario_from_data(data: Any, source: str = "<data>") -> Scenario:
-    """Validate already-parsed data (a dict) into a :class:`Scenario`."""
+def scenario_from_data(data: Any, source: str = "<data>", folder: Path | None = None) -> Scenario:
+    """Validate already-parsed data (a dict) into a :class:`Scenario`.
+
+    ``folder`` is where relative paths (meshes, URDFs) are found: the scenario file's
+    folder; ``None`` for text with no file, whose files are then checked when the
+    model is built.
+    """
     if not isinstance(data, dict):
         raise ScenarioError([Problem(source, "a scenario must be a YAML mapping")])
     if "cellplan" not in data:
@@ -792,13 +845,13 @@ def scenario_from_data(data: Any, source: str = "<data>") -> Scenario:
             [Problem("cellplan", f"missing format version (write 'cellplan: {SCHEMA_VERSION}')")]
         )
     # A boolean equals 1 in Python, and 1.0 too: the version is an integer, exactly.
-    if type(data["cellplan"]) is not int or data["cellplan"] != SCHEMA_VERSION:
+    if type(data["cellplan"]) is not int or data["cellplan"] not in SCHEMA_VERSIONS:
         raise ScenarioError(
             [
                 Problem(
                     "cellplan",
                     f"unsupported format version {data['cellplan']!r}; "
-                    f"this cellplan reads {SCHEMA_VERSION}",
+                    f"this cellplan reads {' and '.join(map(str, SCHEMA_VERSIONS))}",
                 )
             ]
         )
@@ -806,9 +859,23 @@ def scenario_from_data(data: Any, source: str = "<data>") -> Scenario:
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:
         raise ScenarioError(problems_from_validation(exc, data)) from None
-    problems = check_references(scenario)
+    problems = check_references(scenario, folder)
+    from cellplan.registry import packages
+
+    kind = "3d" if is_3d(scenario) else "2d"
+    owners = {p.section: p for p in packages().values() if p.section is not None}
     for name in scenario.section_names():
         section = getattr(scenario, name)
+        owner = owners.get(name)
+        if owner is not None and kind not in owner.workcells:
+            problems.append(
+                Problem(
+                    name,
+                    f"the {owner.name} planners work in {' and '.join(owner.workcells)} "
+                    f"workcells; this one is {kind}",
+                )
+            )
+            continue
         check: Callable[[Scenario], list[Problem]] | None = getattr(section, "check", None)
         if check is not None:
             problems.extend(check(scenario))
@@ -855,7 +922,7 @@ def load_scenario(path: str | Path) -> Scenario:
             ]
         ) from None
     data = parse_yaml(text, source=str(resolved))
-    return scenario_from_data(data, source=str(resolved))
+    return scenario_from_data(data, source=str(resolved), folder=resolved.parent)
 
 
 def loads_scenario(text: str) -> Scenario:
@@ -886,17 +953,8 @@ def json_schema() -> dict[str, Any]:
 # --- cross-reference checks ------------------------------------------------------------------
 
 
-def robot_dimension(robot: Any) -> int:
-    """Dimension of the robot's configuration space."""
-    if robot.type in ("point", "translating"):
-        return 2
-    if robot.type == "rotating":
-        return 3
-    return len(robot.links)
-
-
-def check_references(sc: Scenario) -> list[Problem]:
-    """Consistency checks that span fields; returns every problem found."""
+def _unique_names(sc: Scenario) -> list[Problem]:
+    """Obstacles, sources and destinations share one name space."""
     problems: list[Problem] = []
     names: dict[str, str] = {}
     for section, entries in (
@@ -908,11 +966,59 @@ def check_references(sc: Scenario) -> list[Problem]:
             if name in names:
                 problems.append(Problem(f"{section}.{name}", f"name already used in {names[name]}"))
             names[name] = section
+    return problems
 
-    bounds = sc.workcell.bounds.to_shapely()
+
+def _only_planar(sc: Scenario) -> list[Problem]:
+    """A 2-D scenario holds no solid and no URDF robot."""
+    problems: list[Problem] = []
+    shapes = [(f"parts.{n}.shape", p.shape) for n, p in sc.parts.items()]
     for section, regions in (("sources", sc.sources), ("destinations", sc.destinations)):
         for name, region in regions.items():
-            geoms = [c.to_shapely() for c in region.components]
+            shapes += [
+                (f"{section}.{name}.components[{i}]", c) for i, c in enumerate(region.components)
+            ]
+    for field, shape in shapes:
+        if shape_dimension(shape) == "solid":
+            problems.append(
+                Problem(
+                    field, "is a solid in a 2-D workcell; a 3-D cell's bounds name zmin and zmax"
+                )
+            )
+    if sc.robot is not None and sc.robot.type == "urdf":
+        problems.append(
+            Problem("robot.type", "a URDF robot needs a 3-D workcell (bounds with zmin and zmax)")
+        )
+    return problems
+
+
+def robot_dimension(robot: Any) -> int:
+    """Dimension of the robot's configuration space."""
+    if robot.type in ("point", "translating"):
+        return 2
+    if robot.type == "rotating":
+        return 3
+    if robot.type == "urdf":
+        return len(robot.start)
+    return len(robot.links)
+
+
+def check_references(sc: Scenario, folder: Path | None = None) -> list[Problem]:
+    """Consistency checks that span fields; returns every problem found.
+
+    A 3-D scenario has its own (:func:`cellplan.scenario3d.check_references_3d`);
+    ``folder`` is where its relative paths are found.
+    """
+    if is_3d(sc):
+        return _unique_names(sc) + check_references_3d(sc, folder)
+    problems = _only_planar(sc)
+    if problems:
+        return _unique_names(sc) + problems
+    problems = _unique_names(sc)
+    bounds = planar_workcell(sc).bounds.to_shapely()
+    for section, regions in (("sources", sc.sources), ("destinations", sc.destinations)):
+        for name, region in regions.items():
+            geoms = [planar(c).to_shapely() for c in region.components]
             for i, g in enumerate(geoms):
                 if not bounds.covers(g):
                     problems.append(
@@ -934,7 +1040,7 @@ def check_references(sc: Scenario) -> list[Problem]:
                         f"overlaps components[{j}]; components must be disjoint",
                     )
                 )
-    for name, shape in sc.workcell.obstacles.items():
+    for name, shape in planar_workcell(sc).obstacles.items():
         if not bounds.intersects(shape.to_shapely()):
             problems.append(
                 Problem(f"workcell.obstacles.{name}", "lies entirely outside the workcell bounds")
@@ -1015,10 +1121,10 @@ def check_references(sc: Scenario) -> list[Problem]:
     # A part reaching further from the gripper than the workcell's diagonal can never be
     # carried inside the bounds, and the C-space rasters would grow with its size (a part
     # 209 units long in a 100-unit cell ran the rotating robot's bitmap for minutes).
-    b = sc.workcell.bounds
+    b = planar_workcell(sc).bounds
     diagonal = math.hypot(b.xmax - b.xmin, b.ymax - b.ymin)
     for name, part in sc.parts.items():
-        coords = shapely.get_coordinates(part.shape.to_shapely())
+        coords = shapely.get_coordinates(planar(part.shape).to_shapely())
         reach = float(np.max(np.hypot(coords[:, 0], coords[:, 1]))) if len(coords) else 0.0
         if reach > diagonal:
             problems.append(

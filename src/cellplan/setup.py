@@ -15,6 +15,7 @@ from cellplan.errors import Problem, ScenarioError
 
 if TYPE_CHECKING:
     from cellplan.scenario import Scenario
+    from cellplan.validity import ValiditySpace
     from cellplan.workcell import Workcell
 
 
@@ -27,11 +28,15 @@ class Setup:
         The validated scenario.
     source
         Where it came from (a path or a bundled name), for messages.
+    folder
+        Where its relative paths (meshes, URDFs) are found: the scenario file's folder
+        (default: the current folder).
     """
 
-    def __init__(self, scenario: Scenario, source: str = "") -> None:
+    def __init__(self, scenario: Scenario, source: str = "", folder: Path | None = None) -> None:
         self.scenario = scenario
         self.source = source or scenario.name or "<scenario>"
+        self.folder = folder
 
     @property
     def name(self) -> str:
@@ -39,15 +44,34 @@ class Setup:
         return self.scenario.name or Path(self.source).stem
 
     @functools.cached_property
-    def workcell(self) -> Workcell:
-        """The workcell model (robot, obstacles, regions), built and checked on first use."""
+    def workcell(self) -> ValiditySpace:
+        """The workcell model (robot, obstacles, regions), built and checked on first use:
+        a :class:`~cellplan.workcell.Workcell` in 2-D, a
+        :class:`~cellplan.workcell3d.Workcell3D` in 3-D; planners see only the validity
+        interface both implement (:class:`cellplan.validity.ValiditySpace`)."""
+        from cellplan.scenario3d import is_3d
         from cellplan.workcell import Workcell
 
         if self.scenario.robot is None:
             raise ScenarioError(
                 [Problem("robot", "this scenario has no robot (no workcell model)")]
             )
+        if is_3d(self.scenario):
+            from cellplan.workcell3d import Workcell3D
+
+            return Workcell3D.from_scenario(self.scenario, self.folder)
         return Workcell.from_scenario(self.scenario)
+
+    @property
+    def planar_workcell(self) -> Workcell:
+        """The workcell of a 2-D scenario, for what only planar geometry can do (drawing
+        with shapely, the FFT bitmaps); a 3-D scenario gets one line saying so."""
+        from cellplan.workcell import Workcell
+
+        cell = self.workcell
+        if not isinstance(cell, Workcell):
+            raise ScenarioError([Problem("workcell", "this needs a 2-D workcell; this one is 3-D")])
+        return cell
 
     @property
     def has_robot(self) -> bool:
@@ -74,5 +98,8 @@ def as_setup(value: Setup | Scenario | str | Path) -> Setup:
     if isinstance(value, ScenarioBase):
         return Setup(value)
     if isinstance(value, str | Path):
-        return Setup(load_scenario(value), str(value))
+        from cellplan.registry import resolve_scenario_path
+
+        folder = resolve_scenario_path(value).parent
+        return Setup(load_scenario(value), str(value), folder)
     raise TypeError(f"expected a Setup, a Scenario or a path, got {type(value).__name__}")

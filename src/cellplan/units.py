@@ -5,8 +5,9 @@ angles in **degrees**; code, saved trajectories and strategy files use **radians
 conversion happens here and nowhere else, so a reader can find every place where a unit
 changes by searching for this module.
 
-A robot's angular axes are the ones not named ``x`` or ``y`` (``theta`` of a rotating
-body, ``q1 ... qn`` of an arm).
+A robot's angular axes are the ones not named ``x``, ``y`` or ``z`` (``theta`` of a
+rotating body, ``q1 ... qn`` of an arm), unless the robot says axis by axis (a URDF arm's
+prismatic joints are lengths).
 """
 
 from __future__ import annotations
@@ -48,30 +49,51 @@ def degrees(rad: Any) -> Any:
     return np.degrees(np.asarray(rad, dtype=float))
 
 
-def angular_axes(axis_names: Sequence[str]) -> tuple[bool, ...]:
-    """Which axes of a configuration are angles (every axis but ``x`` and ``y``)."""
-    return tuple(name not in ("x", "y") for name in axis_names)
+def angular_axes(
+    axis_names: Sequence[str], angular: Sequence[bool] | None = None
+) -> tuple[bool, ...]:
+    """Which axes of a configuration are angles.
+
+    ``angular``, when given, says it axis by axis (a URDF arm knows which of its joints
+    are prismatic); otherwise every axis but ``x``, ``y`` and ``z`` is an angle.
+    """
+    if angular is not None:
+        if len(angular) != len(axis_names):
+            raise ValueError("angular needs one flag per axis")
+        return tuple(bool(a) for a in angular)
+    return tuple(name not in ("x", "y", "z") for name in axis_names)
 
 
-def axis_units(axis_names: Sequence[str]) -> tuple[str, ...]:
+def axis_units(axis_names: Sequence[str], angular: Sequence[bool] | None = None) -> tuple[str, ...]:
     """The unit of each axis in code: ``"workcell"`` or ``"rad"``."""
-    return tuple(ANGLE if a else LENGTH for a in angular_axes(axis_names))
+    return tuple(ANGLE if a else LENGTH for a in angular_axes(axis_names, angular))
 
 
-def config_from_file(axis_names: Sequence[str], values: Sequence[float]) -> FloatArray:
+def config_from_file(
+    axis_names: Sequence[str], values: Sequence[float], angular: Sequence[bool] | None = None
+) -> FloatArray:
     """A configuration as written in a file (degrees for angles) in code units (radians)."""
     q = np.asarray(values, dtype=float).copy()
-    mask = np.array(angular_axes(axis_names), dtype=bool)
+    mask = np.array(angular_axes(axis_names, angular), dtype=bool)
     q[..., mask] = np.radians(q[..., mask])
     return q
 
 
-def config_to_file(axis_names: Sequence[str], q: ArrayLike) -> FloatArray:
+def config_to_file(
+    axis_names: Sequence[str], q: ArrayLike, angular: Sequence[bool] | None = None
+) -> FloatArray:
     """A configuration in code units as it would be written in a file (degrees for angles)."""
     out = np.asarray(q, dtype=float).copy()
-    mask = np.array(angular_axes(axis_names), dtype=bool)
+    mask = np.array(angular_axes(axis_names, angular), dtype=bool)
     out[..., mask] = np.degrees(out[..., mask])
     return out
+
+
+def pose_from_file(
+    xyz: Sequence[float], rpy_degrees: Sequence[float]
+) -> tuple[FloatArray, FloatArray]:
+    """A pose as written in a file (position, roll-pitch-yaw in degrees) in code units."""
+    return np.asarray(xyz, dtype=float), np.radians(np.asarray(rpy_degrees, dtype=float))
 
 
 #: Kinds of numpy dtype a numeric argument may have: signed and unsigned integers and
@@ -119,7 +141,12 @@ def real_number(value: Any, name: str) -> float:
     return number
 
 
-def check_configurations(q: ArrayLike, axis_names: Sequence[str], name: str = "q") -> FloatArray:
+def check_configurations(
+    q: ArrayLike,
+    axis_names: Sequence[str],
+    name: str = "q",
+    angular: Sequence[bool] | None = None,
+) -> FloatArray:
     """``q`` as a C-contiguous float ``(N, dim)`` array, or an :class:`ArgumentError`.
 
     Refuses a dtype that is not a real number (:func:`real_array`), a wrong shape,
@@ -137,7 +164,7 @@ def check_configurations(q: ArrayLike, axis_names: Sequence[str], name: str = "q
         )
     if not np.all(np.isfinite(arr)):
         raise ArgumentError([Problem(name, "contains NaN or infinite values")])
-    mask = np.array(angular_axes(axis_names), dtype=bool)
+    mask = np.array(angular_axes(axis_names, angular), dtype=bool)
     if (~mask).any() and arr.size:
         positions = np.abs(arr[:, ~mask])
         if positions.max() > COORD_LIMIT:

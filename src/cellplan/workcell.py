@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Collection, Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -39,11 +39,11 @@ from cellplan.geometry import (
 )
 from cellplan.robots import PlanarArm, Robot, robot_from_spec
 from cellplan.scenario import Scenario, load_scenario
+from cellplan.scenario3d import planar, planar_workcell
 from cellplan.schema import COORD_LIMIT
+from cellplan.validity import AvoidSources, RegionTest
 
-AvoidSources = Literal["all", "none"] | Collection[str]
 IntArray = NDArray[np.int64]
-RegionTest = Literal["contact", "enclosure"]
 
 DEFAULT_CELLS = {"point": (128, 128), "translating": (128, 128), "rotating": (64, 64, 32)}
 DEFAULT_ARM_CELLS_PER_JOINT = 64
@@ -109,17 +109,19 @@ class Workcell:
             raise ScenarioError(
                 [Problem("robot", "this scenario has no robot; a workcell model needs one")]
             )
-        b = sc.workcell.bounds
+        spec = planar_workcell(sc)
+        b = spec.bounds
         bounds = (b.xmin, b.ymin, b.xmax, b.ymax)
         robot = robot_from_spec(sc.robot, bounds)
-        parts = {name: ShapeSet.from_spec(p.shape) for name, p in sc.parts.items()}
+        parts = {name: ShapeSet.from_spec(planar(p.shape)) for name, p in sc.parts.items()}
         reach = _robot_reach(robot) + max([p.reach() for p in parts.values()] + [0.0])
         pad = reach + max(b.xmax - b.xmin, b.ymax - b.ymin) + 1.0
         extent = (b.xmin - pad, b.ymin - pad, b.xmax + pad, b.ymax + pad)
 
         def region(name: str, role: Literal["source", "destination"], spec: object) -> Region:
-            comps = tuple(ShapeSet.from_spec(c) for c in spec.components)  # type: ignore[attr-defined]
-            geoms = tuple(c.to_shapely() for c in spec.components)  # type: ignore[attr-defined]
+            shapes = [planar(c) for c in spec.components]  # type: ignore[attr-defined]
+            comps = tuple(ShapeSet.from_spec(c) for c in shapes)
+            geoms = tuple(c.to_shapely() for c in shapes)
             return Region(
                 name, role, comps, geoms, tuple(complement_within(c, extent) for c in comps)
             )
@@ -128,11 +130,11 @@ class Workcell:
         cell = Workcell(
             name=sc.name,
             bounds=bounds,
-            obstacles={n: ShapeSet.from_spec(s) for n, s in sc.workcell.obstacles.items()},
-            obstacle_geometries={n: s.to_shapely() for n, s in sc.workcell.obstacles.items()},
+            obstacles={n: ShapeSet.from_spec(s) for n, s in spec.obstacles.items()},
+            obstacle_geometries={n: s.to_shapely() for n, s in spec.obstacles.items()},
             robot=robot,
             parts=parts,
-            part_geometries={n: p.shape.to_shapely() for n, p in sc.parts.items()},
+            part_geometries={n: planar(p.shape).to_shapely() for n, p in sc.parts.items()},
             sources={n: region(n, "source", r) for n, r in sc.sources.items()},
             destinations={n: region(n, "destination", r) for n, r in sc.destinations.items()},
             default_cells=cells,
@@ -380,7 +382,7 @@ class Workcell:
         kind: RegionTest = "contact",
         component: int | None = None,
         carrying: str | None = None,
-        offset: tuple[float, float] | None = None,
+        offset: Sequence[float] | None = None,
     ) -> BoolArray:
         """``(N,)``: contact with or enclosure in a source or destination region.
 
@@ -436,6 +438,62 @@ class Workcell:
             f"unknown region {name!r}; known: {[*self.sources, *self.destinations]}", "name"
         )
 
+    # --- the rest of the validity interface (cellplan.validity) ------------------------------
+
+    @property
+    def dimension(self) -> int:
+        """2: a planar workcell."""
+        return 2
+
+    @property
+    def geometry(self) -> str:
+        """The checks test the exact polygons and discs."""
+        return "exact"
+
+    def box_collides(
+        self,
+        q: FloatArray,
+        half_widths: FloatArray,
+        carrying: str | None = None,
+        avoid_sources: AvoidSources = "all",
+    ) -> BoolArray:
+        """``(N,)``: False only when every configuration within ``q[i] +- half_widths`` is
+        free: each body must keep a clearance equal to the largest distance any of its
+        points can move inside the box (:meth:`~cellplan.robots.Robot.body_displacement_bounds`),
+        and the whole box must lie within the joint limits."""
+        q = self.configurations(q)
+        half = units.real_array(half_widths, "half_widths")
+        if half.shape != (self.robot.dim,) or not np.all(np.isfinite(half)) or np.any(half < 0):
+            raise ArgumentError(
+                [Problem("half_widths", f"expected {self.robot.dim} finite numbers >= 0")]
+            )
+        margins = list(self.robot.body_displacement_bounds(half))
+        if carrying is not None:
+            margins.append(self.robot.tool_displacement_bound(half, self.part(carrying).reach()))
+        bodies, poses = self._posed_bodies(q, carrying)
+        obstacles = self.prepared_obstacles(avoid_sources)
+        hit = body_gaps(bodies, poses, obstacles, np.array(margins), exact=False) <= 0.0
+        return hit | ~self.robot.within_limits(q)
+
+    def check_bytes(self, carrying: str | None = None) -> int:
+        """Bytes per configuration of a batched check at its peak: the configuration
+        (float64 ``(d,)`` three times), the body poses (float64 ``(B, 3)`` and as many
+        temporaries), the gaps (float64 ``(B,)``) and three bool masks; ``B`` counts the
+        robot's bodies and the carried part."""
+        bodies = len(self.robot.bodies.bodies) + (carrying is not None)
+        return 24 * self.robot.dim + 48 * bodies + 8 * bodies + 3
+
+    def tool_position(self, q: FloatArray) -> FloatArray:
+        """``(N, 2)``: the gripper's position."""
+        return self.robot.tool_pose(self.configurations(q))[:, :2]
+
+    def sample(self, n: int, rng: np.random.Generator) -> FloatArray:
+        """``(n, dim)`` configurations uniform within the limits (periodic axes over the
+        full turn); collisions are not checked."""
+        lo = np.where(self.robot.periodic, -np.pi, self.robot.lower)
+        hi = np.where(self.robot.periodic, np.pi, self.robot.upper)
+        return self.robot.wrap(rng.uniform(lo, hi, size=(n, self.robot.dim)))
+
     # --- geometry for drawing ----------------------------------------------------------------
 
     def robot_shapes(
@@ -488,7 +546,7 @@ def _check_component(component: int, count: int) -> None:
         )
 
 
-def _offset(offset: tuple[float, float]) -> FloatArray:
+def _offset(offset: Sequence[float]) -> FloatArray:
     """``offset`` as two finite numbers within :data:`cellplan.schema.COORD_LIMIT`."""
     arr = units.real_array(offset, "offset", "(dx, dy)")
     if arr.shape != (2,):

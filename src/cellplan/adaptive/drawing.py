@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from cellplan.scenario3d import planar_workcell
+
 if TYPE_CHECKING:
     from cellplan.setup import Setup
 
@@ -20,7 +22,7 @@ def draw_adaptive(setup: Setup, ax: Any) -> list[Any]:
     from cellplan.plots import draw_geometry
 
     sec = setup.scenario.adaptive
-    obstacles = {n: s.to_shapely() for n, s in setup.scenario.workcell.obstacles.items()}
+    obstacles = {n: s.to_shapely() for n, s in planar_workcell(setup.scenario).obstacles.items()}
     for name, goal in sec.goals.items():
         ax.plot(*goal.at, marker="*", color="#8e44ad", ms=11, mec="black", mew=0.5)
         ax.annotate(

@@ -1,0 +1,102 @@
+"""The 3-D viewer page in a real headless browser (slow; Chromium from Debian's packages).
+
+test_view3d.py checks the page's content; this one opens it from disk in Chromium through
+Playwright and checks what a person sees: a WebGL canvas that is not blank, the scene's
+objects loaded and moving, no error on the console, and no request other than the page
+itself (it works offline). The screenshot is kept in ``CELLPLAN_SCREENSHOT_3D`` when set.
+
+The page is rendered by SwiftShader (software WebGL) under ``--disable-gpu``: meshcat's
+grid lines that pass behind the camera are dropped there, which a GPU does not do.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cellplan.view3d import write_viewer
+from test_view3d import small_scene
+
+pytestmark = pytest.mark.slow
+
+CHROMIUM = next(
+    (
+        p
+        for p in map(shutil.which, ("chromium-headless-shell", "chromium", "chromium-browser"))
+        if p
+    ),
+    None,
+)
+
+# No network, no first-run or background work: the page must stand alone.
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+# The robot's second link, as the viewer's scene tree names it, and its world position.
+LINK_POSITION = """() => {
+    const node = viewer.scene_tree.find(["meshcat", "robot", "link2"]);
+    const p = node.object.getWorldPosition(node.object.position.clone());
+    return [p.x, p.y, p.z];
+}"""
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium: run `make browser-test`")
+def test_viewer_page_in_a_browser(tmp_path):
+    sync_api = pytest.importorskip(
+        "playwright.sync_api", reason="no Playwright: pip install playwright"
+    )
+    page_file = tmp_path / "viewer.html"
+    write_viewer(small_scene(), page_file)
+    screenshot = tmp_path / "viewer.png"
+    errors: list[str] = []
+    requests: list[str] = []
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.on("request", lambda r: requests.append(r.url))
+            page.goto(page_file.as_uri())
+            page.wait_for_selector("#meshcat-pane canvas", timeout=20_000)
+            counts = page.evaluate(
+                "() => [viewer.animator.actions.length,"
+                " document.querySelectorAll('#cellplan-caption .swatch').length]"
+            )
+            before = page.evaluate(LINK_POSITION)
+            page.wait_for_timeout(700)  # the 4 s animation plays on
+            after = page.evaluate(LINK_POSITION)
+            page.screenshot(path=str(screenshot))
+        finally:
+            browser.close()
+    if os.environ.get("CELLPLAN_SCREENSHOT_3D"):
+        keep = Path(os.environ["CELLPLAN_SCREENSHOT_3D"])
+        keep.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(screenshot, keep)
+
+    assert errors == []
+    assert requests == [page_file.as_uri()]  # nothing fetched but the page
+    assert counts == [2, 4]  # two links animated; obstacle, robot, source, tool path
+    assert not np.allclose(before, after)  # the link moves
+    pixels = np.asarray(Image.open(screenshot).convert("RGB"), dtype=float)
+    assert pixels.shape == (800, 1280, 3)
+    assert pixels.std() > 10
+    assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 200  # not one colour, nor a gradient
+    # The scene's grey table is drawn: a block of its shaded greys (not the blue sky
+    # gradient behind) in the middle third of the picture.
+    middle = pixels[250:550, 400:880]
+    grey = (np.ptp(middle, axis=2) < 12) & (middle.mean(axis=2) > 60) & (middle.mean(axis=2) < 140)
+    assert grey.mean() > 0.1
