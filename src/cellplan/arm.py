@@ -78,6 +78,7 @@ __all__ = [
     "load_arm",
     "self_collides",
     "sphere_centers",
+    "sphere_levers",
     "tool_pose",
 ]
 
@@ -1591,7 +1592,7 @@ def tool_pose(arm: Arm, Q: ArrayLike) -> FloatArray:
 
 
 def self_collides(
-    arm: Arm, Q: ArrayLike, margin: float = 0.0, extra: Spheres | None = None
+    arm: Arm, Q: ArrayLike, margin: float | ArrayLike = 0.0, extra: Spheres | None = None
 ) -> BoolArray:
     """Whether the sphere cover self-collides, per configuration.
 
@@ -1608,9 +1609,11 @@ def self_collides(
     Q
         ``(N, dim)`` or ``(dim,)`` configurations.
     margin
-        Extra clearance each sphere must keep (metres, >= 0): a pair collides when its
-        centres are within ``r1 + r2 + 2 margin``. A motion check whose samples let each
-        sphere move ``margin`` either way certifies the pairs between samples this way.
+        Extra clearance each sphere must keep (metres, >= 0): one for all, or one per
+        sphere of ``arm.spheres`` (the fixed spheres do not move and keep none). A pair
+        collides when its centres are within ``r1 + r2 + m1 + m2``. A motion check whose
+        samples let each sphere move its margin either way certifies the pairs between
+        samples this way.
     extra
         Spheres attached to the arm's moving frames.
 
@@ -1620,10 +1623,17 @@ def self_collides(
         ``(N,)``: True where some pair overlaps (centre distance <= r1 + r2 + 2 margin).
     """
     qs = _configs(arm, Q)
-    if not (math.isfinite(margin) and margin >= 0.0):
-        raise ArgumentError([Problem("margin", f"must be finite and >= 0, got {margin!r}")])
+    m = real_array(margin, "margin")
+    moving = len(arm.spheres)
+    if m.shape not in ((), (moving,)) or not np.all(np.isfinite(m)) or np.any(m < 0):
+        raise ArgumentError(
+            [Problem("margin", f"expected one finite number >= 0 or {moving} of them")]
+        )
     frame, local, radii, pairs = _collision_set(arm, extra)
-    radii = radii + margin
+    radii = radii.copy()
+    radii[:moving] += m
+    if extra is not None:
+        radii[len(radii) - len(extra) :] += m.max() if m.size else 0.0
     out: BoolArray = _collide_kernel(
         qs,
         arm.chain_parent,
@@ -1728,20 +1738,43 @@ def lever_arms(arm: Arm, points_in_tool: ArrayLike | None = None) -> FloatArray:
         ``(dim,)`` per configuration column: metres per radian (revolute) or 1
         (prismatic).
     """
-    frames = list(arm.spheres.frame)
-    centres = list(arm.spheres.centers)
-    radii = list(arm.spheres.radii)
+    pts = None
     if points_in_tool is not None:
         pts = real_array(points_in_tool, "points_in_tool")
         if pts.ndim == 1:
             pts = pts[None, :]
         if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
             raise ArgumentError([Problem("points_in_tool", "expected a finite (P, 3) array")])
+    rows = sphere_levers(arm, pts, None if pts is None else np.zeros(len(pts)))
+    out: FloatArray = rows.max(axis=0) if len(rows) else np.zeros(arm.dim)
+    return out
+
+
+def sphere_levers(
+    arm: Arm, centres_in_tool: ArrayLike | None = None, radii: ArrayLike | None = None
+) -> FloatArray:
+    """:func:`lever_arms` sphere by sphere: ``(S + P, dim)``, one row per sphere of
+    ``arm.spheres`` and then per extra sphere given in the tool frame (a held part's).
+
+    Row ``k`` bounds how far any point of sphere ``k`` moves along the segment
+    ``q + t dq``: at most ``row_k . |dq|``. A sphere near the base moves far less than
+    the tool when the first joint turns, so a check that gives each sphere its own
+    margin (certified motions, conservative bitmaps) is much less conservative than one
+    that gives every sphere the largest.
+    """
+    frames = list(arm.spheres.frame)
+    centres = list(arm.spheres.centers)
+    radius_list = list(arm.spheres.radii)
+    if centres_in_tool is not None:
+        pts = np.atleast_2d(real_array(centres_in_tool, "centres_in_tool"))
+        rad = np.zeros(len(pts)) if radii is None else real_array(radii, "radii")
+        if pts.shape[1] != 3 or rad.shape != (len(pts),):
+            raise ArgumentError([Problem("centres_in_tool", "expected (P, 3) and P radii")])
         m = arm.tool_placement
-        for p in pts @ m[:3, :3].T + m[:3, 3]:
+        for p, r in zip(pts @ m[:3, :3].T + m[:3, 3], rad, strict=True):
             frames.append(arm.tool_joint)
             centres.append(p)
-            radii.append(0.0)
+            radius_list.append(float(r))
     parent = arm.chain_parent
     nf = len(parent)
     extent = np.zeros(nf)
@@ -1750,29 +1783,27 @@ def lever_arms(arm: Arm, points_in_tool: ArrayLike | None = None) -> FloatArray:
             c = arm.chain_column[f]
             extent[f] = max(abs(arm.lower[c]), abs(arm.upper[c]))
     offset = np.linalg.norm(arm.chain_placement[:, :3, 3], axis=1) + extent
-    lever = np.zeros(nf)
+    lever = np.zeros((len(frames), nf))
     for j in range(nf):
-        if arm.chain_kind[j] == _PRISMATIC:
-            lever[j] = 1.0
-            continue
         a = arm.chain_axis[j]
-        for f, c, r in zip(frames, centres, radii, strict=True):
+        for i, (f, c, r) in enumerate(zip(frames, centres, radius_list, strict=True)):
             path = []
             k = int(f)
             while k >= 0 and k != j:
                 path.append(k)
                 k = int(parent[k])
             if k != j:
-                continue
-            if not path:
-                reach = _perp(c, a) + r
+                continue  # joint j does not carry this sphere
+            if arm.chain_kind[j] == _PRISMATIC:
+                lever[i, j] = 1.0
+            elif not path:
+                lever[i, j] = _perp(c, a) + r
             else:
                 k1 = path[-1]
                 first = _perp(arm.chain_placement[k1, :3, 3], a) + extent[k1]
-                reach = first + float(offset[path[:-1]].sum()) + float(np.linalg.norm(c)) + r
-            lever[j] = max(lever[j], reach)
-    out = np.empty(arm.dim)
-    out[arm.chain_column] = lever
+                lever[i, j] = first + float(offset[path[:-1]].sum()) + float(np.linalg.norm(c)) + r
+    out = np.empty((len(frames), arm.dim))
+    out[:, arm.chain_column] = lever
     return out
 
 

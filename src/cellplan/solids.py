@@ -1225,31 +1225,34 @@ def _gaps_kernel(
 ) -> FloatArray:
     """Per configuration the minimum over spheres of ``sign * sd(centre) - reach``, per
     solid or (``reduce``) over all solids. ``sign = 1``: clearance, meshes by their
-    grids' lower bounds; ``sign = -1``: depth inside, meshes by the upper bounds."""
+    grids' lower bounds; ``sign = -1``: depth inside, meshes by the upper bounds.
+    ``reach`` is ``(1, S)`` for every configuration or ``(N, S)``, one row each."""
     n_configs, n_spheres = centers.shape[0], centers.shape[1]
+    per_config = reach.shape[0] > 1
     n_solids = kinds.shape[0]
     out = np.full((n_configs, 1 if reduce else n_solids), np.inf)
     gaps = np.empty(n_spheres)
     for n in range(n_configs):
+        row = reach[n] if per_config else reach[0]
         for k in range(n_solids):
             kind = kinds[k]
             a, b, c = params[k, 0], params[k, 1], params[k, 2]
             # A literal kind per call lets the compiler drop the other shapes' branches
             # from the hot loop (about a quarter faster than one generic loop).
             if kind == _BOX:
-                _primitive_row(_BOX, centers, n, reach, sign, inverse[k], a, b, c, gaps)
+                _primitive_row(_BOX, centers, n, row, sign, inverse[k], a, b, c, gaps)
             elif kind == _CYLINDER:
-                _primitive_row(_CYLINDER, centers, n, reach, sign, inverse[k], a, b, c, gaps)
+                _primitive_row(_CYLINDER, centers, n, row, sign, inverse[k], a, b, c, gaps)
             elif kind == _SPHERE:
-                _primitive_row(_SPHERE, centers, n, reach, sign, inverse[k], a, b, c, gaps)
+                _primitive_row(_SPHERE, centers, n, row, sign, inverse[k], a, b, c, gaps)
             elif kind == _CAPSULE:
-                _primitive_row(_CAPSULE, centers, n, reach, sign, inverse[k], a, b, c, gaps)
+                _primitive_row(_CAPSULE, centers, n, row, sign, inverse[k], a, b, c, gaps)
             else:
                 g = grid_index[k]
                 _mesh_row(
                     centers,
                     n,
-                    reach,
+                    row,
                     sign,
                     inverse[k],
                     g_values,
@@ -1273,13 +1276,15 @@ def _bounds_kernel(
     lo: FloatArray, hi: FloatArray, centers: FloatArray, radii: FloatArray
 ) -> FloatArray:
     n_configs, n_spheres = centers.shape[0], centers.shape[1]
+    per_config = radii.shape[0] > 1
     out = np.full(n_configs, np.inf)
     for n in range(n_configs):
+        row = radii[n] if per_config else radii[0]
         best = np.inf
         for s in range(n_spheres):
             for q in range(3):
                 c = centers[n, s, q]
-                best = min(best, min(c - lo[q], hi[q] - c) - radii[s])
+                best = min(best, min(c - lo[q], hi[q] - c) - row[s])
         out[n] = best
     return out
 
@@ -1678,7 +1683,7 @@ def distances(solids: SolidSet, points: ArrayLike) -> FloatArray:
     # The primitives' columns from the sphere kernel (points as zero spheres), which
     # spares compiling a kernel of their own; the grid bounds in the mesh columns are
     # then replaced by exact values.
-    out = _kernel(solids, p[:, None, :], np.zeros(1), 1.0, False)
+    out = _kernel(solids, p[:, None, :], np.zeros((1, 1)), 1.0, False)
     for k in np.flatnonzero(solids.kinds == _MESH):
         local = p @ solids.inverse[k, :, :3].T + solids.inverse[k, :, 3]
         out[:, k] = solids.meshes[solids.grid_index[k]].signed(local)
@@ -1707,13 +1712,19 @@ def _kernel(
     )
 
 
-def _reach(radii: FloatArray, margin: float | ArrayLike) -> FloatArray:
+def _reach(radii: FloatArray, margin: float | ArrayLike, n: int | None = None) -> FloatArray:
+    """Radius plus margin, ``(1, S)``, or ``(N, S)`` for a margin per configuration."""
     m = np.asarray(margin, dtype=float)
     if m.ndim == 0:
         m = np.full(radii.shape, float(m))
-    if m.shape != radii.shape or not np.all(np.isfinite(m)):
-        raise ArgumentError(f"expected a finite margin or {len(radii)} of them", "margin")
-    return np.ascontiguousarray(radii + m)
+    per_config = m.ndim == 2 and n is not None and m.shape == (n, len(radii))
+    if not (m.shape == radii.shape or per_config) or not np.all(np.isfinite(m)):
+        raise ArgumentError(
+            f"expected a finite margin, one per sphere ({len(radii)}) or one per "
+            f"configuration and sphere ({n}, {len(radii)})",
+            "margin",
+        )
+    return np.ascontiguousarray(np.atleast_2d(radii + m))
 
 
 def sphere_gaps(
@@ -1730,7 +1741,8 @@ def sphere_gaps(
     radii
         Sphere radii ``(S,)``.
     margin
-        Extra clearance demanded, one for all spheres or one each ``(S,)``.
+        Extra clearance demanded: one for all spheres, one each ``(S,)``, or one per
+        configuration and sphere ``(N, S)``.
 
     Returns
     -------
@@ -1741,7 +1753,7 @@ def sphere_gaps(
         with no solids.
     """
     c, r = _spheres(centers, radii)
-    return _kernel(solids, c, _reach(r, margin), 1.0, True)[:, 0]
+    return _kernel(solids, c, _reach(r, margin, len(c)), 1.0, True)[:, 0]
 
 
 def sphere_gaps_each(
@@ -1749,7 +1761,7 @@ def sphere_gaps_each(
 ) -> FloatArray:
     """:func:`sphere_gaps` per solid, ``(N, len(solids))``: which solid is hit."""
     c, r = _spheres(centers, radii)
-    return _kernel(solids, c, _reach(r, margin), 1.0, False)
+    return _kernel(solids, c, _reach(r, margin, len(c)), 1.0, False)
 
 
 def inside_gaps(container: Solid | SolidSet, centers: ArrayLike, radii: ArrayLike) -> FloatArray:
@@ -1776,18 +1788,25 @@ def inside_gaps(container: Solid | SolidSet, centers: ArrayLike, radii: ArrayLik
     if len(prepared) != 1:
         raise ArgumentError(f"expected one container, got {len(prepared)} solids", "container")
     c, r = _spheres(centers, radii)
-    return _kernel(prepared, c, r, -1.0, True)[:, 0]
+    return _kernel(prepared, c, r[None, :], -1.0, True)[:, 0]
 
 
-def bounds_gaps(lo: ArrayLike, hi: ArrayLike, centers: ArrayLike, radii: ArrayLike) -> FloatArray:
+def bounds_gaps(
+    lo: ArrayLike,
+    hi: ArrayLike,
+    centers: ArrayLike,
+    radii: ArrayLike,
+    margin: float | ArrayLike = 0.0,
+) -> FloatArray:
     """How deep spheres lie inside the axis-aligned box ``[lo, hi]``, per configuration.
 
     Returns ``(N,)``: the minimum over spheres and walls of the centre's distance to the
-    wall (inwards) less the radius; negative when a sphere crosses a wall or is outside.
+    wall (inwards) less the radius and ``margin`` (as in :func:`sphere_gaps`: one, one
+    per sphere, or ``(N, S)``); negative when a sphere crosses a wall or is outside.
     """
     low = _finite_vector(lo, 3, "lo")
     high = _finite_vector(hi, 3, "hi")
     if np.any(high < low):
         raise ArgumentError(f"expected lo <= hi, got {low.tolist()} and {high.tolist()}", "hi")
     c, r = _spheres(centers, radii)
-    return np.asarray(_bounds_kernel(low, high, c, r))
+    return np.asarray(_bounds_kernel(low, high, c, _reach(r, margin, len(c))))

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from cellplan import arm as arms
 from cellplan import budget, solids, units
@@ -49,6 +50,12 @@ PART_SPHERE_RADIUS = 0.02
 
 _IK_RESTARTS = 32
 """Random restarts of inverse kinematics when a region's reachability is checked."""
+
+MAX_MOTION_SAMPLES = 2**40
+"""Most samples one :meth:`Workcell3D.motion_collides` call may take."""
+
+_MOTION_BYTES_UNCHECKED = 16 * 2**20
+"""Sample memory below which a motion check does not ask :mod:`cellplan.budget`."""
 
 _CHUNK = 8192
 """Configurations per batch of a check, so its temporaries stay a few megabytes."""
@@ -334,22 +341,36 @@ class Workcell3D:
         q: FloatArray,
         carrying: str | None,
         avoid_sources: AvoidSources,
-        margin: float,
+        margin: float | FloatArray,
+        rows: NDArray[np.int64] | None = None,
     ) -> FloatArray:
-        """``(N,)`` lower bound on the clearance of the cover, less ``margin``; -inf for a
-        self-collision or a configuration outside the limits. Checked ``q``, in chunks."""
+        """``(N,)`` lower bound on the clearance of the cover, less each sphere's margin;
+        -inf for a self-collision or a configuration outside the limits. ``q`` is
+        checked by the caller and taken in chunks.
+
+        ``margin`` is one number, one per sphere ``(S,)``, or, with ``rows``, a table
+        ``(M, S)`` whose row ``rows[i]`` holds configuration ``i``'s margins (the
+        samples of one motion share their segment's row).
+        """
         obstacles = self.obstacle_set(avoid_sources)
+        arm_spheres = len(self.robot.arm.spheres.radii)
         out = np.empty(len(q))
         for start in range(0, len(q), _CHUNK):
             part = q[start : start + _CHUNK]
+            m = np.asarray(margin, float)
+            if rows is not None:
+                m = m[rows[start : start + _CHUNK]]
             centers, radii = self._spheres(part, carrying)
             gap = np.minimum(
-                solids.sphere_gaps(obstacles, centers, radii, margin)
-                if len(obstacles.solids)
-                else np.inf,
-                solids.bounds_gaps(self.lo, self.hi, centers, radii + margin),
+                solids.sphere_gaps(obstacles, centers, radii, m) if len(obstacles) else np.inf,
+                solids.bounds_gaps(self.lo, self.hi, centers, radii, m),
             )
-            bad = arms.self_collides(self.robot.arm, part, margin) | ~self.robot.within_limits(part)
+            # Pairs inside the arm: each sphere keeps its own margin (the largest over the
+            # chunk's rows, for a table).
+            own = m if m.ndim < 2 else m.max(axis=0)
+            own = own if own.ndim == 0 else own[:arm_spheres]
+            bad = arms.self_collides(self.robot.arm, part, own)
+            bad |= ~self.robot.within_limits(part)
             out[start : start + _CHUNK] = np.where(bad, -np.inf, gap)
         return out
 
@@ -381,14 +402,12 @@ class Workcell3D:
         return np.maximum(self._gaps(q, carrying, avoid_sources, 0.0), 0.0)
 
     def _levers(self, carrying: str | None) -> FloatArray:
-        points = None
-        if carrying is not None:
-            part = self.part(carrying)
-            # Every point of a part sphere lies within its radius of the centre.
-            norms = np.linalg.norm(part.centers, axis=1) + part.radii
-            points = part.centers * 0.0
-            points[:, 0] = norms
-        return arms.lever_arms(self.robot.arm, points)
+        """``(S, dim)``: per sphere (the arm's, then the part's), how far its points move
+        per unit of each joint (:func:`cellplan.arm.sphere_levers`)."""
+        if carrying is None:
+            return arms.sphere_levers(self.robot.arm)
+        part = self.part(carrying)
+        return arms.sphere_levers(self.robot.arm, part.centers, part.radii)
 
     def motion_collides(
         self,
@@ -402,9 +421,10 @@ class Workcell3D:
         """``(N,)``: does the straight joint-space motion ``q0[i] -> q1[i]`` collide?
 
         The segment is sampled so that no point of the robot's cover moves more than
-        ``step`` metres between samples (by the lever bound); with ``certified`` each
-        sample must keep ``step / 2`` of clearance, and each sphere pair ``step`` more
-        than touching, so a motion reported free is free everywhere along it.
+        ``step`` metres between samples (by the lever bounds); with ``certified`` each
+        sphere must keep, at each sample, half of what it can move between samples (at
+        most ``step / 2``, far less near the base), and each sphere pair the sum of
+        theirs, so a motion reported free is free everywhere along it.
         Continuous joints take the short way round.
         """
         q0 = self.configurations(q0, "q0")
@@ -414,29 +434,38 @@ class Workcell3D:
             raise ArgumentError([Problem("step", f"must be positive, got {step:g}")])
         if len(q0) != len(q1):
             raise ArgumentError([Problem("q1", f"has {len(q1)} configurations; q0 has {len(q0)}")])
+        if len(q0) == 0:
+            return np.zeros(0, bool)
         d = self.robot.difference(q0, q1)
-        travel = np.abs(d) @ self._levers(carrying)
+        # travel[i, s]: the farthest any point of sphere s moves along segment i.
+        travel = np.abs(d) @ self._levers(carrying).T
         with np.errstate(over="ignore"):
-            counts_f = np.maximum(1.0, np.ceil(travel / step)) + 1.0
-        total = float(counts_f.sum()) if len(counts_f) else 0.0
-        budget.require(
-            total * self.check_bytes(carrying) / max(1.0, total / _CHUNK),
-            "step",
-            "to check the motions",
-        )
-        if total > 2**40:
+            counts_f = np.maximum(1.0, np.ceil(travel.max(axis=1) / step)) + 1.0
+        total = float(counts_f.sum())
+        if not total <= MAX_MOTION_SAMPLES:
             raise ArgumentError(
-                [Problem("step", f"{step:g} needs more than 2^40 samples; use a larger step")]
+                [
+                    Problem(
+                        "step",
+                        f"{step:g} needs more than {MAX_MOTION_SAMPLES:,} samples; "
+                        "use a larger step",
+                    )
+                ]
             )
+        # The samples (configuration, parameter, index: 8 (dim + 2) bytes each) are
+        # held whole; the checks take them in chunks.
+        need = total * 8 * (self.robot.dim + 2) + _CHUNK * self.check_bytes(carrying)
+        if need > _MOTION_BYTES_UNCHECKED:
+            budget.require(need, "step", f"to check {total:,.0f} samples of {len(q0)} motion(s)")
         counts = counts_f.astype(np.int64)
         seg = np.repeat(np.arange(len(q0)), counts)
         offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
         t = (np.arange(counts.sum()) - np.repeat(offsets, counts)) / np.repeat(counts - 1, counts)
         samples = self.robot.wrap(q0[seg] + t[:, None] * d[seg])
-        margin = step / 2 if certified else 0.0
-        hit = self._gaps(samples, carrying, avoid_sources, margin) <= 0.0
-        if len(q0) == 0:
-            return np.zeros(0, bool)
+        # Between two samples sphere s moves at most travel / (count - 1), so every point
+        # between them lies within half of that of the nearer sample.
+        margins = travel / (2.0 * (counts[:, None] - 1)) if certified else np.zeros_like(travel)
+        hit = self._gaps(samples, carrying, avoid_sources, margins, seg) <= 0.0
         return np.logical_or.reduceat(hit, offsets)
 
     def box_collides(
@@ -447,16 +476,16 @@ class Workcell3D:
         avoid_sources: AvoidSources = "all",
     ) -> BoolArray:
         """``(N,)``: False only when every configuration within ``q[i] +- half_widths`` is
-        free: the centre must keep a clearance of ``sum_j lever[j] half_widths[j]``, the
-        farthest any point of the cover moves inside the box, and the box must lie within
-        the joint limits."""
+        free: at the centre each sphere must keep a clearance of ``sum_j lever[s, j]
+        half_widths[j]``, the farthest any of its points moves inside the box, and the
+        box must lie within the joint limits."""
         q = self.configurations(q)
         half = units.real_array(half_widths, "half_widths")
         if half.shape != (self.robot.dim,) or not np.all(np.isfinite(half)) or np.any(half < 0):
             raise ArgumentError(
                 [Problem("half_widths", f"expected {self.robot.dim} finite numbers >= 0")]
             )
-        margin = float(half @ self._levers(carrying))
+        margin = self._levers(carrying) @ half
         hit = self._gaps(q, carrying, avoid_sources, margin) <= 0.0
         bounded = ~np.asarray(self.robot.arm.periodic)
         outside = (q[:, bounded] - half[bounded] < self.robot.arm.lower[bounded]) | (
