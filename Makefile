@@ -32,13 +32,14 @@ lint: $(STAMP)
 docs: $(STAMP)
 	$(BIN)/python docs/build_api.py build/api
 
-# The demo report in a real headless browser (Chromium from Debian's packages).
+# The demo report and the 3-D viewer page in a real headless browser (Chromium from Debian's
+# packages).
 browser-test: $(STAMP)
 	command -v chromium-headless-shell >/dev/null || \
 		(apt-get update -qq && apt-get install -y -qq chromium-headless-shell)
 	$(BIN)/python -m pip install -q -e '.[dev,browser]'
-	CELLPLAN_SCREENSHOT=build/report-screenshot.png $(BIN)/python -m pytest -m slow -s \
-		tests/test_report_browser.py
+	CELLPLAN_SCREENSHOT=build/report-screenshot.png CELLPLAN_SCREENSHOT_3D=build/viewer-screenshot.png \
+		$(BIN)/python -m pytest -m slow -s tests/test_report_browser.py tests/test_view3d_browser.py
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done

@@ -110,3 +110,28 @@ def test_unknown_option_is_one_line_naming_it(name):
     with pytest.raises(cellplan.ArgumentError) as err:
         cellplan.make(name, scenario, no_such_option=1)
     assert [p.field for p in err.value.problems] == ["no_such_option"]
+
+
+@pytest.mark.parametrize("name", sorted(PLANNERS))
+def test_planners_refuse_a_3d_cell_in_one_line(name):
+    """Every planner runs on both kinds of workcell where it supports the robot; the
+    papers' planners support planar robots only (for now), so a 3-D cell with their
+    section is refused when it is loaded, with one line naming the section."""
+    import yaml
+
+    from cellplan.errors import ScenarioError
+    from cellplan.registry import scenario_path
+    from cellplan.scenario import parse_yaml, scenario_from_data
+
+    spec = PLANNERS[name]
+    if spec.section is None:
+        pytest.skip(f"{name} reads no section")
+    scenario, _ = spec.smoke
+    smoke = yaml.safe_load(scenario_path(scenario).read_text())
+    data = parse_yaml(scenario_path("ur5_cell").read_text())
+    data[spec.section] = smoke[spec.section]
+    with pytest.raises(ScenarioError) as err:
+        scenario_from_data(data)
+    lines = str(err.value).splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith(f"{spec.section}: the ") and "this one is 3d" in lines[0]

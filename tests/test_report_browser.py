@@ -2,8 +2,10 @@
 
 The fast tests of ``test_sweep_report.py`` check the HTML structure; this one loads the
 real demo report in Chromium through Playwright and checks what a person sees: no
-error-styled element when nothing failed, every image decoded with a non-zero size, and
-a screenshot saved for a look (its path is printed; ``CELLPLAN_SCREENSHOT=FILE`` keeps it).
+error-styled element when nothing failed, every image decoded with a non-zero size, the
+3-D cells' viewers embedded in frames that load and draw (``test_demo_viewer.py``), no
+error on the console of the report or of a frame, and a screenshot saved for a look (its
+path is printed; ``CELLPLAN_SCREENSHOT=FILE`` keeps it).
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ import shutil
 from pathlib import Path
 
 import pytest
+
+from test_demo_viewer import ARGS, check_embedded_viewers, watch_console
 
 pytestmark = pytest.mark.slow
 
@@ -31,14 +35,16 @@ def test_demo_report_in_a_browser(tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="run `make browser-test`")
     from rich.console import Console
 
-    from cellplan.demo import run_demo
+    from cellplan.demo import CELLS_3D, run_demo
 
     index = run_demo(tmp_path / "demo", console=Console(quiet=True))
     screenshot = Path(os.environ.get("CELLPLAN_SCREENSHOT", tmp_path / "report.png"))
+    console: list[str] = []
     with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
         try:
             page = browser.new_page(viewport={"width": 1280, "height": 1000})
+            watch_console(page, console)
             page.goto(index.as_uri())
             page.wait_for_load_state("load")
             errors = page.locator(".error").all_inner_texts()
@@ -47,10 +53,14 @@ def test_demo_report_in_a_browser(tmp_path):
                 " i.naturalHeight])"
             )
             sections = page.locator("section h2").all_inner_texts()
+            viewers = check_embedded_viewers(page, len(CELLS_3D))
             page.screenshot(path=str(screenshot), full_page=True)
         finally:
             browser.close()
     print(f"screenshot: {screenshot}")
+    assert console == []
+    assert len(viewers) == len(CELLS_3D)
+    assert "Real arms in 3-D cells" in sections
     assert errors == []
     assert len(images) >= 10
     broken = [alt for alt, done, w, h in images if not (done and w > 0 and h > 0)]

@@ -33,16 +33,21 @@ References
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import importlib.metadata
 import math
+import os
+import stat
+import sys
+import tempfile
 import xml.etree.ElementTree as ET
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import Any, NamedTuple
 
 import coal
 import numpy as np
@@ -52,6 +57,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import ConvexHull, QhullError
 
 from cellplan.errors import ArgumentError, Problem, ScenarioError
+from cellplan.fileio import kind_of
 from cellplan.schema import COORD_LIMIT
 from cellplan.units import ANGLE_LIMIT, real_array
 
@@ -63,6 +69,7 @@ __all__ = [
     "BUNDLED",
     "Arm",
     "IkResult",
+    "JointKind",
     "LinkMesh",
     "Spheres",
     "bundled",
@@ -303,6 +310,23 @@ def bundled(name: str) -> tuple[Path, Path | None, Path]:
 # --------------------------------------------------------------------------- loading
 
 
+@contextlib.contextmanager
+def _native_stderr_silenced() -> Iterator[None]:
+    """Hold file descriptor 2 while Pinocchio parses: urdfdom prints its parse errors
+    straight to it, beside the one line cellplan makes of the exception."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+
+
 def _urdf_path(urdf: str | Path) -> Path:
     """A bundled arm's URDF, or the path as given."""
     if isinstance(urdf, str) and urdf in _BUNDLED and not Path(urdf).exists():
@@ -310,11 +334,20 @@ def _urdf_path(urdf: str | Path) -> Path:
     return Path(urdf)
 
 
-def joint_kinds(urdf: str | Path, *, field: str = "robot") -> dict[str, str]:
-    """The movable joints of a URDF (or a bundled arm) and their kinds, in Pinocchio's
-    order: ``"revolute"``, ``"continuous"``, ``"prismatic"`` or ``"other"`` (floating,
-    planar ...). The kinematics only, without meshes: what a caller needs to convert
-    file units (degrees for angles) before :func:`load_arm`.
+class JointKind(NamedTuple):
+    """A movable joint of a URDF: its kind and limits (radians or metres)."""
+
+    kind: str
+    """``"revolute"``, ``"continuous"``, ``"prismatic"`` or ``"other"`` (floating, planar)"""
+    lower: float
+    upper: float
+
+
+def joint_kinds(urdf: str | Path, *, field: str = "robot") -> dict[str, JointKind]:
+    """The movable joints of a URDF (or a bundled arm), in Pinocchio's order, with their
+    kinds and limits (continuous joints: ``-pi, pi``). The kinematics only, without
+    meshes: what a caller needs to check and convert file units (degrees for angles)
+    before :func:`load_arm`.
 
     Raises
     ------
@@ -324,18 +357,22 @@ def joint_kinds(urdf: str | Path, *, field: str = "robot") -> dict[str, str]:
     path = _urdf_path(urdf)
     _check_xml(path, f"{field}.urdf", "URDF")
     try:
-        model = pin.buildModelFromUrdf(str(path))
+        with _native_stderr_silenced():
+            model = pin.buildModelFromUrdf(str(path))
     except (ValueError, RuntimeError) as exc:
         raise ScenarioError([Problem(f"{field}.urdf", _one_line(exc))]) from None
-    out: dict[str, str] = {}
+    out: dict[str, JointKind] = {}
     for jid in range(1, model.njoints):
         kind = _JOINT_KINDS.get(model.joints[jid].shortname())
+        name = str(model.names[jid])
         if kind is None:
-            out[str(model.names[jid])] = "other"
-        elif kind[0] == _PRISMATIC:
-            out[str(model.names[jid])] = "prismatic"
+            out[name] = JointKind("other", -math.inf, math.inf)
+            continue
+        lo, hi, continuous = _joint_limits(model, jid)
+        if kind[0] == _PRISMATIC:
+            out[name] = JointKind("prismatic", lo, hi)
         else:
-            out[str(model.names[jid])] = "continuous" if kind[2] else "revolute"
+            out[name] = JointKind("continuous" if continuous else "revolute", lo, hi)
     return out
 
 
@@ -414,7 +451,8 @@ def load_arm(
 
     _check_xml(urdf_path, f"{field}.urdf", "URDF")
     try:
-        full = pin.buildModelFromUrdf(str(urdf_path))
+        with _native_stderr_silenced():
+            full = pin.buildModelFromUrdf(str(urdf_path))
         full_geom = pin.buildGeomFromUrdf(
             full, str(urdf_path), pin.GeometryType.COLLISION, package_dirs=[str(d) for d in dirs]
         )
@@ -533,9 +571,22 @@ def _unknown(what: str, name: str, known: Sequence[str]) -> str:
 
 def _check_xml(path: Path, where: str, kind: str) -> None:
     """Refuse a missing or malformed file before Pinocchio (whose parser prints to stderr)."""
-    if not path.is_file():
+    try:
+        mode = path.stat().st_mode
+    except ValueError:  # a NUL character: no file can have that name
+        raise ScenarioError(
+            [Problem(where, f"{kind} file {str(path)!r} is not a file name (it holds a NUL)")]
+        ) from None
+    except OSError as exc:
         hint = f" (bundled arms: {', '.join(sorted(_BUNDLED))})" if kind == "URDF" else ""
-        raise ScenarioError([Problem(where, f"{kind} file {str(path)!r} does not exist{hint}")])
+        reason = "does not exist" if isinstance(exc, FileNotFoundError) else exc.strerror
+        raise ScenarioError(
+            [Problem(where, f"{kind} file {str(path)!r}: {reason}{hint}")]
+        ) from None
+    if not stat.S_ISREG(mode):
+        raise ScenarioError(
+            [Problem(where, f"{kind} file {str(path)!r} is {kind_of(mode)}, not a regular file")]
+        )
     try:
         ET.parse(path)
     except ET.ParseError as exc:
@@ -1937,6 +1988,27 @@ def exact_min_distance(
 # --------------------------------------------------------------------------- IK
 
 
+def _jacobian(model: Any, data: Any, fid: int, frame: Any) -> FloatArray:
+    """A frame Jacobian as ``(6, nv)``: eigenpy returns a one-column matrix as a vector."""
+    return np.reshape(pin.getFrameJacobian(model, data, fid, frame), (6, model.nv))
+
+
+def _nearest_turn(arm: Arm, q: FloatArray, ref: FloatArray) -> FloatArray:
+    """``q`` with each revolute joint whose limits span more than a turn moved by whole
+    turns as close to ``ref`` as its limits allow (the same pose, the shortest motion)."""
+    out = q.copy()
+    angular = np.array(arm.angular) & ~np.asarray(arm.periodic)
+    span = arm.upper - arm.lower
+    for c in np.flatnonzero(angular & (span >= 2.0 * np.pi)):
+        turns = np.round((ref[c] - q[c]) / (2.0 * np.pi))
+        for k in (turns, turns - 1, turns + 1, 0.0):
+            v = q[c] + k * 2.0 * np.pi
+            if arm.lower[c] <= v <= arm.upper[c]:
+                out[c] = v
+                break
+    return out
+
+
 def _wrap(q: FloatArray, periodic: BoolArray) -> FloatArray:
     """Periodic coordinates into (-pi, pi]."""
     out = q.copy()
@@ -1964,7 +2036,9 @@ def ik(
     pose ``e = log6(oMf^-1 oMd)`` and ``J = -Jlog6(iMd^-1) J_local`` (Pinocchio's IK
     example); for ``position_only`` ``e`` is the position error and ``J`` the
     translational rows in ``LOCAL_WORLD_ALIGNED``. Steps are capped, clipped into the
-    limits, periodic joints wrapped into (-pi, pi]. The first attempt starts at ``q0``
+    limits, periodic joints wrapped into (-pi, pi]; a joint whose limits span more than a
+    turn is moved by whole turns as near ``q0`` as they allow (the same tool pose, the
+    shortest motion from ``q0``). The first attempt starts at ``q0``
     (else the middle of the limits, 0 for a periodic joint), then ``restarts`` attempts
     from uniform random configurations (``numpy.random.default_rng(seed)``).
 
@@ -2033,6 +2107,7 @@ def ik(
                 pos_err / tol_pos if position_only else max(pos_err / tol_pos, rot_err / tol_rot)
             )
             if converged:
+                q = _nearest_turn(arm, q, start)
                 if valid is None or valid(q.copy()):
                     return IkResult(q.copy(), True, pos_err, rot_err, total, "converged")
                 rejected += 1
@@ -2041,14 +2116,12 @@ def ik(
             if converged:
                 break
             if position_only:
-                jac = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3]
+                jac = _jacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3]
                 err = o_m_f.translation - o_m_d.translation
             else:
                 i_m_d = o_m_f.actInv(o_m_d)
                 err = pin.log6(i_m_d).vector
-                jac = -pin.Jlog6(i_m_d.inverse()) @ pin.getFrameJacobian(
-                    model, data, fid, pin.LOCAL
-                )
+                jac = -pin.Jlog6(i_m_d.inverse()) @ _jacobian(model, data, fid, pin.LOCAL)
             jac = jac[:, arm.pin_v_index]
             dq = -jac.T @ np.linalg.solve(jac @ jac.T + damping2 * np.eye(len(err)), err)
             norm = float(np.linalg.norm(dq))

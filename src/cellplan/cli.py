@@ -140,11 +140,14 @@ def show(
     each section adds (discs' starts and goals, adaptive goals and workcell changes)."""
     from cellplan import plots
     from cellplan.api import load
+    from cellplan.scenario3d import is_3d
     from cellplan.workcell3d import Workcell3D
 
     check_image_path(output)
     check_inputs_kept([("--output", output)], {"SCENARIO": scenario_file(scenario)})
     setup = load(scenario)
+    if is_3d(setup.scenario) and not setup.has_robot:
+        raise ArgumentError("a 3-D cell is drawn with its robot; this scenario has none", "robot")
     cell = setup.workcell if setup.has_robot else None
     if isinstance(cell, Workcell3D):
         from cellplan.scene3d import cell_scene

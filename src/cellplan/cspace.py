@@ -315,7 +315,7 @@ def estimate_memory(
     """
     n_total = int(np.prod(grid.shape, dtype=object))
     if _method(cell, method) == "exact":
-        return n_total * cell.check_bytes(carrying)
+        return cell.batch_bytes(n_total, carrying)
     sz = _fft_sizes(_planar(cell), grid, carrying)
     raster = (sz.n[0] + 2 * sz.u[0]) * (sz.n[1] + 2 * sz.u[1])
     half = sz.fft[0] * (sz.fft[1] // 2 + 1)

@@ -3,8 +3,10 @@
 The demo is the main job of ``make demo``: it must finish in under two minutes
 on a 2-core machine. It sweeps every experiment of every paper package with
 ``quick=True`` and :data:`DEMO_RUNS` seeds (cached under ``OUTPUT/cache``, so a
-second run is fast), draws each bundled workcell, and writes ``OUTPUT/index.html``
-in the same format as ``cellplan reproduce``.
+second run is fast), draws each bundled workcell, shows the bundled 3-D cells with
+their real arms (a picture, each region's reachability and an interactive viewer page
+per cell, :func:`show_3d_cells`), and writes ``OUTPUT/index.html`` in the same format
+as ``cellplan reproduce``.
 """
 
 from __future__ import annotations
@@ -20,6 +22,20 @@ SWEEP_BUDGET_S = 75.0
 """Seconds the demo's sweep may take. Runs not finished by then are shown as skipped
 in the report, so the whole demo (drawings, cluster start, sweep, figures) stays
 under two minutes on two cores even if an experiment's quick version is too slow."""
+
+CELLS_3D = ("ur5_cell", "panda_shelf")
+"""The bundled 3-D cells the demo shows with their arms (:func:`show_3d_cells`)."""
+
+CELL_VIEWS: dict[str, tuple[float, float]] = {"panda_shelf": (25.0, -150.0)}
+"""Views of the 3-D cells' pictures other than ``iso`` (elevation, azimuth in degrees):
+the shelf is seen from its open side, where the arm reaches in."""
+
+MOTION_FRAMES = 40
+"""Frames of the motion each 3-D cell's viewer page plays."""
+
+MOTION_STEP_M = 0.01
+"""Step (metres) of the certified collision check of that motion
+(:meth:`cellplan.workcell3d.Workcell3D.motion_collides`)."""
 
 INTRO = (
     "This is the quick demonstration: every experiment of the three papers in its small "
@@ -57,7 +73,14 @@ def run_demo(
         f"drew {len(workcells.figures)} bundled workcells in {time.perf_counter() - t0:.1f} s",
         highlight=False,
     )
-    extra = [workcells]
+    t0 = time.perf_counter()
+    cells = show_3d_cells(output / "workcells")
+    console.print(
+        f"showed {len(cells.articles)} 3-D cells (pictures, reachability, viewers) "
+        f"in {time.perf_counter() - t0:.1f} s",
+        highlight=False,
+    )
+    extra = [workcells, cells]
     if showcase:
         t0 = time.perf_counter()
         pictures = run_showcase(output / "showcase")
@@ -85,10 +108,12 @@ def draw_bundled_workcells(folder: Path) -> Any:
     """Draw every bundled scenario's workcell into ``folder``; return the report section.
 
     A scenario that cannot be loaded or drawn is listed in the section's errors
-    instead of stopping the demo.
+    instead of stopping the demo. 3-D cells are not drawn here (a note names them): the
+    section of :func:`show_3d_cells` shows them.
     """
     from cellplan.registry import scenario_names
     from cellplan.report import ExtraSection
+    from cellplan.scenario3d import is_3d
 
     section = ExtraSection(
         "Bundled workcells",
@@ -102,15 +127,219 @@ def draw_bundled_workcells(folder: Path) -> Any:
     names = scenario_names()
     if not names:
         section.notes.append("no bundled scenarios yet")
+    three_d = []
     for name in names:
         target = folder / f"{name}.png"
         try:
-            save_scenario(load(name), target)
+            setup = load(name)
+            if is_3d(setup.scenario):
+                three_d.append(name)
+                continue
+            save_scenario(setup, target)
         except Exception as exc:  # one bad scenario must not hide the rest of the demo
             section.errors.append(f"{name}: {type(exc).__name__}: {exc}")
             continue
         section.figures.append(target)
+    if three_d:
+        section.notes.append(
+            f"{', '.join(three_d)}: 3-D cells, shown in “Real arms in 3-D cells” "
+            "(`cellplan show NAME -o file.png` draws one, `cellplan view NAME -o file.html` "
+            "writes its viewer page)."
+        )
     return section
+
+
+def show_3d_cells(folder: Path, names: Any = CELLS_3D) -> Any:
+    """Show the bundled 3-D cells ``names`` with their arms; return the report section.
+
+    For each cell, into ``folder``: ``cell_NAME.png``, the cell with the arm at its start
+    (:func:`cellplan.view3d.draw_png`), and ``viewer_NAME.html``, the interactive viewer
+    page (:func:`cellplan.view3d.write_viewer`), which plays the straight joint-space
+    motion from the start to the configuration found for the first source. The section
+    has one :class:`~cellplan.report.Article` per cell: the picture, a table of each
+    region's reachability (:meth:`~cellplan.workcell3d.Workcell3D.reach_region`) and the
+    viewer embedded in a frame. A cell that cannot be loaded or shown is listed in the
+    section's errors instead of stopping the demo.
+
+    Parameters
+    ----------
+    folder
+        Where the pictures and pages go (created if missing); the report must lie in it
+        or above it, since it links the pages by relative path.
+    names
+        Bundled 3-D scenarios (default :data:`CELLS_3D`).
+
+    Returns
+    -------
+    ExtraSection
+        The section "Real arms in 3-D cells".
+    """
+    from cellplan.report import ExtraSection
+
+    section = ExtraSection(
+        "Real arms in 3-D cells",
+        "The bundled 3-D cells: URDF arms (a UR5, a Franka Panda) among solid obstacles, "
+        "loaded through `cellplan.load(NAME).workcell`. Each picture is the arm at its "
+        "start; the table says whether inverse kinematics found, for each region, a "
+        "collision-free configuration with the tool point inside it (the other sources "
+        "count as obstacles, as when a part is picked there). The viewer below each "
+        "(meshcat, offline) can be turned with the mouse and plays a short motion.",
+        anchor="cells-3d",
+    )
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        try:
+            section.articles.append(_cell_article(name, folder))
+        except Exception as exc:  # one bad cell must not hide the rest of the demo
+            section.errors.append(f"{name}: {type(exc).__name__}: {exc}")
+    return section
+
+
+def _cell_article(name: str, folder: Path) -> Any:
+    """The report article of one 3-D cell (see :func:`show_3d_cells`)."""
+    import numpy as np
+
+    from cellplan import units
+    from cellplan.api import load
+    from cellplan.report import Article, EmbeddedPage
+    from cellplan.scene3d import cell_scene
+    from cellplan.view3d import draw_png, write_viewer
+    from cellplan.workcell3d import Workcell3D
+
+    cell = load(name).workcell
+    if not isinstance(cell, Workcell3D):
+        raise TypeError(f"{name} is not a 3-D cell")
+    robot = cell.robot
+    arm = robot.arm
+    picture = folder / f"cell_{name}.png"
+    draw_png(
+        cell_scene(cell, title=f"{name}: {arm.name} at its start"),
+        picture,
+        view=CELL_VIEWS.get(name, "iso"),
+    )
+
+    units_text = "joint values, degrees" + ("" if all(arm.angular) else " or metres")
+    rows: list[dict[str, Any]] = []
+    found: dict[str, list[Any]] = {}
+    for role, regions in (("source", cell.sources), ("destination", cell.destinations)):
+        for region in regions:
+            found[region] = cell.reach_region(region)
+            for i, q in enumerate(found[region]):
+                degrees = (
+                    ""
+                    if q is None
+                    else ", ".join(
+                        f"{v:.1f}" for v in units.config_to_file(robot.axis_names, q, arm.angular)
+                    )
+                )
+                rows.append(
+                    {
+                        "region": region,
+                        "role": role,
+                        "component": i,
+                        "result": "not found" if q is None else "reachable (IK, collision-free)",
+                        f"configuration ({units_text})": degrees,
+                    }
+                )
+
+    source = next(iter(cell.sources), None)
+    target = found[source][0] if source is not None and found[source] else None
+    motion_text, scene_title, seconds = _motion(cell, name, source, target)
+    if target is None or seconds <= 0.0:
+        scene = cell_scene(cell, title=scene_title)
+    else:
+        d = robot.difference(robot.start, target)
+        s = np.linspace(0.0, 1.0, MOTION_FRAMES)
+        qs = robot.wrap(robot.start + s[:, None] * d)
+        scene = cell_scene(cell, qs, times=s * seconds, title=scene_title)
+    viewer = folder / f"viewer_{name}.html"
+    write_viewer(scene, viewer)
+
+    joints = ", ".join(arm.joint_names)
+    caption = (
+        f"Robot `{arm.name}` ({arm.dim} active joints: {joints}; tool frame "
+        f"`{arm.tool_frame}`). Collision geometry: a conservative sphere cover of the "
+        f"URDF's collision meshes ({len(arm.spheres)} spheres on the moving links), tested "
+        "against the exact solids: a configuration it calls free is free; it may call one "
+        "in collision a little before the meshes touch."
+    )
+    return Article(
+        title=f"{name}: {arm.name}",
+        caption=caption,
+        figures=[picture],
+        tables=[(f"{name}: can the arm reach each region?", rows)],
+        pages=[EmbeddedPage(viewer, f"3-D viewer of {name}", motion_text)],
+        code=(
+            f'cell = cellplan.load("{name}").workcell\n'
+            f'draw_png(cell_scene(cell), "cell_{name}.png")  # or: cellplan show {name}\n'
+            "{r: cell.reach_region(r) for r in [*cell.sources, *cell.destinations]}\n"
+            f'write_viewer(cell_scene(cell, q, times), "viewer_{name}.html")\n'
+            f"# or: cellplan view {name} -o viewer_{name}.html --trajectory FILE"
+        ),
+    )
+
+
+def _duration(arm: Any, d: Any) -> tuple[float, str]:
+    """Seconds a joint-space move of ``d`` takes at the URDF velocity limits (the slowest
+    joint's time), and that joint's name; joints without a positive finite limit are
+    taken at 1 rad/s (or 1 m/s)."""
+    import numpy as np
+
+    limits = np.asarray(arm.velocity_limit, dtype=float)
+    usable = np.isfinite(limits) & (limits > 0)
+    speed = np.where(usable, limits, 1.0)
+    times = np.abs(np.asarray(d, dtype=float)) / speed
+    slowest = int(np.argmax(times))
+    return float(times[slowest]), arm.joint_names[slowest]
+
+
+def _motion(cell: Any, name: str, source: str | None, target: Any) -> tuple[str, str, float]:
+    """The viewer's caption in the report, the scene's title and the motion's duration
+    (seconds; 0 for none), after checking the straight joint-space motion from the start
+    to ``target`` for collisions."""
+    robot = cell.robot
+    still = f"{name} (start)"
+    if source is None:
+        return "The viewer shows the arm at its start (the cell has no source).", still, 0.0
+    if target is None:
+        return (
+            f"The viewer shows the arm at its start: no configuration reaching source "
+            f"`{source}` was found, so there is no motion to play.",
+            still,
+            0.0,
+        )
+    d = robot.difference(robot.start, target)
+    seconds, joint = _duration(robot.arm, d)
+    if seconds <= 0.0:
+        return (
+            f"The viewer shows the arm at its start, which already reaches source `{source}`.",
+            still,
+            0.0,
+        )
+    collides = bool(
+        cell.motion_collides(
+            robot.start[None],
+            target[None],
+            step=MOTION_STEP_M,
+            avoid_sources=cell.sources_except(source),
+        )[0]
+    )
+    verdict = (
+        "it collides somewhere along the way (a planner would have to go around)"
+        if collides
+        else "it is collision-free"
+    )
+    text = (
+        f"The viewer plays the straight joint-space motion from the start to the "
+        f"configuration found for source `{source}` ({MOTION_FRAMES} frames over "
+        f"{seconds:.2f} s: the time `{joint}`, the slowest joint, needs at its URDF "
+        f"velocity limit). It is not planned: checked with the certified "
+        f"`cell.motion_collides` (step {MOTION_STEP_M * 100:g} cm, the other sources "
+        f"as obstacles), {verdict}."
+    )
+    state = "collides" if collides else "collision-free"
+    return text, f"{name}: start to {source}, straight in joint space ({state})", seconds
 
 
 def run_showcase(folder: Path, packages: Any = None) -> Any:

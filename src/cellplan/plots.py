@@ -464,7 +464,7 @@ def save_scenario(setup: Setup, path: str | Path) -> Path:
         spec = planar_workcell(sc)
         b = spec.bounds
         ax.add_patch(_rect(b.xmin, b.ymin, b.xmax, b.ymax))
-        for name, shape in spec.obstacles.items():
+        for name, shape in spec.planar_obstacles.items():
             geom = shape.to_shapely()
             draw_geometry(ax, geom, facecolor=COLORS["obstacle"], edgecolor="black", lw=0.8)
             _label(ax, geom, name, "black")

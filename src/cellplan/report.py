@@ -7,6 +7,10 @@ failures, compute time), the experiment's own text, the paper's claim beside
 ours with a plain verdict line (reproduced, or differs and how), the figures,
 the tables, the runs that failed, the tidy CSV, and the command that
 regenerates the piece. The file is written atomically.
+
+Pages of their own (the demo's 3-D viewers, :class:`EmbeddedPage`) are the one thing not
+inlined: each is a self-contained HTML file in the report's folder, shown in an
+``<iframe>`` by its relative path, so the folder still opens offline as a whole.
 """
 
 from __future__ import annotations
@@ -14,8 +18,10 @@ from __future__ import annotations
 import base64
 import html
 import math
+import os
 import shlex
 import traceback
+import urllib.parse
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -61,12 +67,67 @@ def paper_info(name: str) -> PaperInfo:
 
 
 @dataclass
+class EmbeddedPage:
+    """A page of its own (a 3-D viewer) shown inside the report in an ``<iframe>``.
+
+    The report links the page by its path relative to the report's folder, so it must
+    lie inside that folder for the report to keep working when the folder is moved or
+    opened offline; a link under the frame opens it alone.
+
+    Parameters
+    ----------
+    path
+        The page's HTML file.
+    title
+        The frame's title (read out by screen readers) and the text of the link.
+    caption
+        Shown under the frame; Markdown's inline `code` spans are rendered as code.
+    height_px
+        The frame's height in CSS pixels (its width is the column's).
+    """
+
+    path: Path
+    title: str
+    caption: str = ""
+    height_px: int = 520
+
+
+@dataclass
+class Article:
+    """One titled piece of an :class:`ExtraSection`: figures, tables and embedded pages.
+
+    Parameters
+    ----------
+    title
+        The piece's heading.
+    caption
+        A paragraph under the heading (inline `code` spans rendered as code).
+    figures
+        PNG, GIF, JPEG or SVG files, embedded in the report.
+    tables
+        ``(caption, rows)`` pairs, each row a mapping from column to value.
+    pages
+        Pages shown in frames (:class:`EmbeddedPage`).
+    code
+        The Python or ``cellplan`` lines that make the piece, shown as a code block.
+    """
+
+    title: str
+    caption: str = ""
+    figures: list[Path] = field(default_factory=list)
+    tables: list[tuple[str, list[dict[str, Scalar]]]] = field(default_factory=list)
+    pages: list[EmbeddedPage] = field(default_factory=list)
+    code: str = ""
+
+
+@dataclass
 class ExtraSection:
-    """A section that is not a paper's (the demo's showcase and bundled workcells).
+    """A section that is not a paper's (the demo's showcase, bundled workcells, 3-D cells).
 
     ``notes`` are plain remarks; ``errors`` (something that failed) alone are drawn in
     red. ``items`` are :class:`~cellplan.core.ShowcaseItem` s: figures with a caption and
-    the code that made them, shown as a code block.
+    the code that made them, shown as a code block. ``articles`` are :class:`Article` s,
+    which may also hold tables and embedded pages.
     """
 
     title: str
@@ -76,6 +137,7 @@ class ExtraSection:
     anchor: str = "extra"
     errors: list[str] = field(default_factory=list)
     items: list[ShowcaseItem] = field(default_factory=list)
+    articles: list[Article] = field(default_factory=list)
 
 
 @dataclass
@@ -191,7 +253,7 @@ def write_report(
     for paper in papers:
         page.add(_paper_section(paper, notes.get(paper, ""), by_paper.get(paper, []), outdir))
     for section in extra:
-        page.add(_extra_section(section))
+        page.add(_extra_section(section, outdir))
     if sweep is not None:
         page.add(_machine_section(sweep.metadata))
     page.add("</main></body></html>")
@@ -415,12 +477,14 @@ def _failures_table(run: ExperimentRun) -> str:
     return _table(caption, shown)
 
 
-def _extra_section(section: ExtraSection) -> str:
+def _extra_section(section: ExtraSection, outdir: Path | None = None) -> str:
+    """The section's HTML; ``outdir`` is the report's folder, which embedded pages are
+    linked relative to (absolute ``file:`` links without it)."""
     parts = [f'<section id="{_e(section.anchor)}"><h2>{_e(section.title)}</h2>']
     if section.text:
         parts.append(_paragraphs(section.text))
     parts += [f'<p class="error">{_e(error)}</p>' for error in section.errors]
-    parts += [f'<p class="note">{_e(note)}</p>' for note in section.notes]
+    parts += [f'<p class="note">{_inline(note)}</p>' for note in section.notes]
     for item in section.items:
         parts.append(f'<article class="showcase"><h3>{_e(item.title)}</h3>')
         parts.append(f"<p>{_inline(item.caption)}</p>")
@@ -430,12 +494,49 @@ def _extra_section(section: ExtraSection) -> str:
         if item.code:
             parts.append(f'<pre class="cmd"><code>{_e(item.code)}</code></pre>')
         parts.append("</article>")
+    parts += [_article(article, outdir) for article in section.articles]
     if section.figures:
         parts.append('<div class="gallery">')
         parts += [_figure(Path(f), Path(f).parent) for f in section.figures]
         parts.append("</div>")
     parts.append("</section>")
     return "\n".join(parts)
+
+
+def _article(article: Article, outdir: Path | None) -> str:
+    parts = [f'<article class="showcase"><h3>{_e(article.title)}</h3>']
+    if article.caption:
+        parts.append(f"<p>{_inline(article.caption)}</p>")
+    if article.figures:
+        parts.append('<div class="gallery">')
+        parts += [_figure(Path(f), Path(f).parent) for f in article.figures]
+        parts.append("</div>")
+    for caption, rows in article.tables:
+        parts.append(_table(caption, rows))
+    parts += [_embedded_page(page, outdir) for page in article.pages]
+    if article.code:
+        parts.append(f'<pre class="cmd"><code>{_e(article.code)}</code></pre>')
+    parts.append("</article>")
+    return "\n".join(parts)
+
+
+def _embedded_page(page: EmbeddedPage, outdir: Path | None) -> str:
+    """An ``<iframe>`` of the page (linked relative to ``outdir``) and a link to open it."""
+    path = Path(page.path)
+    if not path.is_file():
+        return f'<p class="error">missing page {_e(path.name)}</p>'
+    if outdir is None:
+        href = path.resolve().as_uri()
+    else:
+        relative = os.path.relpath(path.resolve(), Path(outdir).resolve())
+        href = urllib.parse.quote(Path(relative).as_posix())
+    caption = f"{_inline(page.caption)} " if page.caption else ""
+    return (
+        f'<figure class="embedded"><iframe src="{_e(href)}" title="{_e(page.title)}" '
+        f'height="{int(page.height_px)}"></iframe>'
+        f'<figcaption>{caption}(<a href="{_e(href)}" target="_blank">open '
+        f"{_e(path.name)} alone</a>)</figcaption></figure>"
+    )
 
 
 def _machine_section(metadata: Mapping[str, Any]) -> str:
@@ -532,6 +633,8 @@ figure{display:inline-block;margin:.5rem 1rem .5rem 0;max-width:100%}
 figure img{max-width:100%;height:auto;border:1px solid #d0d7de}
 figcaption{font-size:.8rem;color:#57606a}
 .gallery figure{max-width:100%}
+figure.embedded{display:block;margin:.8rem 0}
+figure.embedded iframe{display:block;width:100%;border:1px solid #d0d7de}
 code{background:#f6f8fa;padding:0 .2rem;border-radius:3px}
 pre.cmd code{background:none;padding:0}
 pre.cmd{background:#1d2329;color:#e6edf3;padding:.5rem .8rem;border-radius:4px;overflow-x:auto}

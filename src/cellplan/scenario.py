@@ -126,12 +126,17 @@ class WorkcellSpec(StrictModel):
         description="the rectangle the robot stays in (workcell units)",
         examples=[{"xmin": 0, "ymin": 0, "xmax": 100, "ymax": 100}],
     )
-    obstacles: dict[Name, Shape] = Field(
+    obstacles: dict[Name, AnyShape] = Field(
         default_factory=dict,
         max_length=100_000,
         description="static obstacles by name (box, polygon or disc, workcell units)",
         examples=[{"wall": {"type": "box", "min": [20, 0], "max": [24, 20]}}],
     )
+
+    @property
+    def planar_obstacles(self) -> dict[str, Shape]:
+        """The obstacles typed as 2-D shapes (validation keeps solids out of 2-D cells)."""
+        return {name: planar(shape) for name, shape in self.obstacles.items()}
 
 
 class PointRobotSpec(StrictModel):
@@ -736,6 +741,19 @@ def _message(err: Any, data: Any, root: type[BaseModel]) -> str:
         return f"expected a mapping{_got(err)}"
     if kind == "string_pattern_mismatch" and err.get("ctx", {}).get("pattern") == NAME_PATTERN:
         return f"a name may hold only letters, digits, '_', '.' and '-'{_got(err)}"
+    if kind == "missing" and loc and isinstance(loc[-1], int):
+        given = err.get("input")
+        count = f"{len(given)} value(s)" if isinstance(given, list | tuple) else "too few values"
+        return f"has {count}; at least {loc[-1] + 1} are needed"
+    if kind == "union_tag_not_found":
+        return "needs a 'type' (what kind of shape or robot it is)"
+    if kind == "too_short":
+        ctx = err.get("ctx", {})
+        return f"needs at least {ctx.get('min_length')} item(s), got {ctx.get('actual_length')}"
+    if kind == "string_too_long":
+        ctx = err.get("ctx", {})
+        n = len(err["input"]) if isinstance(err.get("input"), str) else "more"
+        return f"has {n} characters; at most {ctx.get('max_length')} allowed"
     if kind == "union_tag_invalid":
         ctx = err.get("ctx", {})
         return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
@@ -864,6 +882,11 @@ def scenario_from_data(data: Any, source: str = "<data>", folder: Path | None = 
 
     kind = "3d" if is_3d(scenario) else "2d"
     owners = {p.section: p for p in packages().values() if p.section is not None}
+    robot = scenario.robot
+    if robot is not None and (robot.type == "urdf") != (kind == "3d"):
+        # A robot of the other kind of workcell (reported above): the sections' checks
+        # read the robot and would only add lines that follow from that one mistake.
+        raise ScenarioError(problems)
     for name in scenario.section_names():
         section = getattr(scenario, name)
         owner = owners.get(name)
@@ -973,6 +996,7 @@ def _only_planar(sc: Scenario) -> list[Problem]:
     """A 2-D scenario holds no solid and no URDF robot."""
     problems: list[Problem] = []
     shapes = [(f"parts.{n}.shape", p.shape) for n, p in sc.parts.items()]
+    shapes += [(f"workcell.obstacles.{n}", o) for n, o in sc.workcell.obstacles.items()]
     for section, regions in (("sources", sc.sources), ("destinations", sc.destinations)):
         for name, region in regions.items():
             shapes += [
@@ -1041,7 +1065,7 @@ def check_references(sc: Scenario, folder: Path | None = None) -> list[Problem]:
                     )
                 )
     for name, shape in planar_workcell(sc).obstacles.items():
-        if not bounds.intersects(shape.to_shapely()):
+        if not bounds.intersects(planar(shape).to_shapely()):
             problems.append(
                 Problem(f"workcell.obstacles.{name}", "lies entirely outside the workcell bounds")
             )

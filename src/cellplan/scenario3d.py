@@ -14,12 +14,14 @@ Every 2-D file stays valid: a shape is read as a solid only when it says so (a s
 from __future__ import annotations
 
 import math
+import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, cast
 
 from pydantic import Discriminator, Field, Tag, model_validator
 
 from cellplan.errors import Problem
+from cellplan.fileio import kind_of
 from cellplan.schema import Coord, Length, Name, Shape, StrictModel
 
 if TYPE_CHECKING:
@@ -174,7 +176,7 @@ class Workcell3DSpec(StrictModel):
 
     units: Literal["m"] = Field(default="m", description="length unit of a 3-D cell")
     bounds: Bounds3 = Field(description="the box the robot stays in (metres)")
-    obstacles: dict[Name, Solid] = Field(
+    obstacles: dict[Name, AnyShape] = Field(
         default_factory=dict,
         max_length=10_000,
         description="static obstacles by name: box, cylinder, sphere, capsule or mesh",
@@ -222,6 +224,9 @@ class UrdfRobotSpec(StrictModel):
     """active joints in order (default: every movable joint)"""
     locked: dict[Name, float] = Field(default_factory=dict, max_length=64)
     """values of the joints that are not active (degrees, or metres for prismatic joints)"""
+    limits: dict[Name, tuple[float, float]] = Field(default_factory=dict, max_length=32)
+    """narrower limits of active joints, (lower, upper) in degrees (metres for prismatic
+    joints), within the URDF's: the working range a planner and its bitmaps cover"""
     start: list[float] = Field(min_length=1, max_length=32)
     """start value of each active joint (degrees, or metres for prismatic joints)"""
 
@@ -281,7 +286,8 @@ def check_references_3d(sc: Scenario, folder: Path | None) -> list[Problem]:
             Problem("cellplan", "a 3-D workcell (bounds with zmin, zmax) needs 'cellplan: 2'")
         )
     solids: list[tuple[str, Any]] = []
-    for field, shape in _shape_fields(sc):
+    obstacles = [(f"workcell.obstacles.{n}", o) for n, o in spec.obstacles.items()]
+    for field, shape in [*obstacles, *_shape_fields(sc)]:
         if isinstance(shape, SOLID_MODELS):
             solids.append((field, shape))
         else:
@@ -309,21 +315,33 @@ def check_references_3d(sc: Scenario, folder: Path | None) -> list[Problem]:
     b = spec.bounds
     diagonal = math.dist(b.lo, b.hi)
     for field, shape in solids:
-        if not field.startswith("parts.") and not _inside(shape.pose.xyz, b):
+        if field.startswith("workcell.obstacles."):
+            if _far_outside(shape.pose.xyz, b, diagonal):
+                problems.append(Problem(field, "lies entirely outside the workcell bounds"))
+        elif not field.startswith("parts.") and not _inside(shape.pose.xyz, b):
             problems.append(Problem(field, "lies outside the workcell bounds"))
-    for name, obstacle in spec.obstacles.items():
-        if _far_outside(obstacle.pose.xyz, b, diagonal):
-            problems.append(
-                Problem(f"workcell.obstacles.{name}", "lies entirely outside the workcell bounds")
-            )
     if folder is not None:
-        meshes = [(f"workcell.obstacles.{n}", o) for n, o in spec.obstacles.items()]
-        for field, shape in [*meshes, *solids]:
-            if isinstance(shape, MeshSolid) and not (folder / shape.path).is_file():
-                problems.append(
-                    Problem(f"{field}.path", f"mesh file {shape.path!r} not found in {folder}")
-                )
+        for field, shape in solids:
+            if isinstance(shape, MeshSolid):
+                reason = _not_a_file(folder / shape.path)
+                if reason:
+                    problems.append(Problem(f"{field}.path", f"mesh file {shape.path!r} {reason}"))
     return problems
+
+
+def _not_a_file(path: Path) -> str:
+    """Why ``path`` is not a regular file one can read (empty when it is one)."""
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        return f"not found (in {path.parent})"
+    except OSError as exc:
+        return f"cannot be read: {exc.strerror}"
+    except ValueError:  # a NUL character: no file can have that name
+        return "is not a file name (it holds a NUL character)"
+    if not stat.S_ISREG(mode):
+        return f"is {kind_of(mode)}, not a mesh file"
+    return ""
 
 
 def _inside(xyz: tuple[float, float, float], b: Bounds3) -> bool:

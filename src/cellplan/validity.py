@@ -21,13 +21,36 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from cellplan.errors import ArgumentError
+
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 AvoidSources = Literal["all", "none"] | Collection[str]
 """Which sources are obstacles (equations (1)-(3) of the strategies paper)."""
 RegionTest = Literal["contact", "enclosure"]
 
-__all__ = ["AvoidSources", "RegionTest", "RobotModel", "ValiditySpace", "check_space"]
+__all__ = [
+    "AvoidSources",
+    "RegionTest",
+    "RobotModel",
+    "ValiditySpace",
+    "avoided_sources",
+    "check_space",
+]
+
+
+def avoided_sources(avoid_sources: AvoidSources, sources: Collection[str]) -> list[str]:
+    """The names ``avoid_sources`` stands for (equations (1)-(3) of the strategies paper):
+    every source, none, or the listed ones; an unknown name is one line naming it."""
+    if avoid_sources == "all":
+        return list(sources)
+    if avoid_sources == "none":
+        return []
+    names = list(avoid_sources)
+    unknown = [s for s in names if s not in sources]
+    if unknown:
+        raise ArgumentError(f"unknown sources {unknown}; known: {list(sources)}", "avoid_sources")
+    return names
 
 
 @runtime_checkable
@@ -188,8 +211,9 @@ class ValiditySpace(Protocol):
         is free (the conservative cell test of configuration-space bitmaps)."""
         ...
 
-    def check_bytes(self, carrying: str | None = None) -> int:
-        """Bytes one configuration costs a batched check at its peak (memory estimates)."""
+    def batch_bytes(self, count: int, carrying: str | None = None) -> int:
+        """Bytes a batched check of ``count`` configurations holds at its peak (what a
+        bitmap's memory estimate charges before allocating)."""
         ...
 
     def in_region(

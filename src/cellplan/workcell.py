@@ -41,7 +41,7 @@ from cellplan.robots import PlanarArm, Robot, robot_from_spec
 from cellplan.scenario import Scenario, load_scenario
 from cellplan.scenario3d import planar, planar_workcell
 from cellplan.schema import COORD_LIMIT
-from cellplan.validity import AvoidSources, RegionTest
+from cellplan.validity import AvoidSources, RegionTest, avoided_sources
 
 IntArray = NDArray[np.int64]
 
@@ -130,8 +130,8 @@ class Workcell:
         cell = Workcell(
             name=sc.name,
             bounds=bounds,
-            obstacles={n: ShapeSet.from_spec(s) for n, s in spec.obstacles.items()},
-            obstacle_geometries={n: s.to_shapely() for n, s in spec.obstacles.items()},
+            obstacles={n: ShapeSet.from_spec(s) for n, s in spec.planar_obstacles.items()},
+            obstacle_geometries={n: s.to_shapely() for n, s in spec.planar_obstacles.items()},
             robot=robot,
             parts=parts,
             part_geometries={n: planar(p.shape).to_shapely() for n, p in sc.parts.items()},
@@ -207,17 +207,7 @@ class Workcell:
         return self._obstacle_cache[key]
 
     def _avoided(self, avoid_sources: AvoidSources) -> list[str]:
-        if avoid_sources == "all":
-            return list(self.sources)
-        if avoid_sources == "none":
-            return []
-        names = list(avoid_sources)
-        unknown = [s for s in names if s not in self.sources]
-        if unknown:
-            raise ArgumentError(
-                f"unknown sources {unknown}; known: {list(self.sources)}", "avoid_sources"
-            )
-        return names
+        return avoided_sources(avoid_sources, self.sources)
 
     # --- batched queries ---------------------------------------------------------------------
 
@@ -475,13 +465,13 @@ class Workcell:
         hit = body_gaps(bodies, poses, obstacles, np.array(margins), exact=False) <= 0.0
         return hit | ~self.robot.within_limits(q)
 
-    def check_bytes(self, carrying: str | None = None) -> int:
-        """Bytes per configuration of a batched check at its peak: the configuration
-        (float64 ``(d,)`` three times), the body poses (float64 ``(B, 3)`` and as many
-        temporaries), the gaps (float64 ``(B,)``) and three bool masks; ``B`` counts the
-        robot's bodies and the carried part."""
+    def batch_bytes(self, count: int, carrying: str | None = None) -> int:
+        """Bytes of a batched check of ``count`` configurations at its peak, per
+        configuration: the configuration (float64 ``(d,)`` three times), the body poses
+        (float64 ``(B, 3)`` and as many temporaries), the gaps (float64 ``(B,)``) and
+        three bool masks; ``B`` counts the robot's bodies and the carried part."""
         bodies = len(self.robot.bodies.bodies) + (carrying is not None)
-        return 24 * self.robot.dim + 48 * bodies + 8 * bodies + 3
+        return count * (24 * self.robot.dim + 48 * bodies + 8 * bodies + 3)
 
     def tool_position(self, q: FloatArray) -> FloatArray:
         """``(N, 2)``: the gripper's position."""

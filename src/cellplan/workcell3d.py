@@ -22,6 +22,7 @@ through the cover's slack, not through its mesh).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -36,7 +37,7 @@ from cellplan import budget, solids, units
 from cellplan.errors import ArgumentError, Problem, ScenarioError
 from cellplan.scenario import Scenario
 from cellplan.scenario3d import Bounds3, Pose
-from cellplan.validity import AvoidSources, BoolArray, FloatArray, RegionTest
+from cellplan.validity import AvoidSources, BoolArray, FloatArray, RegionTest, avoided_sources
 
 __all__ = ["DEFAULT_CELLS_3D", "PART_SPHERE_RADIUS", "Region3D", "UrdfRobot", "Workcell3D"]
 
@@ -155,7 +156,11 @@ class Workcell3D:
     sources: Mapping[str, Region3D]
     destinations: Mapping[str, Region3D]
     default_cells: tuple[int, ...]
+    # Memos of derived data (prepared obstacle sets, lever rows); never part of equality.
     _prepared: dict[tuple[str, ...], solids.SolidSet] = field(
+        default_factory=dict, compare=False, repr=False
+    )
+    _lever_cache: dict[str | None, FloatArray] = field(
         default_factory=dict, compare=False, repr=False
     )
 
@@ -313,17 +318,7 @@ class Workcell3D:
         return self._prepared[key]
 
     def _avoided(self, avoid_sources: AvoidSources) -> list[str]:
-        if avoid_sources == "all":
-            return list(self.sources)
-        if avoid_sources == "none":
-            return []
-        names = list(avoid_sources)
-        unknown = [s for s in names if s not in self.sources]
-        if unknown:
-            raise ArgumentError(
-                f"unknown sources {unknown}; known: {list(self.sources)}", "avoid_sources"
-            )
-        return names
+        return avoided_sources(avoid_sources, self.sources)
 
     def _spheres(self, q: FloatArray, carrying: str | None) -> tuple[FloatArray, FloatArray]:
         """World centres ``(N, S, 3)`` and radii ``(S,)`` of the arm's cover and the part's."""
@@ -403,11 +398,15 @@ class Workcell3D:
 
     def _levers(self, carrying: str | None) -> FloatArray:
         """``(S, dim)``: per sphere (the arm's, then the part's), how far its points move
-        per unit of each joint (:func:`cellplan.arm.sphere_levers`)."""
-        if carrying is None:
-            return arms.sphere_levers(self.robot.arm)
-        part = self.part(carrying)
-        return arms.sphere_levers(self.robot.arm, part.centers, part.radii)
+        per unit of each joint (:func:`cellplan.arm.sphere_levers`), computed once."""
+        if carrying not in self._lever_cache:
+            if carrying is None:
+                rows = arms.sphere_levers(self.robot.arm)
+            else:
+                part = self.part(carrying)
+                rows = arms.sphere_levers(self.robot.arm, part.centers, part.radii)
+            self._lever_cache[carrying] = rows
+        return self._lever_cache[carrying]
 
     def motion_collides(
         self,
@@ -454,7 +453,7 @@ class Workcell3D:
             )
         # The samples (configuration, parameter, index: 8 (dim + 2) bytes each) are
         # held whole; the checks take them in chunks.
-        need = total * 8 * (self.robot.dim + 2) + _CHUNK * self.check_bytes(carrying)
+        need = total * 8 * (self.robot.dim + 2) + self.batch_bytes(_CHUNK, carrying)
         if need > _MOTION_BYTES_UNCHECKED:
             budget.require(need, "step", f"to check {total:,.0f} samples of {len(q0)} motion(s)")
         counts = counts_f.astype(np.int64)
@@ -493,15 +492,18 @@ class Workcell3D:
         )
         return hit | outside.any(axis=1)
 
-    def check_bytes(self, carrying: str | None = None) -> int:
-        """Bytes per configuration of a check at its peak: the sphere centres (float64
-        ``(S, 3)``, twice with the part's), the frame poses (float64 ``(F, 4, 4)``) and a
-        few float64 and bool values per configuration."""
+    def batch_bytes(self, count: int, carrying: str | None = None) -> int:
+        """Bytes of a check of ``count`` configurations at its peak. The whole batch holds
+        its configurations (float64, three times: given, checked, a cell's centres) and a
+        few float64 and bool values each; a chunk of at most 8,192 at a time holds the
+        sphere centres (float64 ``(S, 3)``, twice with the part's), their margins
+        (float64 ``(S,)``) and the frame poses (float64 ``(F, 4, 4)``)."""
         spheres = len(self.robot.arm.spheres.radii)
         if carrying is not None:
             spheres += len(self.part(carrying).radii)
         frames = self.robot.dim + 1
-        return 2 * 24 * spheres + 128 * frames + 8 * self.robot.dim * 3 + 64
+        per_chunk_row = 2 * 24 * spheres + 8 * spheres + 128 * frames
+        return count * (24 * self.robot.dim + 32) + min(count, _CHUNK) * per_chunk_row
 
     def in_region(
         self,
@@ -662,21 +664,28 @@ def _load_arm(spec: Any, folder: Path) -> arms.Arm:
     bundled = spec.urdf in arms.BUNDLED
     urdf = spec.urdf if bundled else folder / spec.urdf
     srdf = None if spec.srdf is None else folder / spec.srdf
-    kinds = arms.joint_kinds(urdf, field="robot.urdf")
+    kinds = arms.joint_kinds(urdf, field="robot")
     locked = {}
+    problems = []
     for name, value in spec.locked.items():
+        field = f"robot.locked.{name}"
         if name not in kinds:
-            raise ScenarioError(
-                [
-                    Problem(
-                        f"robot.locked.{name}",
-                        f"no such movable joint; the URDF has {', '.join(kinds)}",
-                    )
-                ]
+            problems.append(
+                Problem(field, f"no such movable joint; the URDF has {', '.join(kinds)}")
             )
-        locked[name] = float(
-            units.config_from_file([name], [value], [kinds[name] != "prismatic"])[0]
-        )
+            continue
+        joint = kinds[name]
+        angular = [joint.kind != "prismatic"]
+        q = float(units.config_from_file([name], [value], angular)[0])
+        if joint.kind != "continuous" and not joint.lower - 1e-9 <= q <= joint.upper + 1e-9:
+            lo, hi = units.config_to_file([name] * 2, [joint.lower, joint.upper], angular * 2)
+            unit = "degrees" if angular[0] else "metres"
+            problems.append(
+                Problem(field, f"{value:g} is outside the limits [{lo:.6g}, {hi:.6g}] ({unit})")
+            )
+        locked[name] = q
+    if problems:
+        raise ScenarioError(problems)
     arm = arms.load_arm(
         urdf,
         srdf=srdf,
@@ -686,6 +695,7 @@ def _load_arm(spec: Any, folder: Path) -> arms.Arm:
         locked=locked,
         field="robot",
     )
+    arm = _narrowed(arm, spec.limits, {n: k.kind for n, k in kinds.items()})
     if len(spec.start) != arm.dim:
         raise ScenarioError(
             [
@@ -697,6 +707,44 @@ def _load_arm(spec: Any, folder: Path) -> arms.Arm:
             ]
         )
     return arm
+
+
+def _narrowed(
+    arm: arms.Arm, limits: Mapping[str, tuple[float, float]], kinds: Mapping[str, str]
+) -> arms.Arm:
+    """The arm with the scenario's narrower limits (``robot.limits``, file units); a
+    continuous joint given limits is no longer periodic."""
+    if not limits:
+        return arm
+    lower, upper = arm.lower.copy(), arm.upper.copy()
+    periodic = np.array(arm.periodic, dtype=bool)
+    problems = []
+    for name, (lo_file, hi_file) in limits.items():
+        field = f"robot.limits.{name}"
+        if name not in arm.joint_names:
+            active = ", ".join(arm.joint_names)
+            problems.append(Problem(field, f"is not an active joint (active: {active})"))
+            continue
+        i = arm.joint_names.index(name)
+        angular = kinds.get(name) != "prismatic"
+        lo, hi = units.config_from_file([name] * 2, [lo_file, hi_file], [angular] * 2)
+        urdf_lo, urdf_hi = (-np.pi, np.pi) if periodic[i] else (arm.lower[i], arm.upper[i])
+        if not lo < hi:
+            problems.append(Problem(field, f"lower {lo_file:g} is not below upper {hi_file:g}"))
+        elif lo < urdf_lo - 1e-9 or hi > urdf_hi + 1e-9:
+            shown = units.config_to_file([name] * 2, [urdf_lo, urdf_hi], [angular] * 2)
+            problems.append(
+                Problem(
+                    field,
+                    f"[{lo_file:g}, {hi_file:g}] reaches beyond the URDF's limits "
+                    f"[{shown[0]:.6g}, {shown[1]:.6g}]",
+                )
+            )
+        else:
+            lower[i], upper[i], periodic[i] = lo, hi, False
+    if problems:
+        raise ScenarioError(problems)
+    return dataclasses.replace(arm, lower=lower, upper=upper, periodic=periodic)
 
 
 def _start_problems(values: Sequence[float], robot: UrdfRobot) -> list[Problem]:

@@ -22,7 +22,9 @@ def draw_adaptive(setup: Setup, ax: Any) -> list[Any]:
     from cellplan.plots import draw_geometry
 
     sec = setup.scenario.adaptive
-    obstacles = {n: s.to_shapely() for n, s in planar_workcell(setup.scenario).obstacles.items()}
+    obstacles = {
+        n: s.to_shapely() for n, s in planar_workcell(setup.scenario).planar_obstacles.items()
+    }
     for name, goal in sec.goals.items():
         ax.plot(*goal.at, marker="*", color="#8e44ad", ms=11, mec="black", mew=0.5)
         ax.annotate(
