@@ -38,7 +38,6 @@ import argparse
 import gc
 import importlib.resources
 import json
-import math
 import os
 import resource
 import subprocess
@@ -60,7 +59,7 @@ from threadpoolctl import threadpool_limits
 
 import cellplan.api as api
 from cellplan import arm as arms
-from cellplan import budget, solids
+from cellplan import solids
 from cellplan.cspace import Grid, estimate_memory, free_bitmap
 from cellplan.workcell3d import Workcell3D
 
@@ -455,7 +454,8 @@ def segment_samples(cell: Workcell3D, q0: FloatArray, q1: FloatArray) -> tuple[F
         ``(samples (total, dim), counts (N,))``.
     """
     d = cell.robot.difference(q0, q1)
-    travel = np.abs(d) @ arms.lever_arms(cell.robot.arm)
+    # The samples motion_collides takes: the farthest-moving sphere sets the count.
+    travel = (np.abs(d) @ arms.sphere_levers(cell.robot.arm).T).max(axis=1)
     counts = (np.maximum(1.0, np.ceil(travel / STEP)) + 1.0).astype(np.int64)
     seg = np.repeat(np.arange(len(q0)), counts)
     offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -575,20 +575,6 @@ def bench_segments(
         say("  unsafe (cert-free, mesh-hit):", f"{unsafe} (must be 0)")
         out[f"seg_rate_{norm}"] = seg_rate
         out[f"unsafe_{norm}"] = float(unsafe)
-    calls = 50
-    t_lever, _ = timed(lambda: [arms.lever_arms(arm) for _ in range(calls)])
-    t_budget, _ = timed(lambda: [budget.available_memory() for _ in range(calls)])
-    say(
-        "one call, fixed costs:",
-        f"lever_arms {t_lever.cpu / calls * 1e3:.2f} ms and budget.available_memory "
-        f"{t_budget.cpu / calls * 1e3:.2f} ms, both run by every motion_collides call",
-    )
-    say(
-        "step limit:",
-        f"certified samples keep step/2 of clearance: a step above "
-        f"{2 * clearance * 1e3:.1f} mm (twice the largest clearance) finds every segment "
-        f"colliding; this run's step is {STEP * 1e3:.0f} mm",
-    )
     return out
 
 
@@ -759,9 +745,8 @@ def bench_bitmap(sizes: Sizes, rate1: float) -> dict[str, float]:
     tracemalloc.stop()
     rss = bitmap_rss(n) if sizes.fresh_rss else None
     estimate = estimate_memory(cell, grid)
-    levers = arms.lever_arms(arm)
     half = grid.spacing / 2
-    margin = float(half @ levers)
+    margins = arms.sphere_levers(arm) @ half
     points = grid.points()
     t_ctr, clearance = timed(lambda: cell.clearance(points))
     centre_free = clearance > 0
@@ -796,26 +781,9 @@ def bench_bitmap(sizes: Sizes, rate1: float) -> dict[str, float]:
     lost = (centre_free.mean() - free.mean()) / max(1e-12, centre_free.mean())
     say(
         "what the box margin costs:",
-        f"{margin * 1e3:.0f} mm of clearance per cell (levers {np.round(levers, 3).tolist()} "
-        f"m/rad x half-widths {np.round(half, 4).tolist()} rad) blocks {lost:.3f} of the "
-        f"free centres; a free cell needs a margin under the largest clearance: "
-        f"{math.ceil(float((grid.upper - grid.lower) / 2 @ levers) / clearance.max())} "
-        "cells per joint",
-    )
-    # Diagnostic, not a certified check: each sphere its own margin (sphere_levers),
-    # obstacles and walls only (self pairs left out).
-    own = arms.sphere_levers(arm) @ half
-    centres = arms.sphere_centers(arm, points)
-    radii = arm.spheres.radii
-    clear = (solids.sphere_gaps(cell.obstacle_set("all"), centres, radii, own) > 0) & (
-        solids.bounds_gaps(cell.lo, cell.hi, centres, radii + own) > 0
-    )
-    shoulder = max(m for m, link in zip(own, arm.spheres.link, strict=True) if "shoulder" in link)
-    say(
-        "per-sphere margins (diagnostic):",
-        f"margins {own.min() * 1e3:.0f}-{own.max() * 1e3:.0f} mm (shoulder_link up to "
-        f"{shoulder * 1e3:.1f} mm); cells clear of obstacles and walls {clear.mean():.4f} "
-        "(self pairs not tested)",
+        f"each sphere keeps its own margin, {margins.min() * 1e3:.1f}-{margins.max() * 1e3:.0f}"
+        f" mm (its levers x half-widths {np.round(half, 4).tolist()} rad); they block "
+        f"{lost:.3f} of the free centres",
     )
     return {
         "bitmap_s": t_map.cpu,

@@ -31,7 +31,6 @@ KEYS = (
     "mesh, one call each:",
     "ratio certified / mesh:",
     "unsafe (cert-free, mesh-hit):",
-    "one call, fixed costs:",
     "bitmap (free_bitmap):",
     "bitmap memory:",
     "bitmap per cell:",
