@@ -193,3 +193,26 @@ def test_validate_refuses_a_cspace_grid_that_cannot_fit_naming_the_field(cellpla
     assert len(lines) == 1, lines
     assert lines[0].startswith("error: cspace.cells 4096,4096,4096: needs about "), lines
     assert "for the C-space bitmap; this machine has " in lines[0]
+
+
+def test_3d_cells_validate_show_and_view(cellplan, tmp_path):
+    """The README's 3-D commands: validate, show (a PNG in metres), view (one offline
+    page); a C-space picture of a six-joint arm and a view of a 2-D cell are refused."""
+    r = cellplan("validate", "ur5_cell")
+    assert r.returncode == 0, r.stderr
+    assert "collision geometry: spheres" in r.stdout
+    assert "reachable (components): bin_a 1/1, bin_b 1/1, fixture 1/1" in r.stdout
+    png = tmp_path / "cell.png"
+    r = cellplan("show", "ur5_cell", "-o", str(png), "--view", "front")
+    assert r.returncode == 0, r.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    page = tmp_path / "cell.html"
+    r = cellplan("view", "panda_shelf", "-o", str(page))
+    assert r.returncode == 0, r.stderr
+    html = page.read_text()
+    assert "<script" in html and "src=\"http" not in html
+    r = cellplan("cspace", "ur5_cell", "-o", str(tmp_path / "c.png"))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "2 or 3 axes" in r.stderr
+    r = cellplan("view", "strategies_p1", "-o", str(tmp_path / "p1.html"))
+    assert r.returncode == 2 and "3-D cells" in r.stderr
+    assert not (tmp_path / "p1.html").exists() and not (tmp_path / "c.png").exists()

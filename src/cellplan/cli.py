@@ -233,6 +233,12 @@ def cspace(
         raise ArgumentError(
             f"unknown part {carrying!r} (parts: {', '.join(cell.parts) or 'none'})", "--carrying"
         )
+    if cell.robot.dim not in (2, 3):
+        raise ArgumentError(
+            f"pictures of configuration space show 2 or 3 axes; this robot has "
+            f"{cell.robot.dim} (a URDF arm's robot.joints chooses the active ones)",
+            "SCENARIO",
+        )
     shape = parse_cells(cells, cell.robot.dim) if cells is not None else cell.default_cells
     grid = Grid.for_robot(cell.robot, shape)
     if slice_index is not None and (grid.ndim != 3 or not 0 <= slice_index < grid.shape[2]):

@@ -203,7 +203,7 @@ class Workcell3D:
         b = sc.workcell.bounds
         if not isinstance(b, Bounds3):
             raise TypeError("Workcell3D.from_scenario takes a 3-D scenario")
-        cells = tuple(sc.cspace.cells) if sc.cspace.cells else (DEFAULT_CELLS_3D,) * min(arm.dim, 3)
+        cells = tuple(sc.cspace.cells) if sc.cspace.cells else (DEFAULT_CELLS_3D,) * arm.dim
         cell = Workcell3D(
             name=sc.name,
             lo=np.array(b.lo, float),
