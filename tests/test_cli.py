@@ -210,7 +210,7 @@ def test_3d_cells_validate_show_and_view(cellplan, tmp_path):
     r = cellplan("view", "panda_shelf", "-o", str(page))
     assert r.returncode == 0, r.stderr
     html = page.read_text()
-    assert "<script" in html and "src=\"http" not in html
+    assert "<script" in html and 'src="http' not in html
     r = cellplan("cspace", "ur5_cell", "-o", str(tmp_path / "c.png"))
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "2 or 3 axes" in r.stderr
     r = cellplan("view", "strategies_p1", "-o", str(tmp_path / "p1.html"))
