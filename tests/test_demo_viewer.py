@@ -11,7 +11,6 @@ picture that is not blank, and no error reaches the console, of the report or of
 from __future__ import annotations
 
 import io
-import shutil
 from html.parser import HTMLParser
 from pathlib import Path
 from typing import Any
@@ -20,29 +19,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from browser import ARGS, CHROMIUM
 from cellplan.demo import CELLS_3D, show_3d_cells
 from cellplan.report import write_report
-
-CHROMIUM = next(
-    (
-        p
-        for p in map(shutil.which, ("chromium-headless-shell", "chromium", "chromium-browser"))
-        if p
-    ),
-    None,
-)
-
-# No network, no first-run or background work: the report and its pages must stand alone.
-ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 
 
 class _Frames(HTMLParser):

@@ -11,23 +11,14 @@ path is printed; ``CELLPLAN_SCREENSHOT=FILE`` keeps it).
 from __future__ import annotations
 
 import os
-import shutil
 from pathlib import Path
 
 import pytest
 
-from test_demo_viewer import ARGS, check_embedded_viewers, watch_console
+from browser import ARGS, CHROMIUM
+from test_demo_viewer import check_embedded_viewers, watch_console
 
 pytestmark = pytest.mark.slow
-
-CHROMIUM = next(
-    (
-        p
-        for p in map(shutil.which, ("chromium-headless-shell", "chromium", "chromium-browser"))
-        if p
-    ),
-    None,
-)
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="no Chromium: run `make browser-test`")

@@ -19,31 +19,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from browser import ARGS, CHROMIUM
 from cellplan.view3d import write_viewer
 from test_view3d import small_scene
 
 pytestmark = pytest.mark.slow
 
-CHROMIUM = next(
-    (
-        p
-        for p in map(shutil.which, ("chromium-headless-shell", "chromium", "chromium-browser"))
-        if p
-    ),
-    None,
-)
-
-# No network, no first-run or background work: the page must stand alone.
-ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 
 # The robot's second link, as the viewer's scene tree names it, and its world position.
 LINK_POSITION = """() => {
