@@ -10,8 +10,11 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 
+# The install ends by compiling the kernels of the first commands a user runs
+# (cellplan/warmup.py), so a first `cellplan solve` loads them from numba's cache.
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install -q -e '.[dev]'
+	$(BIN)/python -m cellplan.warmup
 	touch $(STAMP)
 
 install: $(STAMP)

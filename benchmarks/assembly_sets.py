@@ -13,6 +13,9 @@ one importing cellplan from ``OTHER_SRC`` (e.g. a worktree of the previous commi
 which goes first), so both see the same machine load; printed per n: solved and mean
 seconds of each, and the ratio of the mean times (other / this).
 
+``--spheres-fit-k``: the fitting grid of the spheres' default-k constant (3-D; see
+:func:`fit_sphere_k`).
+
 Every problem is a scenario with a ``discs: generate:`` section
 (:func:`cellplan.assembly.problems.generated_setup`, discs cover 5% of a circular
 workspace, unit discs), so it is planned exactly like ``cellplan assemble --random``.
@@ -222,9 +225,69 @@ def compare(cases: list[Case], other: Path, planner: str, opts: dict[str, Any]) 
     return 0
 
 
+# --- spheres (3-D): the fitting grid of the default-k constant ------------------------------
+
+#: Sizes and seeds of the spheres' fitting grid (never the reporting seeds 0-99 of
+#: ``cellplan reproduce assembly``'s ``assembly.spheres``).
+SPHERE_FIT_SIZES: dict[int, range] = {5: range(1000, 1008), 10: range(1000, 1008)}
+#: Candidate constants of ``k = C n (n / fill)^(2/3)`` (``layout.rule_k`` for spheres).
+SPHERE_FIT_C = (0.05, 0.2, 0.8, 3.2)
+
+
+def sphere_generate(n: int, seed: int) -> dict[str, Any]:
+    """The generator fields of a sphere case: close-packed goals (gap 0.1 or 0.01 by
+    ``seed // 2``), random or permuted starts (by ``seed``'s parity)."""
+    return {
+        "n": n,
+        "seed": seed,
+        "gap": (0.1, 0.01)[(seed // 2) % 2],
+        "starts": ("random", "permutation")[seed % 2],
+    }
+
+
+def fit_sphere_k() -> int:
+    """``--spheres-fit-k``: the gradient planner on the spheres' fitting grid at each
+    candidate constant; prints solved, solved at k, mean ratio and the smallest clearance."""
+    import cellplan
+    from cellplan.assembly.layout import K_RULE_MIN, ball_volume
+    from cellplan.assembly.problems import generated_setup
+
+    print(f"spheres fitting grid {SPHERE_FIT_SIZES}: {_load()}", flush=True)
+    out: dict[float, list[tuple[bool, float, bool, float]]] = {c: [] for c in SPHERE_FIT_C}
+    for n, seeds in SPHERE_FIT_SIZES.items():
+        for seed in seeds:
+            setup = generated_setup(sphere_generate(n, seed), dim=3)
+            radius = setup.scenario.discs.boundary.radius
+            fill = n * float(ball_volume(1.0, 3)) / float(ball_volume(radius, 3))
+            for c in SPHERE_FIT_C:
+                k = max(K_RULE_MIN, c * n * (n / fill) ** (2.0 / 3.0))
+                res = cellplan.plan(setup, "assembly.gradient", k=k)
+                out[c].append(
+                    (
+                        res.status.ok,
+                        res.stats["ratio"],
+                        res.stats["solved_at_k"] > 0,
+                        res.stats["min_clearance"],
+                    )
+                )
+    print(f"after: {_load()}")
+    print("\n| C | solved | solved at k | mean ratio (solved) | min clearance |")
+    print("|---|---|---|---|---|")
+    for c, runs in out.items():
+        ratio = statistics.fmean(r for ok, r, _, _ in runs if ok)
+        print(
+            f"| {c:g} | {sum(ok for ok, *_ in runs)}/{len(runs)} | "
+            f"{sum(at for _, _, at, _ in runs)}/{len(runs)} | {ratio:.3f} | "
+            f"{min(cl for *_, cl in runs):.3g} |"
+        )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     if (argv if argv is not None else sys.argv[1:]) == ["--worker"]:
         return _worker()
+    if (argv if argv is not None else sys.argv[1:]) == ["--spheres-fit-k"]:
+        return fit_sphere_k()
     import cellplan
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -17,6 +17,19 @@ MODULES = (
     "cellplan.core",
     "cellplan.setup",
     "cellplan.trajectory",
+    "cellplan.drawing",
+    "cellplan.warmup",
+    "cellplan.timing",
+    "cellplan.export",
+    "cellplan.validity",
+    "cellplan.scenario3d",
+    "cellplan.workcell3d",
+    "cellplan.arm",
+    "cellplan.solids",
+    "cellplan.scene3d",
+    "cellplan.view3d",
+    "cellplan.budget",
+    "cellplan.arrayfile",
     "cellplan.errors",
     "cellplan.registry",
     "cellplan.scenario",
@@ -41,6 +54,12 @@ def build(output: Path) -> list[str]:
     import pdoc
     import pdoc.render
 
+    import cellplan
+
+    # The conveniences cellplan imports on first use: imported now, so that pdoc finds
+    # them among the package's attributes.
+    for name in ("simulate", "ExperiencePlanner"):
+        getattr(cellplan, name)
     pdoc.render.configure(docformat="numpy")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

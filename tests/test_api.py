@@ -20,6 +20,20 @@ def test_load_gives_scenario_and_workcell():
     assert setup.workcell is setup.workcell  # built once
 
 
+def test_workcell_reprs_are_short_and_name_what_the_cell_holds():
+    cell = cellplan.load("strategies_tiny").workcell
+    assert repr(cell) == (
+        "Workcell('strategies-tiny', robot=translating, dim 2, bounds=[0, 30] x [0, 30], "
+        "obstacles=[middle], parts=[P1], sources=[S1 (1), S2 (1)], destinations=[D1 (1)])"
+    )
+    assert cell._repr_png_()[:8] == b"\x89PNG\r\n\x1a\n"
+    arm = cellplan.load("ur5_cell").workcell
+    text = repr(arm)
+    assert text.startswith("Workcell3D('ur5_cell', robot=ur5 (urdf), dim 6, bounds=[")
+    assert "sources=[bin_a (1), bin_b (1)]" in text and "array" not in text
+    assert "\n" not in text
+
+
 def test_disc_scenario_has_no_workcell():
     setup = cellplan.load("discs_swap")
     with pytest.raises(ScenarioError, match="no robot"):
@@ -101,3 +115,34 @@ def test_import_cellplan_loads_no_planner_code():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_the_package_lists_what_it_offers():
+    # dir() shows the API, not the names the package's own code imports.
+    assert dir(cellplan) == sorted([*cellplan.__all__, "__version__"])
+    assert "Any" not in dir(cellplan) and "TYPE_CHECKING" not in dir(cellplan)
+    assert {"simulate", "ExperiencePlanner", "draw"} <= set(cellplan.__all__)
+    for name in cellplan.__all__:
+        assert getattr(cellplan, name) is not None
+
+
+def test_a_planner_repr_is_short():
+    planner = cellplan.make("strategies", "strategies_tiny", seed=3)
+    text = repr(planner)
+    assert text == "Planner('strategies', setup='strategies-tiny', options={'seed': 3})"
+
+
+def test_draw_returns_a_figure_and_saves_a_png(tmp_path):
+    setup = cellplan.load("strategies_tiny")
+    fig = cellplan.draw(setup, tmp_path / "cell.png")
+    assert fig.axes and fig.axes[0].get_xlabel() == "x (workcell units)"
+    assert (tmp_path / "cell.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert setup._repr_png_()[:8] == b"\x89PNG\r\n\x1a\n"  # what a notebook shows
+
+
+def test_draw_of_a_3d_cell_takes_a_view_and_a_2d_one_refuses_it(tmp_path):
+    fig = cellplan.draw(cellplan.load("ur5_cell"), tmp_path / "ur5.png", view="top")
+    assert fig.get_size_inches()[0] > 0
+    assert (tmp_path / "ur5.png").is_file()
+    with pytest.raises(ArgumentError, match=r"^view: views apply to 3-D cells"):
+        cellplan.draw(cellplan.load("strategies_tiny"), view="top")

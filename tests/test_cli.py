@@ -120,7 +120,7 @@ def test_validate_json_is_one_object_on_stdout(cellplan):
     r = cellplan("validate", "discs_seven", "--json")
     assert r.returncode == 0, r.stderr
     payload = json.loads(r.stdout)
-    assert payload["status"] == "valid" and payload["summary"]["sections"] == "discs"
+    assert payload["status"] == "valid" and payload["summary"]["sections"] == ["discs"]
     assert len(r.stdout.strip().splitlines()) == 1
 
 
@@ -130,7 +130,7 @@ def test_a_bug_exits_70_with_one_line(cellplan, monkeypatch):
     def broken(setup, progress=None):
         raise KeyError("oops")
 
-    monkeypatch.setattr(summary, "summarize", broken)
+    monkeypatch.setattr(summary, "facts", broken)
     r = cellplan("validate", "strategies_tiny")
     assert r.returncode == 70
     lines = r.stderr.strip().splitlines()

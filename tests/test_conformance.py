@@ -18,6 +18,7 @@ import pytest
 
 import cellplan
 from cellplan.core import Options, Result, Status, check_stats
+from cellplan.registry import packages as registry_packages
 from cellplan.registry import scenario_names
 from cellplan.trajectory import Trajectory
 
@@ -112,26 +113,49 @@ def test_unknown_option_is_one_line_naming_it(name):
     assert [p.field for p in err.value.problems] == ["no_such_option"]
 
 
-@pytest.mark.parametrize("name", sorted(PLANNERS))
-def test_planners_refuse_a_3d_cell_in_one_line(name):
-    """Every planner runs on both kinds of workcell where it supports the robot; the
-    papers' planners support planar robots only (for now), so a 3-D cell with their
-    section is refused when it is loaded, with one line naming the section."""
+def test_a_package_for_planar_cells_refuses_a_3d_cell_in_one_line(monkeypatch):
+    """A package that declares 2-D workcells only (here the toy package of
+    tests/toy_package.py) has a 3-D cell with its section refused when the scenario is
+    loaded, in one line naming the section; the papers' packages declare both kinds."""
     import yaml
 
+    from cellplan import registry
+    from cellplan import scenario as scenario_module
     from cellplan.errors import ScenarioError
-    from cellplan.registry import scenario_path
     from cellplan.scenario import parse_yaml, scenario_from_data
 
-    spec = PLANNERS[name]
-    if spec.section is None:
-        pytest.skip(f"{name} reads no section")
-    scenario, _ = spec.smoke
-    smoke = yaml.safe_load(scenario_path(scenario).read_text())
-    data = parse_yaml(scenario_path("ur5_cell").read_text())
-    data[spec.section] = smoke[spec.section]
-    with pytest.raises(ScenarioError) as err:
-        scenario_from_data(data)
-    lines = str(err.value).splitlines()
+    monkeypatch.setattr(registry, "BUILTIN_PACKAGES", (*registry.BUILTIN_PACKAGES, "toy_package"))
+    registry.packages.cache_clear()
+    registry.planners.cache_clear()
+    # The scenario model is built at import from the registered packages: rebuild it.
+    monkeypatch.setattr(scenario_module, "Scenario", scenario_module.build_scenario_model())
+    try:
+        assert registry.packages()["toy"].workcells == ("2d",)
+        data = parse_yaml(registry.scenario_path("ur5_cell").read_text())
+        data["toy"] = yaml.safe_load("goal: [0.3, 0.2]")
+        with pytest.raises(ScenarioError) as err:
+            scenario_from_data(data)
+    finally:
+        monkeypatch.undo()
+        registry.packages.cache_clear()
+        registry.planners.cache_clear()
+        lines = str(err.value).splitlines()
     assert len(lines) == 1
-    assert lines[0].startswith(f"{spec.section}: the ") and "this one is 3d" in lines[0]
+    assert lines[0].startswith("toy: the toy planners work in 2d workcells; this one is 3d")
+
+
+@pytest.mark.parametrize("package", sorted(registry_packages()))
+def test_a_package_for_3d_cells_has_a_bundled_3d_scenario(package):
+    """Each package that declares 3-D workcells runs on one of the bundled 3-D cells."""
+    from cellplan.registry import scenario_names
+    from cellplan.scenario3d import is_3d
+
+    pkg = registry_packages()[package]
+    assert set(pkg.workcells) <= {"2d", "3d"} and pkg.workcells
+    if "3d" not in pkg.workcells:
+        pytest.skip(f"{package} declares planar workcells only")
+    bundled = [cellplan.load(n) for n in scenario_names()]
+    ours = [
+        s.name for s in bundled if is_3d(s.scenario) and pkg.section in s.scenario.section_names()
+    ]
+    assert ours, f"no bundled 3-D scenario has a '{pkg.section}:' section"

@@ -140,7 +140,7 @@ def test_duplicate_keys_are_rejected():
             [0, 1],
             "workcell.bounds: expected a mapping with xmin, ymin, xmax, ymax (got a list)",
         ),
-        ("robot.type", "pont", "robot: unknown type 'pont'; expected one of 'point', "),
+        ("robot.type", "pont", "robot: unknown type 'pont'; 'type' must be one of 'point', "),
         (
             "workcell.obstacles.wall",
             {"type": "polygon", "points": [[0, 0], [4, 4], [4, 0], [0, 4]]},
@@ -168,6 +168,63 @@ def test_each_problem_is_one_line_naming_the_field(path, value, expected):
     found = problems(edit(path, value))
     assert any(p.startswith(expected) for p in found), found
     assert not any("Input should" in p or "instance of" in p for p in found)
+
+
+def bundled(name: str) -> dict:
+    return yaml.safe_load(resolve_scenario_path(name).read_text())
+
+
+@pytest.mark.parametrize(
+    ("name", "change", "expected"),
+    [
+        (
+            "adaptive_fig3",
+            lambda d: d["adaptive"].__setitem__("changes", [{"at": 1}]),
+            "adaptive.changes[0]: needs a 'type', one of 'add_object', 'remove_object', "
+            "'move_object', 'rotate_object', 'add_goal', 'remove_goal'",
+        ),
+        (
+            "adaptive_fig3",
+            lambda d: d["adaptive"].__setitem__("changes", [{"type": "add"}]),
+            "adaptive.changes[0]: unknown type 'add'; 'type' must be one of 'add_object', ",
+        ),
+        (
+            "ur5_cell",
+            lambda d: d["workcell"]["obstacles"]["table"].__setitem__("type", "cube"),
+            "workcell.obstacles.table: unknown type 'cube'; 'type' must be one of ",
+        ),
+        (
+            "ur5_cell",
+            lambda d: d["workcell"]["obstacles"]["table"].pop("type"),
+            "workcell.obstacles.table: needs a 'type', one of ",
+        ),
+        (
+            "strategies_tiny",
+            lambda d: d["robot"].pop("type"),
+            "robot: needs a 'type', one of 'point', 'translating', 'rotating', 'arm', 'urdf'",
+        ),
+        (
+            "strategies_tiny",
+            lambda d: d["workcell"]["obstacles"]["middle"].pop("type"),
+            "workcell.obstacles.middle: needs a 'type', one of 'polygon', 'box', 'disc'",
+        ),
+    ],
+)
+def test_a_missing_or_unknown_type_lists_the_types_that_exist(name, change, expected):
+    """A discriminated union's error names the field and the ``type`` values it accepts,
+    never pydantic's "Unable to extract tag using discriminator"."""
+    data = bundled(name)
+    change(data)
+    found = problems(yaml.safe_dump(data))
+    assert any(p.startswith(expected) for p in found), found
+    assert not any("discriminator" in p or "Input tag" in p for p in found), found
+
+
+def test_a_3d_solid_lists_the_solids_not_the_planar_shapes():
+    data = bundled("ur5_cell")
+    data["workcell"]["obstacles"]["table"]["type"] = "cube"
+    (line,) = [p for p in problems(yaml.safe_dump(data)) if p.startswith("workcell.obstacles")]
+    assert "'cylinder'" in line and "'polygon'" not in line
 
 
 def test_every_problem_is_reported_at_once():

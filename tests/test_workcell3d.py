@@ -16,7 +16,9 @@ from cellplan.validity import ValiditySpace, check_space
 from cellplan.workcell import Workcell
 from cellplan.workcell3d import Workcell3D
 
-CELLS_3D = ("ur5_cell", "panda_shelf")
+# Six- and seven-joint arms, and a UR5 with its wrist locked (three joints: the tool
+# point is reached, not an orientation).
+CELLS_3D = ("ur5_cell", "panda_shelf", "strategies_ur5")
 
 
 @functools.cache

@@ -10,8 +10,9 @@ The planning API::
     result.trajectory.save("motion.csv")          # the motion, for a controller
 
 :func:`planners` lists every registered planner with its options; :func:`make` builds one
-without running it. Each paper package registers its planners (:mod:`cellplan.strategies`,
-:mod:`cellplan.adaptive`, :mod:`cellplan.assembly`). Two conveniences are imported on
+without running it; :func:`draw` draws a scenario (what ``cellplan show`` writes). Each
+paper package registers its planners (:mod:`cellplan.strategies`, :mod:`cellplan.adaptive`,
+:mod:`cellplan.assembly`). Two conveniences are imported on
 first use, so that ``import cellplan`` loads no numba kernel or OMPL:
 ``cellplan.simulate`` (:func:`cellplan.strategies.simulate.simulate_result`) runs a solved
 strategy in the stochastic assembly process, and ``cellplan.ExperiencePlanner``
@@ -24,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 from cellplan import units
 from cellplan.api import Planner, load, loads, make, plan, planners
 from cellplan.core import Result, Status
+from cellplan.drawing import draw
 from cellplan.errors import ArgumentError, CellplanError, PersistenceError, Problem, ScenarioError
 from cellplan.scenario import Scenario as Scenario  # not in __all__: built at import
 from cellplan.scenario import load_scenario
@@ -40,6 +42,7 @@ __all__ = [
     "ArgumentError",
     "CellplanError",
     "Event",
+    "ExperiencePlanner",
     "PersistenceError",
     "Planner",
     "Problem",
@@ -48,12 +51,14 @@ __all__ = [
     "Setup",
     "Status",
     "Trajectory",
+    "draw",
     "load",
     "load_scenario",
     "loads",
     "make",
     "plan",
     "planners",
+    "simulate",
     "units",
 ]
 __version__ = "0.1.0"
@@ -66,10 +71,17 @@ _LAZY = {
 }
 
 
+def __dir__() -> list[str]:
+    # What the package offers, not the names its own code imports (Any, TYPE_CHECKING).
+    return sorted([*__all__, "__version__"])
+
+
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
         import importlib
 
         module, attr = _LAZY[name]
-        return getattr(importlib.import_module(module), attr)
+        value = getattr(importlib.import_module(module), attr)
+        globals()[name] = value  # found directly from now on (PEP 562's usual memo)
+        return value
     raise AttributeError(f"module 'cellplan' has no attribute {name!r}")

@@ -62,7 +62,13 @@ class Planner:
 
     @property
     def name(self) -> str:
+        """The planner's registry name."""
         return self.spec.name
+
+    def __repr__(self) -> str:
+        # The options a caller set; the rest are the documented defaults.
+        given = {k: getattr(self.options, k) for k in sorted(self.options.model_fields_set)}
+        return f"Planner({self.name!r}, setup={self.setup.name!r}, options={given})"
 
     def solve(self, progress: Progress | None = None) -> Result:
         """Run the planner; ``progress(done, total, text)`` is called as it goes."""

@@ -28,6 +28,8 @@ from cellplan.cliutil import (
     EXIT_INTERRUPTED,
     JsonOpt,
     ScenarioArg,
+    announce_compiles,
+    as_flags,
     check_inputs_kept,
     check_output,
     print_json,
@@ -41,6 +43,9 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # click's plain help wraps every line at the terminal's width; rich's boxed help cuts
+    # long option names and defaults with an ellipsis when the terminal is 80 wide.
+    rich_markup_mode=None,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 console = Console(stderr=True, soft_wrap=True)
@@ -69,27 +74,40 @@ OutputOpt = Annotated[Path, typer.Option("-o", "--output", help="output file")]
 
 
 @app.command()
-def schema() -> None:
-    """Print the JSON Schema of scenario files."""
+def schema(as_json: JsonOpt = False) -> None:
+    """Print the JSON Schema of scenario files (``--json``: on one line)."""
     from cellplan.scenario import json_schema
 
+    if as_json:
+        print_json(json_schema())
+        return
     print(json.dumps(json_schema(), indent=2))
 
 
 @app.command()
-def scenarios() -> None:
+def scenarios(as_json: JsonOpt = False) -> None:
     """List the bundled scenarios."""
     from cellplan.api import load
     from cellplan.registry import scenario_names
 
-    table = Table("name", "robot", "sections", "description")
+    rows: list[dict[str, Any]] = []
     for name in scenario_names():
         sc = load(name).scenario
+        rows.append(
+            {
+                "name": name,
+                "robot": sc.robot.type if sc.robot else None,
+                "sections": list(sc.section_names()),
+                "description": first_sentence(sc.description),
+            }
+        )
+    if as_json:
+        print_json({"scenarios": rows})
+        return
+    table = Table("name", "robot", "sections", "description")
+    for row in rows:
         table.add_row(
-            name,
-            sc.robot.type if sc.robot else "-",
-            ", ".join(sc.section_names()) or "-",
-            first_sentence(sc.description),
+            row["name"], row["robot"] or "-", ", ".join(row["sections"]) or "-", row["description"]
         )
     out.print(table)
 
@@ -102,10 +120,33 @@ def first_sentence(text: str) -> str:
 
 
 @app.command()
-def planners() -> None:
+def planners(as_json: JsonOpt = False) -> None:
     """List the registered planners."""
     from cellplan.api import planners as registered
 
+    if as_json:
+        print_json(
+            {
+                "planners": [
+                    {
+                        "name": spec.name,
+                        "package": spec.package,
+                        "section": spec.section,
+                        "summary": spec.summary,
+                        "options": [
+                            {
+                                "name": key,
+                                "default": plain_value(info.default),
+                                "description": info.description or "",
+                            }
+                            for key, info in spec.options.model_fields.items()
+                        ],
+                    }
+                    for spec in registered().values()
+                ]
+            }
+        )
+        return
     table = Table("name", "section", "summary", "options (default)")
     for spec in registered().values():
         options = ", ".join(f"{name} ({default})" for name, default, _ in spec.option_table())
@@ -113,21 +154,44 @@ def planners() -> None:
     out.print(table)
 
 
+def plain_value(value: Any) -> Any:
+    """An option's default as JSON keeps it: numbers, text, flags, None and lists of these
+    as they are, an enum as its value, anything else as its ``repr``."""
+    import enum
+
+    if isinstance(value, enum.Enum):
+        value = value.value
+    if value is None or isinstance(value, str | int | float | bool):
+        return value
+    if isinstance(value, list | tuple):
+        return [plain_value(v) for v in value]
+    return repr(value)
+
+
 @app.command()
 def validate(scenario: ScenarioArg, as_json: JsonOpt = False) -> None:
     """Validate a scenario and print a short summary (modes, C-space dimension, free fraction)."""
     from cellplan.api import load
     from cellplan.cliutil import progress_bar, progress_enabled
-    from cellplan.summary import summarize
+    from cellplan.summary import facts
 
     setup = load(scenario)
     with progress_bar(progress_enabled(as_json), "validating") as progress:
-        lines = summarize(setup, progress)
+        found = facts(setup, progress)
     if as_json:
-        print_json({"status": "valid", "message": "the scenario is valid", "summary": lines})
+        # Machine keys and typed values (counts int, fractions float, names lists); the
+        # labels the text output prints stay beside them.
+        print_json(
+            {
+                "status": "valid",
+                "message": "the scenario is valid",
+                "summary": {f.key: f.value for f in found},
+                "labels": {f.key: f.label for f in found},
+            }
+        )
         return
-    for key, value in lines.items():
-        out.print(printable(f"{key:>22}: {value}"), markup=False)
+    for fact in found:
+        out.print(printable(f"{fact.label:>22}: {fact.text}"), markup=False)
 
 
 @app.command()
@@ -135,36 +199,31 @@ def show(
     scenario: ScenarioArg,
     output: OutputOpt = Path("workcell.png"),
     view: Annotated[str, typer.Option(help="3-D cells: iso, front, side or top")] = "iso",
+    as_json: JsonOpt = False,
 ) -> None:
     """Draw the scenario: the workcell, the robot at its start carrying a part, and what
     each section adds (discs' starts and goals, adaptive goals and workcell changes)."""
-    from cellplan import plots
     from cellplan.api import load
-    from cellplan.scenario3d import is_3d
-    from cellplan.workcell3d import Workcell3D
+    from cellplan.drawing import draw
 
     check_image_path(output)
     check_inputs_kept([("--output", output)], {"SCENARIO": scenario_file(scenario)})
     setup = load(scenario)
-    if is_3d(setup.scenario) and not setup.has_robot:
-        raise ArgumentError("a 3-D cell is drawn with its robot; this scenario has none", "robot")
-    cell = setup.workcell if setup.has_robot else None
-    if isinstance(cell, Workcell3D):
-        from cellplan.scene3d import cell_scene
-        from cellplan.view3d import draw_png
+    with as_flags({"robot": "robot"}):  # --view for the view; the scenario's robot as is
+        draw(setup, output, view=view)
+    written(as_json, {"image": output}, f"wrote {output}")
 
-        carrying = next(iter(cell.parts), None)
-        title = f"{setup.name}: {cell.robot.arm.name} at its start" + (
-            f", carrying {carrying}" if carrying else ""
-        )
-        draw_png(cell_scene(cell, carrying=carrying, title=title), output, view=view)
+
+def written(
+    as_json: bool, outputs: dict[str, Path], line: str, extra: dict[str, Any] | None = None
+) -> None:
+    """A command that writes files says so: ``line`` on stdout, or with ``--json`` one
+    object ``{"status": "written", "message": line, "outputs": {...}, **extra}``."""
+    if as_json:
+        payload = {"status": "written", "message": line, "outputs": outputs}
+        print_json(payload | (extra or {}))
     else:
-        if view != "iso":
-            raise ArgumentError(
-                "views apply to 3-D cells; a 2-D workcell is drawn from above", "--view"
-            )
-        plots.save_scenario(setup, output)
-    out.print(printable(f"wrote {output}"), markup=False)
+        out.print(printable(line), markup=False)
 
 
 @app.command()
@@ -175,6 +234,7 @@ def view(
         Path | None,
         typer.Option(help="a trajectory of the scenario's robot to play (CSV, JSON or NPZ)"),
     ] = None,
+    as_json: JsonOpt = False,
 ) -> None:
     """Write an interactive 3-D viewer page of a 3-D cell: one self-contained HTML file
     (no network), where the cell can be rotated and a trajectory played."""
@@ -206,7 +266,7 @@ def view(
             cell, traj.q, traj.t, title=f"{setup.name}: {trajectory.name}", time_label=f"t ({unit})"
         )
     write_viewer(scene, output)
-    out.print(printable(f"wrote {output}"), markup=False)
+    written(as_json, {"page": output}, f"wrote {output}")
 
 
 @app.command()
@@ -220,6 +280,7 @@ def cspace(
     slice_index: Annotated[
         int | None, typer.Option("--slice", help="index of the 2-D slice of a 3-D space")
     ] = None,
+    as_json: JsonOpt = False,
 ) -> None:
     """Draw the free-configuration bitmap (a slice for 3-D spaces)."""
     from cellplan import plots
@@ -255,16 +316,101 @@ def cspace(
         title_extra=f"carrying {carrying}" if carrying else "empty",
         carrying=carrying is not None,
     )
-    out.print(printable(f"wrote {output}  (free fraction {free.mean():.3f})"), markup=False)
+    fraction = float(free.mean())
+    written(
+        as_json,
+        {"image": output},
+        f"wrote {output}  (free fraction {fraction:.3f})",
+        {
+            "free_fraction": fraction,
+            "cells": [int(n) for n in grid.shape],
+            "carrying": carrying,
+            "slice": slice_index,
+        },
+    )
 
 
 @app.command()
-def demo(output: OutputOpt = Path("cellplan-out")) -> None:
+def export(
+    trajectory: Annotated[Path, typer.Argument(help="a trajectory file (.csv, .json, .npz)")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="output file (bag: folder)")],
+    fmt: Annotated[
+        str, typer.Option("--format", "-f", help="ros2-yaml, ros2-bag (MCAP folder) or csv")
+    ] = "ros2-yaml",
+    retime: Annotated[
+        bool, typer.Option("--retime", help="time-optimal timing first (TOPP-RA)")
+    ] = False,
+    velocity_limits: Annotated[
+        str | None,
+        typer.Option(
+            help="retime with these speeds per column, comma-separated (units/s, degrees/s "
+            "for angles; default: the trajectory's)"
+        ),
+    ] = None,
+    acceleration_limits: Annotated[
+        str | None,
+        typer.Option(help="retime with these accelerations (units/s^2, degrees/s^2 for angles)"),
+    ] = None,
+    frame_id: Annotated[str, typer.Option(help="header.frame_id of the messages")] = "",
+    as_json: JsonOpt = False,
+) -> None:
+    """Write a trajectory for a controller: ROS 2 JointTrajectory YAML, a ROS 2 bag, or CSV."""
+    from cellplan import export as ros
+    from cellplan import timing, units
+    from cellplan.cliutil import as_flags
+    from cellplan.trajectory import Trajectory
+
+    ros.check_format(fmt)
+    if fmt == "ros2-bag" and (output.exists() or output.is_symlink()):
+        raise ArgumentError("exists; a bag folder is never replaced", "--output")
+    if fmt != "ros2-bag":
+        check_output(output)
+    check_inputs_kept([("--output", output)], {"TRAJ": trajectory})
+    traj = Trajectory.load(trajectory)
+    limits = {}
+    for option, text in (
+        ("--velocity-limits", velocity_limits),
+        ("--acceleration-limits", acceleration_limits),
+    ):
+        if text is not None:
+            try:
+                values = [float(v) for v in text.split(",")]
+            except ValueError:
+                raise ArgumentError(
+                    f"expected comma-separated numbers, got {text!r}", option
+                ) from None
+            checked = timing.check_limits(values, traj.dim, option)  # in the given units
+            limits[option] = units.config_from_file(
+                traj.columns, checked.tolist(), [u == units.ANGLE for u in traj.units]
+            )
+    if retime or limits:
+        with as_flags():
+            traj = traj.retime(limits.get("--velocity-limits"), limits.get("--acceleration-limits"))
+    written = ros.export(traj, fmt, output, frame_id)
+    if as_json:
+        print_json(
+            {
+                "output": str(written),
+                "format": fmt,
+                "samples": len(traj),
+                "seconds": traj.duration_s,
+                "retimed": bool(retime or limits),
+            }
+        )
+    else:
+        out.print(
+            printable(f"wrote {written}  ({len(traj)} samples, {traj.duration_s:.3f} s)"),
+            markup=False,
+        )
+
+
+@app.command()
+def demo(output: OutputOpt = Path("cellplan-out"), as_json: JsonOpt = False) -> None:
     """Run quick versions of every experiment and write OUTPUT/index.html (about 1 minute)."""
     from cellplan.demo import run_demo
 
     index = run_demo(output, console=console)
-    out.print(printable(f"demo written: {index}"), markup=False)
+    written(as_json, {"report": index}, f"demo written: {index}")
 
 
 def parse_cells(text: str, dim: int) -> tuple[int, ...]:
@@ -344,7 +490,8 @@ def main() -> None:
     library_log = logging.getLogger("cellplan")
     library_log.addHandler(notes)
     try:
-        _dispatch()
+        with announce_compiles():
+            _dispatch()
         code: str | int | None = 0
     except SystemExit as exc:
         code = exc.code

@@ -10,6 +10,7 @@ to stderr.
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 from collections.abc import Iterable, Iterator, Mapping
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from numba.core import event
 from rich.console import Console
 
 from cellplan.core import Progress, Result
@@ -211,3 +213,39 @@ def scenario_file(arg: str | None) -> Path | None:
 def folder_files(option: str, folder: Path, names: Iterable[str]) -> list[tuple[str, Path]]:
     """``(option, folder / name)`` for each file a command writes into an output folder."""
     return [(option, folder / name) for name in names]
+
+
+#: The note printed when a kernel compiles during a command (once per process); the
+#: cache it names is described in :mod:`cellplan.warmup`.
+COMPILE_NOTE = (
+    "compiling numba kernels for this code path (first use after an install or an update; "
+    "cached afterwards: `make install` compiles them ahead, `make clean-kernels` clears "
+    "the cache)"
+)
+
+
+class _FirstCompile(event.Listener):
+    """Logs :data:`COMPILE_NOTE` as a warning at the first compile it sees, then nothing."""
+
+    def __init__(self) -> None:
+        self.seen = False
+
+    def on_start(self, ev: event.Event) -> None:
+        if not self.seen:
+            self.seen = True
+            logging.getLogger("cellplan.kernels").warning(COMPILE_NOTE)
+
+    def on_end(self, ev: event.Event) -> None:
+        """Nothing to say when a compile ends."""
+
+
+@contextlib.contextmanager
+def announce_compiles() -> Iterator[None]:
+    """A context in which the first numba compile logs :data:`COMPILE_NOTE`, once.
+
+    numba fires its ``numba:compile`` event only for a real compile, not for a kernel
+    loaded from its on-disk cache, so a warm run says nothing. The CLI prints the
+    warning as one ``note:`` line on stderr.
+    """
+    with event.install_listener("numba:compile", _FirstCompile()):
+        yield

@@ -23,6 +23,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 if TYPE_CHECKING:
@@ -50,6 +51,10 @@ class Status(enum.StrEnum):
 
 Scalar = str | int | float | bool
 
+Stat = int | float | bool
+"""A value of :attr:`Result.stats`: a count (``int``), a flag (``bool``) or a measure
+(``float``); each keeps its type in JSON."""
+
 
 @dataclass(frozen=True, eq=False)
 class Result:
@@ -65,12 +70,15 @@ class Result:
         Registry name of the planner that produced it.
     stats
         Plain finite numbers (counts, ratios, seconds); benchmarks and reports read them
-        without knowing the planner.
+        without knowing the planner. A count is an ``int`` and a flag a ``bool``: they keep
+        that type in :meth:`summary` and in every ``--json`` output.
     solution
         The planner's own object: a strategy to query, an assembly run, an experience
         graph ... (see the planner's documentation).
     trajectory
-        The motion, as a :class:`~cellplan.trajectory.Trajectory`.
+        The motion, as a :class:`~cellplan.trajectory.Trajectory`; ``None`` only where the
+        planner found none to give, so a type checker needs the narrowing
+        ``assert result.trajectory is not None`` (or an ``if``) before using it.
     options
         The validated options the planner ran with (defaults filled in).
     """
@@ -78,7 +86,7 @@ class Result:
     status: Status
     message: str
     planner: str = ""
-    stats: Mapping[str, float] = field(default_factory=dict)
+    stats: Mapping[str, Stat] = field(default_factory=dict)
     solution: Any = None
     trajectory: Trajectory | None = None
     options: Mapping[str, Any] = field(default_factory=dict)
@@ -107,9 +115,15 @@ class Result:
         )
 
 
-def _json_number(value: float) -> float | None:
-    value = float(value)
-    return value if math.isfinite(value) else None
+def _json_number(value: Stat) -> Stat | None:
+    """A statistic as JSON: a flag stays a ``bool`` and a count an ``int`` (numpy's
+    included), a measure a ``float``; a non-finite measure is ``None`` (strict JSON)."""
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    number = float(value)
+    return number if math.isfinite(number) else None
 
 
 def _json_value(value: Any) -> Any:
@@ -120,18 +134,20 @@ def _json_value(value: Any) -> Any:
     return value
 
 
-def check_stats(stats: Mapping[str, float]) -> list[str]:
-    """Problems with a statistics mapping (used by the conformance test)."""
+def check_stats(stats: Mapping[str, Stat]) -> list[str]:
+    """Problems with a statistics mapping (used by the conformance test).
+
+    Each value must be a Python ``bool`` (a flag), ``int`` (a count) or finite ``float``
+    (a measure); numpy integers and booleans are refused, since ``json`` cannot write them.
+    """
     bad = []
     for key, value in stats.items():
         if not isinstance(key, str):
             bad.append(f"key {key!r} is not a string")
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, int | float)
-            or not math.isfinite(value)
-        ):
-            bad.append(f"{key}={value!r} is not a finite number")
+        if isinstance(value, bool):
+            continue
+        if not isinstance(value, int | float) or not math.isfinite(value):
+            bad.append(f"{key}={value!r} is not a finite number, a count or a flag")
     return bad
 
 
@@ -201,6 +217,30 @@ class PlannerSpec:
 
 
 @dataclass(frozen=True)
+class Fact:
+    """One fact of ``cellplan validate``: the same thing for a person and for a program.
+
+    Attributes
+    ----------
+    key
+        Machine key of ``validate --json`` (lower case, ``_`` between words).
+    label
+        What the text output prints before the colon.
+    value
+        The typed value ``--json`` prints: a count is an ``int``, a fraction a ``float``,
+        names a list, regions a mapping; JSON-ready (str, int, float, bool, None, lists
+        and mappings of these).
+    text
+        What the text output prints after the colon.
+    """
+
+    key: str
+    label: str
+    value: Any
+    text: str
+
+
+@dataclass(frozen=True)
 class ShowcaseItem:
     """One picture set of the demo's showcase, made through the library API.
 
@@ -242,9 +282,12 @@ class Package:
     paper_runs
         Repetitions per parameter point in the paper (``cellplan reproduce`` default).
     describe
-        ``describe(setup) -> {label: value}``: lines ``cellplan validate`` prints for the
-        package's section; it may also run the checks every command of the package runs
-        and raise :class:`~cellplan.errors.ScenarioError`.
+        ``describe(setup) -> [Fact]``: the facts ``cellplan validate`` prints for the
+        package's section (each with a machine key, a label, a typed value and the text
+        a person reads; see :class:`Fact`). The legacy form ``{label: text}`` is still
+        accepted: its keys are the labels slugged and its values the texts. It may also
+        run the checks every command of the package runs and raise
+        :class:`~cellplan.errors.ScenarioError`.
     showcase
         ``showcase(folder) -> [ShowcaseItem]``: one run of the package's planners on
         bundled scenarios through the API, with pictures, for the demo report.
@@ -266,7 +309,7 @@ class Package:
     experiments: str | None = None
     commands: str | None = None
     paper_runs: int = 1
-    describe: Callable[[Setup], Mapping[str, str]] | None = None
+    describe: Callable[[Setup], Sequence[Fact] | Mapping[str, str]] | None = None
     showcase: Callable[[Any], Sequence[ShowcaseItem]] | None = None
     draw: Callable[[Setup, Any], Sequence[Any]] | None = None
     workcells: tuple[str, ...] = ("2d",)
@@ -317,6 +360,13 @@ class Claim:
     explanation: str = ""
 
 
+MIN_RUNS = 5
+"""Fewest runs behind a statistical verdict (:func:`decide_interval`'s default): below it,
+a claim is "not enough runs to decide" however its interval lies. The demo runs at least
+this many seeds of every experiment with a statistical claim
+(:attr:`Experiment.demo_runs`)."""
+
+
 def decide_interval(
     low: float,
     high: float,
@@ -324,7 +374,7 @@ def decide_interval(
     *,
     above: float | None = None,
     below: float | None = None,
-    min_runs: int = 5,
+    min_runs: int = MIN_RUNS,
 ) -> bool | None:
     """The verdict of "the quantity is above ``above`` (and/or below ``below``)".
 
@@ -382,6 +432,13 @@ class Experiment:
     report
         ``report(rows, outdir)`` turns the rows of every run into a
         :class:`ReportPiece` (figures written under ``outdir``).
+    demo_runs
+        How ``cellplan demo`` runs it: its quick version with this many seeds per
+        parameter point, chosen so that every claim it states is decided (reproduced or
+        differs) under the same rules as the full reproduction. ``None`` (the default):
+        not in the demo, because its claims cannot be decided at a demo's size; the
+        demo's report lists it under "run ``cellplan reproduce`` to decide" with the
+        command that decides it.
     """
 
     name: str
@@ -390,3 +447,4 @@ class Experiment:
     make_runs: Callable[[int, bool], list[RunSpec]]
     run: Callable[[RunSpec], dict[str, Scalar]]
     report: Callable[[list[dict[str, Scalar]], Any], ReportPiece]
+    demo_runs: int | None = None

@@ -300,7 +300,8 @@ def run_sweep(
         The experiments to sweep (names unique, ``<paper>.<name>``).
     runs
         Repetitions (seeds) per parameter point, passed to ``make_runs``; a mapping
-        gives one count per paper.
+        gives one count per experiment name or per paper (an experiment's own entry
+        first, as the demo gives each experiment its ``demo_runs``).
     quick
         Ask each experiment for its small version (``cellplan demo``).
     outdir
@@ -374,7 +375,7 @@ def run_sweep(
         data = outdir / "data"
         result = ExperimentRun(exp, [], data / f"{exp.name}.csv", data / f"{exp.name}.json")
         results.append(result)
-        n = runs[exp.paper] if isinstance(runs, Mapping) else runs
+        n = _runs_of(exp, runs)
         try:
             specs = _expand(exp, n, quick)
         except Exception as exc:
@@ -445,6 +446,13 @@ def run_sweep(
     for result in results:
         _write_outputs(result, metadata)
     return SweepResult(results, outdir, scheduler_desc, command, wall, metadata, lost)
+
+
+def _runs_of(exp: Experiment, runs: int | Mapping[str, int]) -> int:
+    """The seeds per point of ``exp``: its own entry of ``runs``, else its paper's."""
+    if not isinstance(runs, Mapping):
+        return runs
+    return runs[exp.name] if exp.name in runs else runs[exp.paper]
 
 
 def _expand(exp: Experiment, runs: int, quick: bool) -> list[RunSpec]:

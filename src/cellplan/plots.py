@@ -171,7 +171,11 @@ def check_gif_memory(width: int, height: int | None = None, field: str = "--gif-
 
 
 def save_gif(
-    frames: Iterable[np.ndarray], path: str | Path, fps: float = 8.0, hold_last: int = 4
+    frames: Iterable[np.ndarray],
+    path: str | Path,
+    fps: float = 8.0,
+    hold_last: int = 4,
+    collect: bool = True,
 ) -> Path:
     """Write RGB frames as an animated GIF (atomically), one frame at a time.
 
@@ -180,6 +184,9 @@ def save_gif(
     every frame until the end). A frame only stores the box where it differs from the one
     before; an unchanged frame lengthens the previous one. Frames smaller than the largest
     are padded with white to its size. The last frame is shown ``hold_last`` frames longer.
+    ``collect=False`` skips the full garbage collection after each frame, for producers
+    that draw every frame on one reused figure (it cost about 0.2 s a frame in a large
+    process: issue 34, docs/benchmarks.md "Drawing time").
     """
     path = Path(path)
     delay = max(1, round(100 / fps))  # GIF delays are in hundredths of a second
@@ -192,7 +199,8 @@ def save_gif(
             # A drawn frame's figure is a web of reference cycles that only the cycle
             # collector frees; left to its own pace it let RSS grow by 1-4 MB a frame
             # (1200 px, 40 frames: 326 MB with, 253 MB without the growth).
-            gc.collect()
+            if collect:
+                gc.collect()
             if previous is None:
                 canvas = np.array(frame[..., :3], np.uint8)
             else:
@@ -410,6 +418,13 @@ def draw_robot(
 def save_workcell(
     cell: Workcell, path: str | Path, q: np.ndarray | None = None, carrying: str | None = None
 ) -> Path:
+    """:func:`workcell_figure` saved as a PNG."""
+    return save_figure(workcell_figure(cell, q, carrying), path)
+
+
+def workcell_figure(
+    cell: Workcell, q: np.ndarray | None = None, carrying: str | None = None
+) -> Figure:
     """The workcell, the robot at ``q`` (default: start) carrying a part (default: the first)."""
     from matplotlib.patches import Patch
 
@@ -433,12 +448,17 @@ def save_workcell(
     )
     # Names are the user's text: "$x^$" is a title, not matplotlib math to parse.
     ax.set_title(cell.name or "workcell", parse_math=False)
-    return save_figure(fig, path)
+    return fig
 
 
 def save_scenario(setup: Setup, path: str | Path) -> Path:
-    """Everything a scenario describes: the workcell with the robot at its start (when it
-    has one) and what each package's section adds (:attr:`cellplan.core.Package.draw`)."""
+    """:func:`scenario_figure` saved as a PNG."""
+    return save_figure(scenario_figure(setup), path)
+
+
+def scenario_figure(setup: Setup) -> Figure:
+    """Everything a 2-D scenario describes: the workcell with the robot at its start (when
+    it has one) and what each package's section adds (:attr:`cellplan.core.Package.draw`)."""
     from matplotlib.patches import Patch
 
     from cellplan.registry import packages
@@ -482,7 +502,7 @@ def save_scenario(setup: Setup, path: str | Path) -> Path:
         handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False
     )
     ax.set_title(sc.name or setup.name, parse_math=False)
-    return save_figure(fig, path)
+    return fig
 
 
 # --- C-space drawing -------------------------------------------------------------------------

@@ -140,6 +140,36 @@ class ExtraSection:
     articles: list[Article] = field(default_factory=list)
 
 
+@dataclass(frozen=True)
+class ToDecide:
+    """A claim (or a whole experiment) the demo shows apart, with the command that decides it.
+
+    The demo runs only experiments that decide their claims at a small size
+    (:attr:`cellplan.core.Experiment.demo_runs`); the others, and any claim a demo run
+    still left undecided, are listed under "run ``cellplan reproduce`` to decide"
+    instead of among the verdicts.
+
+    Attributes
+    ----------
+    experiment
+        The experiment's name (``<paper>.<name>``).
+    paper
+        The package it belongs to.
+    title
+        The experiment's title, or the claim left undecided.
+    why
+        Why the demo does not decide it (one line).
+    command
+        The ``cellplan reproduce`` command that decides it.
+    """
+
+    experiment: str
+    paper: str
+    title: str
+    why: str
+    command: str
+
+
 @dataclass
 class ExperimentReport:
     """One experiment's sweep with the piece its ``report`` produced (or why it did not)."""
@@ -185,11 +215,54 @@ def make_pieces(
     return out
 
 
+def set_apart_undecided(
+    pieces: Sequence[ExperimentReport], command_for: Callable[[Experiment], str]
+) -> list[ToDecide]:
+    """Take every undecided claim out of ``pieces``; return them as :class:`ToDecide` items.
+
+    The demo's report shows only decided claims among its results: a claim its small
+    run left undecided, or a whole experiment with nothing to report (every run skipped
+    for time, say), is listed apart with ``command_for(experiment)``, the command that
+    decides it (the full reproduction). The pieces are changed in place.
+    """
+    apart = []
+    for item in pieces:
+        exp = item.run.experiment
+        if item.piece is None:  # nothing to decide from (every run skipped, say)
+            why = f"the demo did not decide it ({item.error})"
+            apart.append(ToDecide(exp.name, exp.paper, exp.title, why, command_for(exp)))
+            continue
+        kept = []
+        for claim in item.piece.claims:
+            if claim.reproduced is not None:
+                kept.append(claim)
+                continue
+            basis = f" with n = {claim.n}" if claim.n else ""
+            apart.append(
+                ToDecide(
+                    exp.name,
+                    exp.paper,
+                    claim.claim,
+                    f"the demo's run{basis} did not decide it ({claim.ours})",
+                    command_for(exp),
+                )
+            )
+        item.piece.claims = kept
+    return apart
+
+
 def reproduce_command(
-    exp: Experiment, runs: int, quick: bool, outdir: Path | str, scheduler: str | None = None
+    exp: Experiment,
+    runs: int | None,
+    quick: bool,
+    outdir: Path | str,
+    scheduler: str | None = None,
 ) -> str:
-    """The ``cellplan reproduce`` command that regenerates one experiment's piece."""
-    args = ["cellplan", "reproduce", exp.paper, "--only", exp.name, "--runs", str(runs)]
+    """The ``cellplan reproduce`` command that regenerates one experiment's piece
+    (``runs`` None: the paper's own count, no ``--runs``)."""
+    args = ["cellplan", "reproduce", exp.paper, "--only", exp.name]
+    if runs is not None:
+        args += ["--runs", str(runs)]
     if quick:
         args.append("--quick")
     if scheduler:
@@ -206,6 +279,7 @@ def write_report(
     title: str = "cellplan: the three papers, reproduced",
     intro: str = "",
     extra: Sequence[ExtraSection] = (),
+    to_decide: Sequence[ToDecide] = (),
 ) -> Path:
     """Write ``outdir/index.html`` atomically and return its path.
 
@@ -224,6 +298,10 @@ def write_report(
         Page heading and a first paragraph.
     extra
         Further sections, placed after the papers.
+    to_decide
+        Claims and experiments not decided here (the demo's), listed apart in their
+        paper's section under "run ``cellplan reproduce`` to decide", each with its
+        command, and counted in their own column of the summary.
     """
     outdir = Path(outdir)
     page = _Page()
@@ -242,7 +320,7 @@ def write_report(
             f"in {sweep.wall_s:.1f} s"
         )
     page.add(".</p>")
-    page.add(_summary_table(found, pieces))
+    page.add(_summary_table(found, pieces, to_decide))
     page.add(_toc(found, extra))
     page.add("</header><main>")
     by_paper: dict[str, list[ExperimentReport]] = {}
@@ -251,7 +329,10 @@ def write_report(
     papers = [f.paper for f in found] + [p for p in by_paper if p not in {f.paper for f in found}]
     notes = {f.paper: f.note for f in found}
     for paper in papers:
-        page.add(_paper_section(paper, notes.get(paper, ""), by_paper.get(paper, []), outdir))
+        apart = [t for t in to_decide if t.paper == paper]
+        page.add(
+            _paper_section(paper, notes.get(paper, ""), by_paper.get(paper, []), outdir, apart)
+        )
     for section in extra:
         page.add(_extra_section(section, outdir))
     if sweep is not None:
@@ -263,7 +344,11 @@ def write_report(
 # --- sections -----------------------------------------------------------------------------------
 
 
-def _summary_table(found: Sequence[PaperExperiments], pieces: Sequence[ExperimentReport]) -> str:
+def _summary_table(
+    found: Sequence[PaperExperiments],
+    pieces: Sequence[ExperimentReport],
+    to_decide: Sequence[ToDecide] = (),
+) -> str:
     rows = []
     papers = [f.paper for f in found] or list(_package_names())
     for paper in papers:
@@ -279,12 +364,20 @@ def _summary_table(found: Sequence[PaperExperiments], pieces: Sequence[Experimen
             f'<tr><td><a href="#paper-{_e(paper)}">{_e(name)}</a></td><td>{len(items)}</td>'
             f"<td>{runs}</td><td>{failed}</td>"
             f'<td class="ok">{good}</td><td class="{"bad" if bad else ""}">{bad}</td>'
-            f'<td class="{"undecided" if open_ else ""}">{open_}</td></tr>'
+            f'<td class="{"undecided" if open_ else ""}">{open_}</td>'
+            + (
+                f'<td><a href="#to-decide-{_e(paper)}">'
+                f"{sum(1 for t in to_decide if t.paper == paper)}</a></td>"
+                if to_decide
+                else ""
+            )
+            + "</tr>"
         )
+    apart = "<th>left to <code>cellplan reproduce</code></th>" if to_decide else ""
     return (
         '<table class="summary"><thead><tr><th>paper</th><th>experiments</th><th>runs</th>'
         "<th>failed runs</th><th>claims reproduced</th><th>claims that differ</th>"
-        "<th>not enough runs to decide</th></tr></thead>"
+        f"<th>not enough runs to decide</th>{apart}</tr></thead>"
         f"<tbody>{''.join(rows)}</tbody></table>"
     )
 
@@ -299,7 +392,13 @@ def _toc(found: Sequence[PaperExperiments], extra: Sequence[ExtraSection]) -> st
     return f"<nav><ul>{''.join(links)}</ul></nav>"
 
 
-def _paper_section(paper: str, note: str, items: Sequence[ExperimentReport], outdir: Path) -> str:
+def _paper_section(
+    paper: str,
+    note: str,
+    items: Sequence[ExperimentReport],
+    outdir: Path,
+    apart: Sequence[ToDecide] = (),
+) -> str:
     info = paper_info(paper)
     parts = [f'<section id="paper-{_e(paper)}"><h2>{_e(info.title)}</h2>']
     if info.citation:
@@ -311,6 +410,8 @@ def _paper_section(paper: str, note: str, items: Sequence[ExperimentReport], out
     elif not items:
         parts.append('<p class="note">no experiments selected for this paper.</p>')
     parts.append(_verdict_list(items))
+    if apart:
+        parts.append(_to_decide_list(paper, apart))
     parts += [_experiment_article(item, outdir) for item in items]
     parts.append("</section>")
     return "\n".join(parts)
@@ -407,6 +508,20 @@ def _verdict_list(items: Sequence[ExperimentReport]) -> str:
     if not lines:
         return ""
     return f'<div class="verdicts"><b>Verdicts.</b><ul>{"".join(lines)}</ul></div>'
+
+
+def _to_decide_list(paper: str, apart: Sequence[ToDecide]) -> str:
+    """The claims and experiments of a paper not decided here, each with its command."""
+    lines = [
+        f"<li><b>{_e(t.title)}</b> ({_e(t.experiment)}): {_e(t.why)}."
+        f'<pre class="cmd">{_e(t.command)}</pre></li>'
+        for t in apart
+    ]
+    return (
+        f'<div class="to-decide" id="to-decide-{_e(paper)}"><b>Run <code>cellplan reproduce'
+        "</code> to decide.</b> Not decided at the demo's size (so not among the verdicts "
+        f"above); each command below decides it.<ul>{''.join(lines)}</ul></div>"
+    )
 
 
 def _claims_table(claims: Sequence[Claim]) -> str:
@@ -627,7 +742,8 @@ th,td{border:1px solid #d0d7de;padding:.25rem .5rem;vertical-align:top;text-alig
 th{background:#f6f8fa}
 td.ok,li.ok{color:#116329}td.bad,li.bad{color:#82071e}td.undecided,li.undecided{color:#7d4e00}
 .verdicts{border:1px solid #d0d7de;border-radius:4px;padding:.4rem .8rem;margin:.8rem 0}
-.verdicts ul{margin:.3rem 0;padding-left:1.2rem}
+.verdicts ul,.to-decide ul{margin:.3rem 0;padding-left:1.2rem}
+.to-decide{border:1px dashed #8c959f;border-radius:4px;padding:.4rem .8rem;margin:.8rem 0}
 td.verdict{font-weight:600}
 figure{display:inline-block;margin:.5rem 1rem .5rem 0;max-width:100%}
 figure img{max-width:100%;height:auto;border:1px solid #d0d7de}

@@ -14,6 +14,7 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 
+from cellplan.cliutil import JsonOpt, print_json
 from cellplan.errors import ArgumentError, Interrupted, Problem
 from cellplan.experiments import SweepResult
 
@@ -75,15 +76,25 @@ def reproduce_sweep(
     console: Any = None,
     title: str = "cellplan: the three papers, reproduced",
     intro: str = "",
-    extra: Sequence[Any] = (),
+    extra: Sequence[Any] | Callable[[], Sequence[Any]] = (),
     progress: bool = True,
     time_budget_s: float | None = None,
+    demo: bool = False,
 ) -> tuple[Path, SweepResult]:
     """Discover, sweep and report the experiments of ``papers``.
 
     ``runs`` overrides every paper's default count (:func:`paper_runs`); ``only``
     restricts the sweep to the named experiments (all must exist); ``time_budget_s``
     is passed to :func:`~cellplan.experiments.run_sweep`.
+
+    ``extra``: further report sections, or a function returning them, called once the
+    sweep is done (the demo makes its pictures in a thread meanwhile).
+
+    ``demo``: the demo's sweep. Only the experiments with a
+    :attr:`~cellplan.core.Experiment.demo_runs` run, in their quick version with that
+    many seeds (``runs`` and ``quick`` are ignored); the others, and any claim their
+    runs leave undecided, are listed apart in the report with the full reproduction's
+    command (:func:`demo_split`, :func:`cellplan.report.set_apart_undecided`).
 
     Returns
     -------
@@ -92,7 +103,13 @@ def reproduce_sweep(
         command's exit status).
     """
     from cellplan.experiments import discover, run_sweep
-    from cellplan.report import make_pieces, reproduce_command, write_report
+    from cellplan.report import (
+        ToDecide,
+        make_pieces,
+        reproduce_command,
+        set_apart_undecided,
+        write_report,
+    )
 
     found = discover(papers)
     known = {e.name: e for f in found for e in f.experiments}
@@ -109,9 +126,28 @@ def reproduce_sweep(
         for f in found:
             if f.note:
                 console.print(f"[yellow]note[/]: {f.paper}: {f.note}", highlight=False)
+    to_decide: list[ToDecide] = []
+    if demo:
+        quick = True
+        for f in found:
+            f.experiments, left = demo_split(f.experiments)
+            to_decide += [
+                ToDecide(
+                    e.name,
+                    e.paper,
+                    e.title,
+                    "its claims need more seeds or larger problems than the demo's time allows",
+                    full_command(e),
+                )
+                for e in left
+            ]
     experiments = [e for f in found for e in f.experiments]
     defaults = paper_runs()
-    per_paper = {p: runs or defaults.get(p, 10) for p in {e.paper for e in experiments}}
+    per_paper: dict[str, int] = {
+        p: runs or defaults.get(p, 10) for p in {e.paper for e in experiments}
+    }
+    if demo:
+        per_paper.update({e.name: e.demo_runs for e in experiments if e.demo_runs is not None})
     sweep = run_sweep(
         experiments,
         per_paper,
@@ -126,11 +162,38 @@ def reproduce_sweep(
     )
 
     def command_for(exp: Any) -> str:
-        return reproduce_command(exp, per_paper[exp.paper], quick, outdir, scheduler)
+        n = per_paper.get(exp.name, per_paper[exp.paper])
+        return reproduce_command(exp, n, quick, outdir, scheduler)
 
+    # Before any report draws: the demo's pictures may still be drawing in a thread.
+    sections = extra() if callable(extra) else extra
     pieces = make_pieces(sweep, command_for)
-    index = write_report(outdir, found, pieces, sweep, title=title, intro=intro, extra=extra)
+    if demo:
+        to_decide += set_apart_undecided(pieces, full_command)
+    index = write_report(
+        outdir, found, pieces, sweep, title=title, intro=intro, extra=sections, to_decide=to_decide
+    )
     return index, sweep
+
+
+FULL_OUTPUT = Path("cellplan-reproduce")
+"""The report folder of the full reproduction (``reproduce -o``'s default), which the
+demo's "run ``cellplan reproduce`` to decide" commands name."""
+
+
+def demo_split(experiments: Sequence[Any]) -> tuple[list[Any], list[Any]]:
+    """The experiments the demo runs (those with ``demo_runs``) and those it lists apart."""
+    return (
+        [e for e in experiments if e.demo_runs is not None],
+        [e for e in experiments if e.demo_runs is None],
+    )
+
+
+def full_command(exp: Any) -> str:
+    """The full reproduction of one experiment (its paper's runs, not quick)."""
+    from cellplan.report import reproduce_command
+
+    return reproduce_command(exp, None, False, FULL_OUTPUT)
 
 
 def failure_line(sweep: SweepResult, index: Path, output: Path) -> str:
@@ -170,7 +233,7 @@ def register(app: typer.Typer) -> None:
         ] = None,
         output: Annotated[
             Path, typer.Option("-o", "--output", metavar="DIR", help="report folder")
-        ] = Path("cellplan-reproduce"),
+        ] = FULL_OUTPUT,
         scheduler: Annotated[
             str | None,
             typer.Option(
@@ -190,6 +253,7 @@ def register(app: typer.Typer) -> None:
         fresh: Annotated[
             bool, typer.Option("--fresh", help="ignore cached runs and recompute everything")
         ] = False,
+        as_json: JsonOpt = False,
     ) -> None:
         """Run the papers' experiments (cached, on Dask) and write OUTPUT/index.html."""
         from rich.console import Console
@@ -243,7 +307,12 @@ def register(app: typer.Typer) -> None:
                 f"interrupted; {cached} runs cached in {output / 'cache'}; "
                 "run the same command to resume"
             ) from None
-        if sweep.n_failed or sweep.n_broken:
+        failed = bool(sweep.n_failed or sweep.n_broken)
+        if as_json:
+            print_json(sweep_payload(sweep, index, output))
+        elif not failed:
+            typer.echo(f"report written: {index}")
+        if failed:
             console.print(
                 failure_line(sweep, index, output),
                 highlight=False,
@@ -251,7 +320,21 @@ def register(app: typer.Typer) -> None:
                 soft_wrap=True,
             )
             raise typer.Exit(1)
-        typer.echo(f"report written: {index}")
+
+
+def sweep_payload(sweep: SweepResult, index: Path, output: Path) -> dict[str, Any]:
+    """``reproduce --json``: one object with the report's path and the sweep's counts
+    (integers), ``status`` "written" or "failed" (some runs failed; exit status 1)."""
+    failed = bool(sweep.n_failed or sweep.n_broken)
+    return {
+        "status": "failed" if failed else "written",
+        "message": failure_line(sweep, index, output) if failed else f"report written: {index}",
+        "outputs": {"report": str(index)},
+        "runs": int(sweep.n_runs),
+        "failed_runs": int(sweep.n_failed),
+        "broken_experiments": int(sweep.n_broken),
+        "cached_runs": cached_runs(output),
+    }
 
 
 def cached_runs(output: Path) -> int:

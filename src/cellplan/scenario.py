@@ -52,6 +52,7 @@ from cellplan.scenario3d import (
     UNION_CHOOSERS,
     UNION_TAGS,
     AnyShape,
+    RobotMotion,
     UrdfRobotSpec,
     Workcell3DSpec,
     check_references_3d,
@@ -139,14 +140,14 @@ class WorkcellSpec(StrictModel):
         return {name: planar(shape) for name, shape in self.obstacles.items()}
 
 
-class PointRobotSpec(StrictModel):
+class PointRobotSpec(RobotMotion):
     """A point robot; C = R^2."""
 
     type: Literal["point"] = Field(description="robot kind")
     start: Vec2 = Field(description="start position (workcell units)", examples=[[15, 8]])
 
 
-class TranslatingRobotSpec(StrictModel):
+class TranslatingRobotSpec(RobotMotion):
     """A rigid body that translates only; C = R^2. ``shape`` is in the robot frame."""
 
     type: Literal["translating"] = Field(description="robot kind")
@@ -157,7 +158,7 @@ class TranslatingRobotSpec(StrictModel):
     start: Vec2 = Field(description="start position of the frame origin", examples=[[15, 8]])
 
 
-class RotatingRobotSpec(StrictModel):
+class RotatingRobotSpec(RobotMotion):
     """A rigid body that translates and rotates; C = R^2 x S^1.
 
     ``start`` is ``(x, y, theta)`` with theta in degrees. The robot's axis of
@@ -203,7 +204,7 @@ class LinkSpec(StrictModel):
 MAX_LINKS = 100
 
 
-class ArmRobotSpec(StrictModel):
+class ArmRobotSpec(RobotMotion):
     """A planar n-link revolute chain; C = the joint angles.
 
     Angles are in degrees. Joint i is measured relative to link i-1 (joint 1 from
@@ -746,7 +747,10 @@ def _message(err: Any, data: Any, root: type[BaseModel]) -> str:
         count = f"{len(given)} value(s)" if isinstance(given, list | tuple) else "too few values"
         return f"has {count}; at least {loc[-1] + 1} are needed"
     if kind == "union_tag_not_found":
-        return "needs a 'type' (what kind of shape or robot it is)"
+        tags = _tags(_annotation_at(loc, data, root), _node_at(loc, data))
+        if tags:
+            return f"needs a 'type', one of {', '.join(repr(t) for t in tags)}"
+        return "needs a 'type'"
     if kind == "too_short":
         ctx = err.get("ctx", {})
         return f"needs at least {ctx.get('min_length')} item(s), got {ctx.get('actual_length')}"
@@ -756,7 +760,9 @@ def _message(err: Any, data: Any, root: type[BaseModel]) -> str:
         return f"has {n} characters; at most {ctx.get('max_length')} allowed"
     if kind == "union_tag_invalid":
         ctx = err.get("ctx", {})
-        return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
+        tags = _tags(_annotation_at(loc, data, root), _node_at(loc, data))
+        expected = ", ".join(repr(t) for t in tags) if tags else ctx.get("expected_tags")
+        return f"unknown type {ctx.get('tag')!r}; 'type' must be one of {expected}"
     if kind == "too_long":
         ctx = err.get("ctx", {})
         n = ctx.get("actual_length")
@@ -784,9 +790,55 @@ def _got(err: Any) -> str:
 
 def _model_at(loc: tuple[Any, ...], data: Any, root: type[BaseModel]) -> type[BaseModel] | None:
     """The pydantic model that validates the node at ``loc`` of ``data`` (None if unclear)."""
+    tp = _resolve(_annotation_at(loc, data, root), _node_at(loc, data))
+    return tp if isinstance(tp, type) and issubclass(tp, BaseModel) else None
+
+
+def _node_at(loc: tuple[Any, ...], data: Any) -> Any:
+    """The input node at ``loc`` (union tags in the location skipped; None if absent)."""
+    node = data
+    for item in loc:
+        if isinstance(node, dict) and item in node:
+            node = node[item]
+        elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
+            node = node[item]
+        elif not (isinstance(item, str) and _is_union_tag(item, node)):
+            return None
+    return node
+
+
+def _tags(tp: Any, node: Any) -> list[str]:
+    """The ``type`` values a (discriminated) union accepts at a node, in declaration order:
+    where a 2-D/3-D chooser picks a member first, the chosen member's only."""
+    while get_origin(tp) is Annotated:
+        tp = get_args(tp)[0]
+    if get_origin(tp) in (Union, types.UnionType):
+        tagged = {
+            m.tag: a
+            for a in get_args(tp)
+            if get_origin(a) is Annotated
+            for m in get_args(a)[1:]
+            if isinstance(m, Tag)
+        }
+        choose = UNION_CHOOSERS.get(frozenset(tagged))
+        if choose is not None:
+            return _tags(tagged[choose(node)], node)
+        found = [t for a in get_args(tp) for t in _tags(a, node)]
+        return list(dict.fromkeys(found))
+    if isinstance(tp, type) and issubclass(tp, BaseModel) and "type" in tp.model_fields:
+        return [str(v) for v in get_args(tp.model_fields["type"].annotation)]
+    return []
+
+
+def _annotation_at(loc: tuple[Any, ...], data: Any, root: type[BaseModel]) -> Any:
+    """The annotation (unresolved: a union stays a union) that validates the node at
+    ``loc`` of ``data``; None if unclear."""
     tp: Any = root
     node = data
     for pos, item in enumerate(loc):
+        if isinstance(item, str) and item in UNION_TAGS:
+            tp = _member_tagged(tp, item)  # a 2-D/3-D union's member, named in the location
+            continue
         tp = _resolve(tp, node)
         if isinstance(tp, type) and issubclass(tp, BaseModel):
             # A tag that is also a key (robot.urdf) is the tag unless there is more to walk.
@@ -812,8 +864,22 @@ def _model_at(loc: tuple[Any, ...], data: Any, root: type[BaseModel]) -> type[Ba
             node = node[item] if ok else None
         else:
             return None
-    tp = _resolve(tp, node)
-    return tp if isinstance(tp, type) and issubclass(tp, BaseModel) else None
+    return tp
+
+
+def _member_tagged(tp: Any, tag: str) -> Any:
+    """The member of a union of ``Tag``-annotated members whose tag is ``tag`` (``tp``
+    itself when it has none)."""
+    inner = tp
+    while get_origin(inner) is Annotated:
+        inner = get_args(inner)[0]
+    if get_origin(inner) in (Union, types.UnionType):
+        for a in get_args(inner):
+            if get_origin(a) is Annotated and any(
+                isinstance(m, Tag) and m.tag == tag for m in get_args(a)[1:]
+            ):
+                return a
+    return tp
 
 
 def _resolve(tp: Any, node: Any) -> Any:

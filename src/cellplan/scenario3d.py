@@ -18,11 +18,19 @@ import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, cast
 
-from pydantic import Discriminator, Field, Tag, model_validator
+from pydantic import (
+    Discriminator,
+    Field,
+    SerializerFunctionWrapHandler,
+    Tag,
+    model_serializer,
+    model_validator,
+)
 
 from cellplan.errors import Problem
 from cellplan.fileio import kind_of
 from cellplan.schema import Coord, Length, Name, Shape, StrictModel
+from cellplan.timing import ACCELERATION_TIME, DEFAULT_ANGULAR_SPEED_DEG, DEFAULT_LINEAR_SPEED
 
 if TYPE_CHECKING:
     from cellplan.scenario import Scenario, WorkcellSpec
@@ -38,6 +46,7 @@ __all__ = [
     "CylinderSolid",
     "MeshSolid",
     "Pose",
+    "RobotMotion",
     "Solid",
     "SolidBox",
     "SphereSolid",
@@ -200,7 +209,62 @@ UNION_CHOOSERS = {
 name what a mapping may hold)."""
 
 
-class UrdfRobotSpec(StrictModel):
+#: Most axes a robot's ``speed`` or ``acceleration`` list may name.
+MAX_AXES = 128
+Rate = Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)]
+
+
+class RobotMotion(StrictModel):
+    """How fast a robot moves: the fields every robot kind shares (see cellplan.timing).
+
+    Both are per axis, in the order of ``start``, in file units per second: workcell units
+    (metres for URDF arms) for positions, degrees for angles. Absent (the default), a URDF
+    arm uses its URDF's velocity limits, other robots
+    ``cellplan.timing.DEFAULT_LINEAR_SPEED`` units/s and
+    ``cellplan.timing.DEFAULT_ANGULAR_SPEED_DEG`` degrees/s; the acceleration reaches the
+    speed in ``cellplan.timing.ACCELERATION_TIME`` seconds.
+    """
+
+    speed: list[Rate] | None = Field(
+        default=None,
+        max_length=MAX_AXES,
+        description=(
+            "top speed per axis: workcell units/s (metres/s for URDF arms), degrees/s for "
+            f"angles (default: the URDF's velocity limits, else {DEFAULT_LINEAR_SPEED:g} "
+            f"units/s and {DEFAULT_ANGULAR_SPEED_DEG:g} degrees/s)"
+        ),
+    )
+    acceleration: list[Rate] | None = Field(
+        default=None,
+        max_length=MAX_AXES,
+        description=(
+            "top acceleration per axis: workcell units/s^2, degrees/s^2 for angles "
+            f"(default: speed / {ACCELERATION_TIME:g} s)"
+        ),
+    )
+
+    @model_validator(mode="after")
+    def _one_per_axis(self) -> RobotMotion:
+        dim = len(getattr(self, "start", ()))
+        for name in ("speed", "acceleration"):
+            value = getattr(self, name)
+            if value is not None and len(value) != dim:
+                raise ValueError(f"{name} needs one value per axis ({dim}), got {len(value)}")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _omit_absent_motion(self, handler: SerializerFunctionWrapHandler) -> Any:
+        # A robot without speeds dumps as before these fields existed, so the digests of
+        # existing scenarios (saved strategies, experience databases) do not change.
+        data = handler(self)
+        if isinstance(data, dict):
+            for name in ("speed", "acceleration"):
+                if data.get(name) is None:
+                    data.pop(name, None)
+        return data
+
+
+class UrdfRobotSpec(RobotMotion):
     """An arm described by a URDF (kinematics by Pinocchio, collision geometry by coal).
 
     ``joints`` lists the active joints, in order; every other movable joint stays at

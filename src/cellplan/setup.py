@@ -88,6 +88,12 @@ class Setup:
     def __repr__(self) -> str:
         return f"Setup({self.name!r}, sections={self.scenario.section_names()})"
 
+    def _repr_png_(self) -> bytes:
+        """The scenario's picture in a notebook (:func:`cellplan.drawing.draw`)."""
+        from cellplan.drawing import png_bytes
+
+        return png_bytes(self)
+
 
 def as_setup(value: Setup | Scenario | str | Path) -> Setup:
     """A :class:`Setup` from a setup, a scenario, or a path / bundled name."""

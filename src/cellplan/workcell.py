@@ -19,7 +19,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -75,6 +75,36 @@ class Region:
     def shapes(self) -> ShapeSet:
         """All components as one set."""
         return ShapeSet.union(self.components)
+
+
+def cell_repr(
+    kind: str,
+    name: str,
+    robot: str,
+    bounds: str,
+    obstacles: Mapping[str, Any],
+    parts: Mapping[str, Any],
+    sources: Mapping[str, int],
+    destinations: Mapping[str, int],
+) -> str:
+    """The repr of a workcell (2-D or 3-D): names and counts, never arrays.
+
+    ``sources`` and ``destinations`` map each region to its number of components; empty
+    groups are left out.
+    """
+
+    def names(items: Mapping[str, Any]) -> str:
+        return "[" + ", ".join(items) + "]"
+
+    def regions(items: Mapping[str, int]) -> str:
+        return "[" + ", ".join(f"{n} ({c})" for n, c in items.items()) + "]"
+
+    fields = [repr(name), f"robot={robot}", f"bounds={bounds}"]
+    fields += [f"obstacles={names(obstacles)}"] if obstacles else []
+    fields += [f"parts={names(parts)}"] if parts else []
+    fields += [f"sources={regions(sources)}"] if sources else []
+    fields += [f"destinations={regions(destinations)}"] if destinations else []
+    return f"{kind}({', '.join(fields)})"
 
 
 @dataclass(frozen=True)
@@ -427,6 +457,34 @@ class Workcell:
         raise ArgumentError(
             f"unknown region {name!r}; known: {[*self.sources, *self.destinations]}", "name"
         )
+
+    # --- in a console and a notebook -----------------------------------------------------------
+
+    def __repr__(self) -> str:
+        """Short: name, robot (kind, dimension), bounds and the names of what the cell
+        holds (region names with their component counts); no arrays."""
+        xmin, ymin, xmax, ymax = self.bounds
+        return cell_repr(
+            "Workcell",
+            self.name,
+            f"{self.robot.kind}, dim {self.robot.dim}",
+            f"[{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}]",
+            self.obstacles,
+            self.parts,
+            {n: len(r.components) for n, r in self.sources.items()},
+            {n: len(r.components) for n, r in self.destinations.items()},
+        )
+
+    def _repr_png_(self) -> bytes:
+        """The workcell with the robot at its start (:func:`cellplan.plots.workcell_figure`)
+        as PNG bytes, for notebooks."""
+        import io
+
+        from cellplan.plots import workcell_figure
+
+        buffer = io.BytesIO()
+        workcell_figure(self).savefig(buffer, format="png", dpi=90)
+        return buffer.getvalue()
 
     # --- the rest of the validity interface (cellplan.validity) ------------------------------
 

@@ -136,7 +136,7 @@ def test_showcase_draws_figure_3_through_the_api_without_printing(
     from cellplan.adaptive.plugin import PACKAGE
 
     assert PACKAGE.showcase is not None
-    (item,) = PACKAGE.showcase(tmp_path)
+    item = PACKAGE.showcase(tmp_path)[0]  # Figure 3 first; the UR5 item follows
     assert capfd.readouterr() == ("", "")
     (figure,) = item.figures
     assert Path(figure).stat().st_size > 10_000 and "cellplan.plan" in item.code

@@ -166,7 +166,7 @@ def test_assemble_exits_1_when_stuck_and_says_why(tmp_path: Path) -> None:
     assert code == 1
     payload = json.loads(out)
     assert payload["status"] == "stuck" and "spurious minimum" in payload["message"]
-    assert payload["stats"]["solved_at_k"] == 0.0
+    assert payload["stats"]["solved_at_k"] is False  # a flag stays a JSON boolean
     traj = Trajectory.load(payload["outputs"]["trajectory"])
     assert traj.columns[:2] == ("disc1.x", "disc1.y") and traj.dim == 8
     metrics = json.loads((tmp_path / "j" / "metrics.json").read_text())
@@ -238,8 +238,9 @@ def test_showcase_plans_through_the_api_and_prints_nothing(
     assert make is not None
     items = make(tmp_path)
     assert capsys.readouterr() == ("", "")
-    assert len(items) == 2
-    assert [len(item.figures) for item in items] == [2, 1]
+    assert len(items) == 3
+    assert [len(item.figures) for item in items] == [2, 1, 1]
+    assert "spheres" in items[2].title
     assert all(Path(f).stat().st_size > 0 for item in items for f in item.figures)
     assert all("cellplan.plan(" in item.code and "solved" in item.caption for item in items)
 
@@ -274,10 +275,15 @@ def test_sequential_budget_exhausted_exits_1(tmp_path: Path) -> None:
     scenario = tmp_path / "jam.yaml"
     scenario.write_text(JAM)
     args = [str(scenario), "--algorithm", "sequential", "--frames", "2", "--json"]
-    code, out = _assemble(*args, "--escapes", "0", "-o", str(tmp_path / "a"))
+    code, out = _assemble(*args, "--escapes", "0", "--finish", "none", "-o", str(tmp_path / "a"))
     payload = json.loads(out)
     assert code == 1 and payload["status"] == "budget_exhausted"
     assert payload["message"].startswith("budget spent at k=48 (140 switches")
+    # the default finish (issue 35): the place rule takes over where the T map stopped
+    code, out = _assemble(*args, "--escapes", "0", "-o", str(tmp_path / "b"))
+    payload = json.loads(out)
+    assert code == 0 and payload["status"] == "solved"
+    assert "the paper's T map stopped at k=48 (140 switches" in payload["message"]
 
 
 def test_sequential_escape_is_an_event_where_the_next_stage_starts(tmp_path: Path) -> None:

@@ -99,8 +99,9 @@ def _replay_sequential(p: DiscProblem, rule: str) -> None:
     actions = res.actions()
     assert len(actions) == 3 * res.switches
     for pick, move, release in zip(actions[::3], actions[1::3], actions[2::3], strict=True):
-        i = pick["disc"]
-        assert move["disc"] == i == release["disc"]
+        assert 1 <= pick["disc"] <= p.n  # numbered from 1, as people count
+        i = pick["disc"] - 1
+        assert move["disc"] == i + 1 == release["disc"]
         path = np.array(move["path"])
         assert np.allclose(path[0], x[i])
         for b in path[1:]:

@@ -200,20 +200,29 @@ def test_cli_writes_frames_gif_trajectory_and_metrics(tmp_path: Path) -> None:
         assert gif.size[0] == 300
 
 
-def test_every_animation_frame_has_a_time_counter(tmp_path: Path, frame_counters) -> None:
+def test_every_animation_frame_has_a_stage_and_time_counter(tmp_path: Path, monkeypatch) -> None:
+    import cellplan.assembly.plots as plots
     from cellplan import api
-    from cellplan.assembly.plots import save_animation
 
-    counters = frame_counters
-    result = api.plan(api.load("discs_swap"), "assembly.gradient")
+    counters: list[str] = []
+    render = plots.frame_rgb
+
+    def spy(fig):
+        counters.extend(
+            t.get_text() for ax in fig.axes for t in ax.texts if t.get_gid() == "frame-counter"
+        )
+        return render(fig)
+
+    monkeypatch.setattr(plots, "frame_rgb", spy)
+    result = api.plan(api.load("discs_swap"), "assembly.sequential")
     traj = result.trajectory
-    save_animation(
-        result.solution.problem,
-        result.solution.path,
-        tmp_path / "a.gif",
-        4,
-        times=traj.t,
-        time_unit=traj.time_unit,
+    plots.save_animation(
+        result.solution.problem, result.solution.path, tmp_path / "a.gif", 4, trajectory=traj
     )
-    assert len(counters) == 4 and all(c.startswith("t = ") and "step" in c for c in counters)
-    assert counters[-1].endswith(f"/ {len(result.solution.path) - 1})")
+    assert len(counters) == 4
+    assert all(c.startswith("stage ") and "path length" in c for c in counters)
+    last = len(result.solution.path) - 1
+    assert counters[0].startswith("stage 1 / ") and counters[0].endswith(f"step 0 / {last}")
+    _, count = plots.frame_stages(traj)
+    assert counters[-1].startswith(f"stage {count} / {count}: disc ")
+    assert counters[-1].endswith(f"step {last} / {last}")

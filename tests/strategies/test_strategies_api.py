@@ -183,6 +183,7 @@ def test_showcase_makes_its_pictures_through_the_api_silently(tmp_path, monkeypa
     # The demo's recipe on the tiny cell (same modes, shorter run), to keep the suite fast.
     monkeypatch.setattr(showcase, "SCENARIO", "strategies_tiny")
     monkeypatch.setattr(showcase, "STAGES", 40)
+    monkeypatch.setattr(showcase, "WITH_UR5", False)  # test_strategies_ur5.py shows that one
     items = packages()["strategies"].showcase(tmp_path)
     assert len(items) == 2
     for item in items:

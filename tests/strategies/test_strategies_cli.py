@@ -37,7 +37,7 @@ def test_solve_simulate_plot(cellplan, scenario, tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["metrics"]["stages"] == 120
     assert (out / "simulation.gif").stat().st_size > 0
-    assert (out / "frames.png").exists() and (out / "frame_001.png").exists()
+    assert (out / "frames.png").exists() and not (out / "frame_001.png").exists()
     fig = tmp_path / "w.png"
     r = cellplan("plot", str(scenario), "--strategy", str(npz), "--mode", "1,1,1,W", "-o", str(fig))
     assert r.returncode == 0, r.stderr
@@ -229,8 +229,62 @@ def test_a_long_run_draws_at_most_max_frames_pictures(tmp_path):
     strategy, _ = solve_scenario(sc, cell)
     sim = simulate(strategy, 200, seed=2, cell=cell)
     assert len(sim.segments()) > 5
-    paths = plots.plot_frames(strategy, cell, sim, tmp_path, max_frames=5)
+    paths = plots.plot_frames(strategy, cell, sim, tmp_path, max_frames=5, each=True)
     assert sorted(p.name for p in tmp_path.glob("frame_*.png")) == [
         f"frame_{i:03d}.png" for i in range(1, 6)
     ]
     assert paths[-1].name == "frames.png"
+    # By default only frames.png (the separate PNGs were most of simulate's time).
+    assert [p.name for p in plots.plot_frames(strategy, cell, sim, tmp_path / "one")] == [
+        "frames.png"
+    ]
+    assert list((tmp_path / "one").glob("frame_*.png")) == []
+
+
+@pytest.mark.parametrize("speed", [1.0, 4.0])
+def test_seconds_follow_the_scenarios_robot_speed(cellplan, tmp_path, speed):
+    """``robot.speed`` sets the seconds of the solve's sample run and of ``simulate``: a
+    stage lasts its longest step at that speed (timing.stage_duration), so it scales as
+    1 / speed."""
+    from cellplan.api import load, plan
+    from cellplan.strategies.strategy import Strategy
+    from cellplan.trajectory import Trajectory
+
+    text = TINY.replace("CELLS", "16").replace(
+        "  start: [15, 8]", f"  start: [15, 8]\n  speed: [{speed}, {speed}]"
+    )
+    path = tmp_path / "fast.yaml"
+    path.write_text(text)
+    setup = load(str(path))
+    assert setup.scenario.robot.speed is not None
+    result = plan(setup, "strategies")
+    assert result.trajectory is not None
+    strategy = result.solution
+    assert isinstance(strategy, Strategy)
+    # The longest step of a move, in workcell units (a translating robot's x and y).
+    step = float(abs(strategy.mdp.disp).max())
+    assert result.trajectory.stage_duration == pytest.approx(step / speed)
+    npz = tmp_path / "s.npz"
+    strategy.save(npz)
+    out = tmp_path / "sim"
+    r = cellplan(
+        "simulate", str(path), "--strategy", str(npz), "--stages", "40", "--no-gif", "-o", str(out)
+    )
+    assert r.returncode == 0, r.stderr
+    traj = Trajectory.load(out / "trajectory.csv")
+    assert traj.stage_duration == pytest.approx(step / speed)
+    assert traj.seconds[-1] == pytest.approx(40 * step / speed)
+
+
+def test_solve_json_keeps_counts_as_integers_and_flags_as_booleans(cellplan, scenario, tmp_path):
+    # Issue 34: "sweeps": 311, "stable": true, "sim_served": 9 (not 311.0, 1.0, 9.0).
+    r = cellplan("solve", str(scenario), "-o", str(tmp_path / "s.npz"), "--json")
+    assert r.returncode == 0, r.stderr
+    stats = json.loads(r.stdout)["stats"]
+    counts = ["sweeps", "full_sweeps", "eval_sweeps", "outer_iterations", "policy_changes"]
+    counts += ["sim_stages", "sim_requests", "sim_served", "sim_open_requests"]
+    counts += ["sim_fmp_refused", "sim_corrections", "sim_fmp_failures"]
+    for key in counts:
+        assert type(stats[key]) is int, key
+    assert type(stats["stable"]) is bool
+    assert type(stats["gain"]) is float and type(stats["sim_loss_per_stage"]) is float

@@ -103,7 +103,7 @@ def _first_pick(strategy: Strategy, q: np.ndarray, waiting: list[int]) -> str:
     rules = Rules(strategy)
     m = rules.mode_of(waiting, -1)
     for _ in range(200):
-        u = rules.optimal(q, m)
+        u = strategy.action(q, m)
         if u <= -2 and u != -3:
             j = 0 if u == -2 else -3 - u
             return rules.names[sorted(set(waiting))[j]]

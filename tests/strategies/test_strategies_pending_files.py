@@ -499,7 +499,7 @@ def test_frames_and_gif_draw_q_modes(pending_base, tmp_path):
     n = len(modes)
     q = np.column_stack([np.linspace(5.0, 25.0, n), np.full(n, 8.0)])
     sim = Simulation(q, modes, np.zeros(n - 1, np.int64), np.zeros(n - 1))
-    paths = plot_frames(strat, setup.workcell, sim, tmp_path / "frames")
+    paths = plot_frames(strat, setup.workcell, sim, tmp_path / "frames", each=True)
     assert len(paths) == 6 and all(p.stat().st_size > 0 for p in paths)
     gif = save_animation(strat, setup.workcell, sim, tmp_path / "run.gif", max_frames=6)
     assert gif.stat().st_size > 0

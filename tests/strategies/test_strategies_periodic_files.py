@@ -596,7 +596,7 @@ def test_frames_and_gif_draw_the_belt_region_where_it_is_at_each_stage(
     q = np.array([[15.0, 8.0], [12.0, 8.0], [12.0, 6.0]])
     sim = Simulation(q, np.array(layers), np.zeros(2, np.int64), np.zeros(2))
     assert sim.segments() == [(0, 1), (1, 2), (2, 2)]  # each drawn at its last stage
-    plot_frames(strat, setup.workcell, sim, tmp_path / "frames")
+    plot_frames(strat, setup.workcell, sim, tmp_path / "frames", each=True)
     assert seen == [(8.0, 0.0), (10.0, 0.0), (10.0, 0.0)] * 2  # the frames, then the grid
     seen.clear()
     save_animation(strat, setup.workcell, sim, tmp_path / "run.gif", max_frames=3)

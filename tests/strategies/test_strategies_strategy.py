@@ -184,3 +184,28 @@ def test_strategy_pickles_after_queries_and_still_answers():
     copy = pickle.loads(pickle.dumps(strategy))
     assert copy.action(q, mode) == action
     assert np.array_equal(copy.values, strategy.values, equal_nan=True)
+
+
+def test_a_mode_is_taken_by_name_wherever_an_index_is(solved):
+    # Issue 34: strategy.action(q, "NR") works, as does any label mode_index reads.
+    _, cell, strategy, _ = solved
+    q = np.asarray(cell.robot.start, float)
+    assert strategy.action(q, "NR") == strategy.action(q, 0)
+    for m, mode in enumerate(strategy.modes):
+        if not strategy.live[m, strategy.cell_of(q)]:
+            continue
+        assert strategy.action(q, mode.label) == strategy.action(q, m)
+        np.testing.assert_array_equal(
+            strategy.action_values(q, mode.label), strategy.action_values(q, m)
+        )
+    with pytest.raises(ArgumentError) as err:
+        strategy.action(q, "<P9,S1,D1,W>")
+    assert [p.field for p in err.value.problems] == ["mode"]
+
+
+def test_the_repr_is_one_short_line(solved):
+    _, _, strategy, _ = solved
+    text = repr(strategy)
+    assert "\n" not in text and len(text) < 160 and "array" not in text
+    assert "16 x 16 cells" in text and f"{strategy.mdp.n_modes} modes" in text
+    assert f"{strategy.gain:.6g}" in text

@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 
 import pytest
-from strategies_helpers import TINY
+from strategies_helpers import TINY, tiny
 
 from cellplan.budget import resident_memory
 
@@ -113,3 +113,82 @@ def test_validate_refuses_a_grid_solve_could_not_fit_before_building_it(
     assert lines[0].startswith("error: strategy.cells 1000,1000: needs about "), lines
     assert re.search(r"for 5 modes; this machine has [0-9.]+ MB available$", lines[0]), lines
     assert _errors(solve.stderr)[0].startswith("error: strategy.cells 1000,1000: needs"), solve
+
+
+def test_a_start_inside_a_source_is_refused_naming_the_source():
+    # Issue 34: sources are obstacles while the robot is empty (equation (1)); the line
+    # says so and names the region, rather than "outside the strategy's domain" alone.
+    from cellplan.errors import ScenarioError
+    from cellplan.strategies.model import build_model
+
+    sc, cell = tiny(16)
+    sc = sc.model_copy(update={"robot": sc.robot.model_copy(update={"start": [4.0, 3.5]})})
+    with pytest.raises(ScenarioError) as err:
+        build_model(sc, cell, start=[4.0, 3.5])
+    (problem,) = err.value.problems
+    assert problem.field == "robot.start"
+    assert (
+        "source S1" in problem.message and "obstacles while the robot is empty" in problem.message
+    )
+    assert "S2" not in problem.message
+
+
+def test_validate_json_gives_the_strategy_facts_typed(cellplan):
+    # Issue 34: the strategies describe hook returns core.Fact values with typed values.
+    import json
+
+    payload = json.loads(cellplan("validate", "strategies_tiny", "--json").stdout)
+    summary, labels = payload["summary"], payload["labels"]
+    assert summary["assembly_modes"] == 5 and type(summary["assembly_modes"]) is int
+    assert summary["strategy_grid"] == [12, 12]
+    free_live = summary["free_live_nr"]
+    assert set(free_live) == {"free", "live"}
+    assert all(type(v) is float and 0 < v <= 1 for v in free_live.values())
+    assert free_live["live"] <= free_live["free"]
+    assert labels["free_live_nr"] == "free / live (NR)"
+
+
+NARROW = """
+cellplan: 1
+name: narrow-opening
+workcell:
+  bounds: {xmin: 0, ymin: 0, xmax: 40, ymax: 40}
+  obstacles:
+    left: {type: box, min: [0, 19], max: [17, 21]}
+    right: {type: box, min: [23, 19], max: [40, 21]}
+robot:
+  type: translating
+  shape: {type: box, min: [-1, -1], max: [1, 1]}
+  start: [20, 10]
+parts:
+  P1: {shape: {type: box, min: [-4, -0.5], max: [4, 0.5]}}
+  P2: {shape: {type: box, min: [-0.5, -0.5], max: [0.5, 0.5]}}
+sources:
+  S1: {components: [{type: box, min: [4, 3], max: [8, 6]}]}
+  S2: {components: [{type: box, min: [32, 3], max: [36, 6]}]}
+destinations:
+  D1: {components: [{type: box, min: [8, 32], max: [12, 35]}]}
+  D2: {components: [{type: box, min: [28, 32], max: [32, 35]}]}
+strategy:
+  speed: 2.0
+  arrival: {probability: 0.05}
+  fine_motion: {time: 2.0}
+  cells: [40, 40]
+  actions: {headings: 8}
+"""
+
+
+def test_only_the_part_too_wide_for_the_opening_is_named(cellplan, tmp_path):
+    # Issue 35 part 5: only P1 (8 wide) cannot pass the 6-wide opening; P2 fits. NR is
+    # empty (not every request can be served), which used to empty every layer that ends
+    # in NR, so all 8 requests were named, P2's included. Each request is now judged on
+    # its own by the live-state rule with NR unconstrained.
+    path = tmp_path / "narrow.yaml"
+    path.write_text(NARROW)
+    r = cellplan("validate", str(path))
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert "no configuration in NR can serve every request" in lines[0]
+    named = [line for line in lines if "strategy.requests" in line]
+    assert len(named) == 4 and all("<P1," in line for line in named)
+    assert not any("P2" in line for line in lines)

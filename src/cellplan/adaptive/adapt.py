@@ -35,10 +35,17 @@ import numpy as np
 from cellplan.adaptive.abstract import abstract
 from cellplan.adaptive.counters import CheckCounter
 from cellplan.adaptive.graph import BLOCKED, FREE, ExperienceGraph
-from cellplan.adaptive.reach import path_is_free, reach, reach_potential
-from cellplan.adaptive.solve import SolveInfo, solve_rrtconnect, solve_two_segment
-from cellplan.adaptive.space import FloatArray, PlanSpace
-from cellplan.adaptive.world import Tag, World
+from cellplan.adaptive.reach import path_is_free, reach, reach_potential, segment_points
+from cellplan.adaptive.solve import (
+    TIME_GUARD_SECONDS,
+    SolveInfo,
+    ompl_planner_name,
+    solve_rrtconnect,
+    solve_two_segment,
+)
+from cellplan.adaptive.space import FloatArray, IsFree, PlanSpace, and_validity
+from cellplan.adaptive.tags import Tag
+from cellplan.adaptive.world import AnyWorld
 
 Hook = Callable[[str], None]
 
@@ -47,6 +54,12 @@ S_STARTS = 4
 S_FIRST_SHARE = 64
 """S's first Solve call gets ``max_solve_checks / S_FIRST_SHARE`` checks (3,125 of the
 default 200,000; every Solve of the Figure 5 experiment needs at most 795)."""
+
+
+TOY_ADVICE = (
+    "the real planner is OMPL's RRTConnect (solve: rrtconnect, the default, or ompl.RRTConnect)"
+)
+"""What a failure under the toy Solve (``solve: two_segment``) says to do instead."""
 
 
 def derive_seed(*parts: int) -> int:
@@ -86,6 +99,8 @@ class TaskResult:
     note: str = ""
     s_fallbacks: int = 0
     """Start vertices S tried after Solve from the best one failed."""
+    timed_out: bool = False
+    """The query's time limit (:attr:`Adapter.deadline`) stopped it before a path."""
 
 
 class Adapter:
@@ -93,18 +108,22 @@ class Adapter:
 
     def __init__(
         self,
-        world: World,
+        world: AnyWorld,
         settings: Settings,
         counter: CheckCounter | None = None,
         hook: Hook | None = None,
+        validity: IsFree | None = None,
     ) -> None:
         self.world = world
+        # A user's validity test, AND-ed with the workcell's in every check (counted
+        # once per configuration, like the workcell's) and in the exact re-check.
+        self.validity = validity
         self.settings = settings
         self.counter = counter or CheckCounter()
         self.hook = hook
         robot = world.robot
         self.space = PlanSpace(
-            world.is_free,
+            world.is_free if validity is None else and_validity(world.is_free, validity),
             robot.lower,
             robot.upper,
             settings.resolution,
@@ -126,6 +145,18 @@ class Adapter:
         self.last_solve = SolveInfo()
         self.s_fallbacks = 0
         self.s_failure = ""
+        # S's failures of this generation by goal: the start vertices Solve failed from,
+        # and why (issue 35: a sealed goal is not asked again at full price).
+        self.s_failed: dict[str, tuple[tuple[int, ...], str]] = {}
+        self.s_failed_gen = world.gen
+        self._s_tried: list[int] = []
+        # Segments of executed paths that passed the 4x re-check, and in which generation.
+        self._rechecked: set[tuple[bytes, bytes]] = set()
+        self._rechecked_gen = world.gen
+        # A query's wall-clock deadline (``time.perf_counter()`` value; None: no limit)
+        # and whether it fired: R, S and T stop at their next step past it.
+        self.deadline: float | None = None
+        self.timed_out = False
 
     @property
     def graph(self) -> ExperienceGraph:
@@ -142,6 +173,12 @@ class Adapter:
     @property
     def gen(self) -> int:
         return self.world.gen
+
+    def late(self) -> bool:
+        """Whether the query's deadline has passed (and remember that it did)."""
+        if self.deadline is not None and time.perf_counter() > self.deadline:
+            self.timed_out = True
+        return self.timed_out
 
     def _emit(self, phase: str) -> None:
         if self.hook is not None:
@@ -182,7 +219,22 @@ class Adapter:
             return path
         seed = derive_seed(self.settings.seed, self.tasks_done, self._solve_calls)
         limit = self.settings.max_solve_checks if budget is None else budget
-        return solve_rrtconnect(self.space, a, b, seed, limit, info=info)
+        seconds = TIME_GUARD_SECONDS
+        if self.deadline is not None:
+            seconds = min(seconds, max(0.0, self.deadline - time.perf_counter()))
+        path = solve_rrtconnect(
+            self.space,
+            a,
+            b,
+            seed,
+            limit,
+            seconds,
+            info=info,
+            planner_name=ompl_planner_name(self.settings.solve),
+        )
+        if info.outcome == "time" and self.deadline is not None:
+            self.timed_out = True
+        return path
 
     def vertex_free(self, vid: int) -> bool:
         """Is a vertex's configuration free in this generation? (one counted check, cached)."""
@@ -228,6 +280,8 @@ class Adapter:
         links = self.links()
         with self.counter.charge("reach"):
             for vid in self.graph.by_heuristic(w):
+                if self.late():
+                    return None
                 known = links.get((vid, goal)) if goal is not None else None
                 if known is None:
                     known = self.reach(self.graph.vertices[vid].q, w)
@@ -305,20 +359,34 @@ class Adapter:
                     if path is not None:
                         start = starts[k]
                         break
-                    if left <= 0:
+                    if left <= 0 or self.timed_out:
                         break
-                if toy or not starts:
+                if toy or not starts or self.timed_out:
                     break
                 share *= 4
         if not starts:
             self.s_failure = "no vertex of G is free in the changed workcell"
+            return None
+        self._s_tried = list(starts)
+        if (path is None or start is None) and toy:
+            # The toy planner is complete only for two-segment paths (Fig. 3); say so and
+            # name the real one, so nobody mistakes its failure for a sealed goal.
+            self.s_failure = (
+                f"Solve found no path from {len(starts)} start vertex"
+                f"{'' if len(starts) == 1 else 'es'} of G: the toy Solve of the paper's "
+                f"Fig. 3 (solve: two_segment) joins two points with at most two straight "
+                f"segments only; {TOY_ADVICE}"
+            )
             return None
         if path is None or start is None:
             why = "wall-time guard" if "time" in outcomes else "check budget"
             self.s_failure = (
                 f"Solve found no path from {len(starts)} start vertex"
                 f"{'' if len(starts) == 1 else 'es'} of G in {calls} calls within its {why} "
-                f"({total - left} checks; budget {total})"
+                f"({total - left} checks; budget {total}); the goal may be sealed off by "
+                f"passages narrower than the certified clearance ({self.world.margin:.3g} at "
+                f"resolution {self.settings.resolution:.3g}): a finer resolution shrinks the "
+                "clearance, a larger max_solve_checks searches longer"
             )
             return None
         chain = self.abstract(path)
@@ -327,6 +395,39 @@ class Adapter:
             return None
         self._emit("augment")
         return self.augment(start, chain)[-1]
+
+    def plan_s_remembered(self, goal: str, w: FloatArray) -> int | None:
+        """S(u, w) unless S already failed toward ``goal`` in this generation from every
+        start it would try now (then it fails at once, saying so).
+
+        Solve is a pure function of its ends, its seed and the workcell; within a
+        generation the vertices do not move, so a failure from the same start vertices
+        would be asked again at full price for nothing. A new generation (any workcell
+        change) or a new free vertex among the starts asks Solve again.
+        """
+        if self.s_failed_gen != self.gen:
+            self.s_failed, self.s_failed_gen = {}, self.gen
+        known = self.s_failed.get(goal)
+        if known is not None:
+            with self.counter.charge("solve"):
+                starts = list(itertools.islice(self.s_starts(w), S_STARTS))
+            if starts and set(starts) <= set(known[0]):
+                self.s_failure = (
+                    f"{known[1]} (remembered: S failed toward this goal from the same start "
+                    "vertices earlier in this workcell generation; it is asked again after a "
+                    "change of the workcell or when G gains a nearer free vertex)"
+                )
+                return None
+        self._s_tried = []
+        w_hat = self.plan_s(w)
+        if (
+            w_hat is None
+            and self._s_tried
+            and not self.timed_out
+            and self.last_solve.outcome != "time"
+        ):
+            self.s_failed[goal] = (tuple(self._s_tried), self.s_failure)
+        return w_hat
 
     def ensure_u_hat(self) -> None:
         """Re-establish the pointer u_hat after a change: Reach(u, u_hat) or a new vertex at u."""
@@ -350,6 +451,8 @@ class Adapter:
         with self.counter.charge("trace"):
             self.ensure_u_hat()
             while True:
+                if self.late():
+                    return None
                 gamma = g.shortest_path(self.u_hat, w_hat)
                 if gamma is None:
                     break
@@ -372,7 +475,8 @@ class Adapter:
         chain = self.abstract(path) if path is not None else None
         if chain is not None:
             return self.augment(self.u_hat, chain[:-1], last=w_hat)
-        g.remove_component(w_hat)
+        if not self.timed_out:  # a query's time limit says nothing about G: keep it
+            g.remove_component(w_hat)
         return None
 
     def cut_corners(self, gamma: list[int]) -> list[int]:
@@ -411,26 +515,29 @@ class Adapter:
         res = TaskResult(goal, False)
         fallbacks0 = self.s_fallbacks
         w_hat = self.plan_r(w, goal)
-        if w_hat is None:
-            w_hat = self.plan_s(w)
+        if w_hat is None and not self.late():
+            w_hat = self.plan_s_remembered(goal, w)
             if w_hat is None:
                 res.note = self.s_failure
-        if w_hat is not None:
+        if w_hat is not None and not self.late():
             gamma = self.trace(w_hat)
-            if gamma is None:
+            if gamma is None and self.timed_out:
+                pass  # the note below says so
+            elif gamma is None:
                 res.note = (
                     "T could not join the robot's vertex to the goal's: G's sequences were "
                     f"blocked and Solve found no path within its {self.last_solve.checks} checks "
                     f"({self.last_solve.outcome})"
                 )
+                if self.settings.solve == "two_segment":
+                    res.note += f"; Solve was the two-segment toy of Fig. 3: {TOY_ADVICE}"
             else:
                 if self.settings.corner_cutting and len(gamma) > 2:
                     gamma = self.cut_corners(gamma)
                 res.path = self.execute(gamma, w)
                 # The re-check tests the claim (no contact anywhere on the path), so it
                 # checks exactly, without the clearance Reach demands of its samples.
-                exact = self.space.with_is_free(self.world.is_free_exact)
-                res.path_ok = path_is_free(exact, res.path, refine=4)
+                res.path_ok = self.recheck(res.path)
                 if not res.path_ok:
                     res.note = "the executed path touches an obstacle at the 4x finer re-check"
                 res.success = True
@@ -439,6 +546,9 @@ class Adapter:
                 self.link_gen = self.gen
                 self.current_goal = goal
                 self._emit("executed")
+        if self.timed_out and not res.success:
+            res.timed_out = True
+            res.note = "the query's time limit was reached before a path was found"
         after = self.counter.snapshot()
         res.costs = {k: after[k] - before[k] for k in after}
         res.solve_calls = self._solve_calls - calls0
@@ -447,6 +557,36 @@ class Adapter:
         res.vertices = len(self.graph)
         res.edges = len(self.graph.usable_edges())
         return res
+
+    def recheck(self, path: FloatArray) -> bool:
+        """The executed path re-checked, uncounted and exactly (no clearance), at a quarter
+        of the resolution (:func:`~.reach.path_is_free`).
+
+        A segment that passed in the current generation is not checked again: the
+        workcell has not changed since, so its answer cannot have (a repeated task then
+        costs no re-check, only its new segments do).
+        """
+        is_exact: IsFree = self.world.is_free_exact
+        if self.validity is not None:
+            is_exact = and_validity(is_exact, self.validity)
+        exact = self.space.with_is_free(is_exact)
+        if len(path) < 2:
+            return path_is_free(exact, path, refine=4)
+        if self._rechecked_gen != self.gen:
+            self._rechecked, self._rechecked_gen = set(), self.gen
+        todo = [
+            (a, b, (a.tobytes(), b.tobytes()))
+            for a, b in itertools.pairwise(np.asarray(path, float))
+            if (a.tobytes(), b.tobytes()) not in self._rechecked
+        ]
+        if not todo:
+            return True
+        step = self.space.resolution / 4
+        points = np.concatenate([segment_points(a, b, step, self.space) for a, b, _ in todo])
+        if not bool(np.all(exact.free_uncounted(points))):
+            return False
+        self._rechecked.update(key for _, _, key in todo)
+        return True
 
     def execute(self, gamma: list[int], w: FloatArray) -> FloatArray:
         """R[u, w]: the polyline u, Gamma..., w through Reach's local paths.
@@ -479,7 +619,8 @@ class Adapter:
                     continue
                 if v.obj not in moved:
                     continue
-                q = self.world.config_of(Tag(v.obj, v.rel, v.branch))
+                # IK seeded from the subgoal's old configuration (its branch, in 3-D).
+                q = self.world.config_of(Tag(v.obj, v.rel, v.branch), v.q)
                 if q is None or not self.space.free(q[None, :])[0]:
                     self.graph.remove_vertex(vid)
                     dropped += 1
@@ -487,13 +628,13 @@ class Adapter:
                 self.graph.set_q(vid, q)
         return dropped
 
-    def stats(self) -> dict[str, float]:
-        """Plain-number summary for PlanResult."""
+    def stats(self) -> dict[str, int]:
+        """G's size and the counts so far (all counts: ints)."""
         return {
-            "vertices": float(len(self.graph)),
-            "edges": float(len(self.graph.usable_edges())),
-            "checks": float(self.counter.total),
-            "solve_calls": float(self._solve_calls),
-            "s_fallbacks": float(self.s_fallbacks),
-            "generation": float(self.gen),
+            "vertices": len(self.graph),
+            "edges": len(self.graph.usable_edges()),
+            "checks": int(self.counter.total),
+            "solve_calls": int(self._solve_calls),
+            "s_fallbacks": int(self.s_fallbacks),
+            "generation": int(self.gen),
         }

@@ -11,8 +11,8 @@ it is a terminal) and writes, into DIR:
 * ``tasks.csv``: per-task costs with the R/T/S/Abstract split and the Solve-only baseline
   (every task of the database when continuing);
 * ``ratio.png`` (the cumulative cost ratio, Figure 5), ``costs.png``, ``graph.png`` and
-  ``snapshots.png`` (G over the workcell, Figure 3 style), ``graph.graphml`` and
-  ``summary.json``.
+  ``snapshots.png`` (G over the workcell, Figure 3 style; planar cells only),
+  ``graph.graphml`` and ``summary.json``.
 
 It prints one summary line on stdout (or one JSON object with ``--json``) and exits 0
 when every task reached its goal, 1 when some failed (the line names them), 2 on bad
@@ -179,6 +179,7 @@ def write_outputs(result: Result, output: Path) -> dict[str, Path]:
         )
     if rows:
         files["costs_plot"] = plots.save_cost_split(rows, output / "costs.png")
+    # G drawn over the workcell (Figure 3 style) is a planar picture.
     if ep.snapshots:
         files["graph_plot"] = plots.save_snapshots(ep.snapshots[-1:], output / "graph.png", ncols=1)
         files["snapshots_plot"] = plots.save_snapshots(ep.snapshots[:12], output / "snapshots.png")

@@ -26,6 +26,7 @@ task is a query from where the robot stands to a named goal.
 from __future__ import annotations
 
 import gc
+import math
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -33,32 +34,28 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from pydantic import TypeAdapter, ValidationError
 
-from cellplan import units
+from cellplan import timing, units
 from cellplan.adaptive.adapt import Adapter, Hook, Settings, TaskResult
 from cellplan.adaptive.counters import CheckCounter
 from cellplan.adaptive.graph import ExperienceGraph
 from cellplan.adaptive.repair import STRATEGIES, repair
 from cellplan.adaptive.section import AdaptiveSection
-from cellplan.adaptive.space import FloatArray
+from cellplan.adaptive.space import FloatArray, IsFree, and_validity
 from cellplan.adaptive.store import (
     ExperienceStore,
-    shape_from_json,
-    shape_to_json,
     signatures,
     workcell_signatures,
 )
-from cellplan.adaptive.world import Pose, Tag, World
-from cellplan.core import Result, Status
+from cellplan.adaptive.world import AnyWorld, World, make_world
+from cellplan.core import Result, Stat, Status
 from cellplan.errors import ArgumentError, PersistenceError, Problem
-from cellplan.geometry import ShapeSet
 from cellplan.robots import PlanarArm, Robot
 from cellplan.scenario import Scenario
-from cellplan.schema import Shape
 from cellplan.setup import Setup, as_setup
 from cellplan.trajectory import Event, Trajectory
 from cellplan.workcell import Workcell
+from cellplan.workcell3d import UrdfRobot
 
 if TYPE_CHECKING:
     from cellplan.adaptive.runner import Snapshot
@@ -110,6 +107,14 @@ class ExperiencePlanner:
     seed
         Seed of Solve (OMPL's RNG is reseeded from it before every call); ``None``:
         the section's task seed.
+    validity
+        A validity test of your own, ``validity(Q) -> bool[N]`` for ``Q`` of shape
+        ``(N, dim)`` (radians for angles), AND-ed with the workcell's in every check
+        (as OMPL's ``SimpleSetup.setStateValidityChecker``; a configuration is counted
+        once), in the exact re-check of executed paths and in the start and goal checks.
+        It must be a pure function of ``Q``: G keeps what it verified. A database
+        reopened with one starts a new environment generation, so T verifies G's edges
+        again before using them.
     hook
         Called with the phase names ``augment``, ``trace_solve`` and ``executed`` as a
         query passes them (used to test that a killed run leaves its database intact).
@@ -138,10 +143,15 @@ class ExperiencePlanner:
         resolution: float | None = None,
         seed: int | None = 0,
         *,
+        validity: IsFree | None = None,
         hook: Hook | None = None,
     ) -> None:
         from cellplan.adaptive.runner import settings_for
 
+        if validity is not None and not callable(validity):
+            raise ArgumentError(
+                f"must be a callable Q (N, dim) -> bool[N], got {validity!r}", "validity"
+            )
         if repair not in STRATEGIES:
             raise ArgumentError(
                 f"unknown repair strategy {repair!r}; choose one of {', '.join(STRATEGIES)}",
@@ -155,7 +165,7 @@ class ExperiencePlanner:
             settings = default_settings(is_arm, repair, seed or 0)
             if resolution is not None:
                 settings.resolution = float(resolution)
-            self.world = World.from_workcell(problem, settings.resolution)
+            self.world: AnyWorld = World.from_workcell(problem, settings.resolution)
             sig = workcell_signatures(problem)
             self.name = problem.name
         else:
@@ -166,17 +176,23 @@ class ExperiencePlanner:
                 settings = settings_for(sc, repair, seed)
             else:
                 settings = default_settings(
-                    sc.robot is not None and sc.robot.type == "arm", repair, seed or 0
+                    sc.robot is not None and sc.robot.type in ("arm", "urdf"), repair, seed or 0
                 )
             if resolution is not None:
                 settings.resolution = float(resolution)
-            self.world = World(sc, settings.resolution)
+            self.world = make_world(setup, settings.resolution)
             sig = signatures(sc)
             self.name = setup.name
         _check_robot(self.world.robot)
+        if validity is not None:
+            # Its answer's type and shape, once, before any work (the start's row).
+            and_validity(lambda Q: np.ones(len(Q), bool), validity)(
+                np.asarray(self.world.robot.start, float)[None, :]
+            )
+        self.validity = validity
         self.settings = settings
         self.counter = CheckCounter()
-        self.adapter = Adapter(self.world, settings, self.counter, hook)
+        self.adapter = Adapter(self.world, settings, self.counter, hook, validity)
         self.queries = 0
         self.tasks: list[dict[str, Any]] = []
         self.snapshots: list[Snapshot] = []
@@ -216,9 +232,9 @@ class ExperiencePlanner:
                 out[name] = q
         return out
 
-    def stats(self) -> dict[str, float]:
+    def stats(self) -> dict[str, int]:
         """G's size, the checks made so far, Solve calls, queries and the generation."""
-        return {**self.adapter.stats(), "queries": float(self.queries)}
+        return {**self.adapter.stats(), "queries": int(self.queries)}
 
     def __repr__(self) -> str:
         g = self.graph
@@ -229,7 +245,12 @@ class ExperiencePlanner:
 
     # --- queries ---------------------------------------------------------------------------
 
-    def plan(self, start: ArrayLike | None, goal: ArrayLike | str) -> Result:
+    def plan(
+        self,
+        start: ArrayLike | None,
+        goal: ArrayLike | str,
+        time_limit: float | None = None,
+    ) -> Result:
         """A path from ``start`` to ``goal`` through the experience graph.
 
         Parameters
@@ -238,15 +259,24 @@ class ExperiencePlanner:
             Configuration (radians for angles), or ``None`` for :attr:`position` (refused
             like any start if a change has put an object there).
         goal
-            Configuration, or the name of a goal of the scenario's ``adaptive:``
-            section (then it follows its object, Section 2.3).
+            Configuration, the name of a goal of the scenario's ``adaptive:``
+            section (then it follows its object, Section 2.3), or, for a URDF arm, a
+            ``(4, 4)`` world pose of the tool frame (inverse kinematics from where the
+            robot stands picks the configuration).
+        time_limit
+            Wall-clock seconds this query may take (OMPL's ``solve(time)``); ``None``: no
+            limit beyond Solve's check budget. R, S and T stop at their next step past it
+            (Solve within the call) and the query returns ``timeout``, G keeping what it
+            verified. A limited query depends on the machine's speed: use the check
+            budget (``max_solve_checks``) for results that repeat.
 
         Returns
         -------
         Result
             ``solved`` with the executed path as the trajectory (``t`` the cumulative
-            joint-space path length), or ``failed`` (Solve found no path within its
-            check budget) with a one-sample trajectory at ``start``. ``stats`` counts
+            joint-space path length), ``failed`` (Solve found no path within its
+            check budget) or ``timeout`` (``time_limit`` reached) with a one-sample
+            trajectory at ``start``. ``stats`` counts
             this query's collision checks (changes and repair since the last query
             included), Solve calls, G's size and the wall time.
 
@@ -256,10 +286,25 @@ class ExperiencePlanner:
             A malformed configuration, an angle in degrees, a configuration outside
             the joint limits or in collision (naming the obstacle), an unknown goal.
         """
+        if time_limit is not None and not (
+            isinstance(time_limit, int | float)
+            and not isinstance(time_limit, bool)
+            and math.isfinite(time_limit)
+            and time_limit > 0
+        ):
+            raise ArgumentError(
+                f"must be a positive number of seconds, got {time_limit!r}", "time_limit"
+            )
         w, key, label = self._goal(goal)
         # The robot's own position is checked too: a change may have put an object on it.
         u = self._configuration(self.position if start is None else start, "start")
-        res = self.run_task(key, w, start=u)
+        ad = self.adapter
+        ad.deadline = None if time_limit is None else time.perf_counter() + float(time_limit)
+        ad.timed_out = False
+        try:
+            res = self.run_task(key, w, start=u)
+        finally:
+            ad.deadline, ad.timed_out = None, False
         self.adapter.tasks_done += 1  # Solve's seeds derive from (seed, task, call)
         result = self._result(res, u, label)
         self.save()
@@ -299,18 +344,28 @@ class ExperiencePlanner:
 
     def _result(self, res: TaskResult, u: FloatArray, label: str) -> Result:
         ok = res.success and res.path_ok
-        traj = task_trajectory(self.world.robot.axis_names, u, res, label, meta=self._meta())
+        traj = task_trajectory(
+            self.world.robot.axis_names,
+            u,
+            res,
+            label,
+            meta=self._meta(),
+            robot=self.world.robot,
+            robot_spec=self.scenario.robot if self.scenario is not None else None,
+        )
         checks = sum(v for k, v in res.costs.items() if k != "baseline")
-        stats = {
-            "checks": float(checks),
-            **{f"{k}_checks": float(v) for k, v in res.costs.items() if k != "baseline"},
-            "solve_calls": float(res.solve_calls),
-            "s_fallbacks": float(res.s_fallbacks),
-            "vertices": float(res.vertices),
-            "edges": float(res.edges),
+        # Counts are ints, measures floats (core.Stat): they keep their type in JSON.
+        stats: dict[str, Stat] = {
+            "checks": int(checks),
+            **{f"{k}_checks": int(v) for k, v in res.costs.items() if k != "baseline"},
+            "solve_calls": int(res.solve_calls),
+            "s_fallbacks": int(res.s_fallbacks),
+            "vertices": int(res.vertices),
+            "edges": int(res.edges),
             "path_length": float(traj.t[-1] - traj.t[0]),
-            "generation": float(self.world.gen),
+            "generation": int(self.world.gen),
             "seconds": float(res.seconds),
+            "timed_out": bool(res.timed_out),
         }
         cost = f"({checks} collision checks, {res.solve_calls} Solve calls, |V|={res.vertices})"
         if ok and len(traj) == 1:
@@ -320,6 +375,9 @@ class ExperiencePlanner:
             segments = f"{len(traj) - 1} straight segment{'' if len(traj) == 2 else 's'}"
             message = f"reached {label} along {segments} {cost}"
             status = Status.SOLVED
+        elif res.timed_out:
+            message = f"time limit reached before a path to {label} was found {cost}"
+            status = Status.TIMEOUT
         elif res.success:
             message = (
                 f"reached {label}, but the executed path touches an obstacle at the 4x finer "
@@ -358,6 +416,13 @@ class ExperiencePlanner:
                 )
             self._check_free(w, "goal")
             return w, goal, goal
+        if np.shape(goal) == (4, 4):
+            # A tool pose: IK from where the robot stands (3-D arms), refused in one line
+            # when no collision-free solution reaches it.
+            w = self.world.pose_goal(np.asarray(goal, float), self.adapter.u)
+            self._check_free(w, "goal")
+            key = "q=" + ",".join(repr(float(x)) for x in w)
+            return w, key, "the tool pose"
         w = self._configuration(goal, "goal")
         # Reach(v, w) answers are remembered per goal key; the exact bytes make a sound key.
         key = "q=" + ",".join(repr(float(x)) for x in w)
@@ -374,45 +439,23 @@ class ExperiencePlanner:
 
     def _check_free(self, q: FloatArray, name: str) -> None:
         """One clear line when ``q`` is outside the limits, the bounds, or in collision."""
-        world, robot = self.world, self.world.robot
-        shown = "(" + ", ".join(f"{v:.4g}" for v in q) + ")"
-        if not robot.within_limits(q[None, :])[0]:
-            lim = ", ".join(
-                f"{a} [{lo:.4g}, {hi:.4g}]"
-                for a, lo, hi in zip(robot.axis_names, robot.lower, robot.upper, strict=True)
-            )
-            raise ArgumentError(f"configuration {shown} is outside the joint limits: {lim}", name)
-        empty = world.base_cell.with_obstacles({})
-        if empty.collides(q[None, :], avoid_sources="none")[0]:
-            raise ArgumentError(f"configuration {shown} leaves the workcell bounds", name)
-        for margin, how in ((0.0, "collides with"), (world.margin, "is within the clearance")):
-            hits = world.hits(q, margin)
-            if hits and margin == 0.0:
-                names = ", ".join(repr(h) for h in hits)
-                raise ArgumentError(f"configuration {shown} {how} obstacle {names}", name)
-            if hits:
-                raise ArgumentError(
-                    f"configuration {shown} {how} margin {margin:.3g} of obstacle {hits[0]!r} "
-                    "(Reach certifies its segments with this clearance; a finer resolution "
-                    "shrinks it)",
-                    name,
-                )
-        if not world.is_free(q[None, :])[0]:
-            raise ArgumentError(
-                f"configuration {shown} is within the clearance margin of the workcell bounds",
-                name,
-            )
+        self.world.check_free(q, name)
+        if self.validity is not None and not self.adapter.space.free_uncounted(q[None, :])[0]:
+            shown = "(" + ", ".join(f"{v:.4g}" for v in q) + ")"
+            raise ArgumentError(f"configuration {shown} is refused by the validity checker", name)
 
     # --- environment changes ----------------------------------------------------------------
 
     def add(self, name: str, shape: Any, pose: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
         """Add an object: ``shape`` as in a scenario file (``{"type": "box", "min": ...,
         "max": ...}``, a polygon or a disc) or a :class:`~cellplan.geometry.ShapeSet`,
-        placed at ``pose = (x, y, theta)`` (theta in radians) from its own coordinates."""
+        placed at ``pose = (x, y, theta)`` (theta in radians) from its own coordinates.
+        In a 3-D cell: a solid (``{"type": "box", "size": [...], "pose": {...}}``, or a
+        :class:`~cellplan.solids.Solid`) shifted by ``pose = (x, y, z)`` metres."""
         if name in self.world.objects:
             raise ArgumentError(f"object {name!r} already exists", "name")
-        shape_set = _shape_set(shape)
-        self.world.add_object(name, shape_set, _pose(pose))
+        solid = self.world.shape(shape)
+        self.world.add_object(name, solid, self.world.pose_of(pose))  # type: ignore[arg-type]
         self._changed(set())
 
     def remove(self, name: str) -> None:
@@ -430,12 +473,14 @@ class ExperiencePlanner:
     def move(self, name: str, pose: Sequence[float]) -> None:
         """Place object ``name`` at ``pose = (x, y, theta)`` relative to its original
         coordinates (``(0, 0, 0)``: where the scenario put it); theta in radians.
-        Subgoals and goals attached to it move with it (Section 2.3)."""
+        Subgoals and goals attached to it move with it (Section 2.3). In a 3-D cell
+        objects translate: ``pose = (x, y, z)`` metres from where the scenario put it,
+        and the attached subgoals come back by IK from their old configuration."""
         self._known_object(name)
-        moved = self.world.set_pose(name, _pose(pose))
+        moved = self.world.set_pose(name, self.world.pose_of(pose))
         self._changed(moved)
 
-    def pose(self, name: str) -> Pose:
+    def pose(self, name: str) -> tuple[float, float, float]:
         """The current pose of an object (relative to its original coordinates)."""
         self._known_object(name)
         return self.world.objects[name].pose
@@ -462,14 +507,12 @@ class ExperiencePlanner:
             "link_gen": ad.link_gen,
             "repaired_gen": ad.repaired_gen,
             "current_goal": ad.current_goal,
+            **failure_state(ad),
             "solve_calls": ad._solve_calls,
             "resolution": self.settings.resolution,
             "counts": dict(self.counter.counts),
-            "objects": {
-                n: {"shape": shape_to_json(st.shape), "pose": list(st.pose)}
-                for n, st in sorted(world.objects.items())
-            },
-            "goals": {n: [t.obj, list(t.rel), t.branch] for n, t in sorted(world.goals.items())},
+            "objects": world.objects_json(),
+            "goals": world.goals_json(),
         }
 
     def save(self) -> None:
@@ -512,17 +555,7 @@ class ExperiencePlanner:
                 "resolution",
             )
         world, ad = self.world, self.adapter
-        world.restore(
-            {
-                n: (shape_from_json(o["shape"]), _pose(o["pose"]))
-                for n, o in saved["objects"].items()
-            },
-            {
-                n: Tag(obj, (float(r[0]), float(r[1]), float(r[2])), branch)
-                for n, (obj, r, branch) in saved["goals"].items()
-            },
-            int(saved["generation"]),
-        )
+        world.restore_json(saved["objects"], saved["goals"], int(saved["generation"]))
         ad.graph = store.load_graph()
         store.check_state(ad.graph, saved, ad.u.size)
         links, links_gen = store.load_links()
@@ -535,6 +568,7 @@ class ExperiencePlanner:
         ad.link_gen = int(saved["link_gen"])
         ad.repaired_gen = int(saved["repaired_gen"])
         ad.current_goal = saved["current_goal"]
+        ad.s_failed, ad.s_failed_gen = saved_failures(saved, world.gen)
         ad._solve_calls = int(saved["solve_calls"])
         self.queries = int(saved["tasks_done"])
         ad.tasks_done = self.queries
@@ -542,6 +576,10 @@ class ExperiencePlanner:
         self._mark = self.counter.snapshot()
         if ad.u_hat not in ad.graph.vertices:
             raise PersistenceError([Problem(str(store.path), "is damaged: û is not a vertex")])
+        if self.validity is not None:
+            # The checker is part of the environment and not in the database: a new
+            # generation, so T verifies G's edges again before using them.
+            world.gen += 1
 
 
 def task_trajectory(
@@ -551,33 +589,74 @@ def task_trajectory(
     label: str,
     changes: Sequence[str] = (),
     meta: Mapping[str, str | int | float | bool] | None = None,
+    robot: Any = None,
+    robot_spec: Any = None,
 ) -> Trajectory:
     """One task's executed path as a trajectory (mode = the goal).
 
     ``t`` is the cumulative joint-space path length; events: ``change`` (the workcell
     changes applied before the task), ``task`` at the start, ``arrive`` at the end, or
-    ``fail`` (then the robot stays at ``u``: one sample).
+    ``fail`` (then the robot stays at ``u``: one sample); the goal is their ``region``.
+    ``robot`` (the robot model) and ``robot_spec`` (the scenario's robot section) give
+    the periodic axes and speeds (:func:`cellplan.timing.robot_motion`) of ``seconds``.
     """
     path = res.path if res.success and res.path is not None else np.asarray(u, float)[None, :]
     steps = np.linalg.norm(np.diff(path, axis=0), axis=1) if len(path) > 1 else np.zeros(0)
     t = np.concatenate([[0.0], np.cumsum(steps)])
     events = [Event(0, "change", c) for c in changes]
-    events.append(Event(0, "task", label))
-    events.append(Event(len(path) - 1, "arrive" if res.success else "fail", label))
+    events.append(Event(0, "task", label, region=label))
+    events.append(Event(len(path) - 1, "arrive" if res.success else "fail", label, region=label))
+    axis_units = units.axis_units(axis_names)
+    periodic, vlim, alim = timing.robot_motion(robot_spec, robot, axis_names, axis_units)
     return Trajectory(
         t,
         path,
         np.zeros(len(path), dtype=np.int64),
         (label,),
         tuple(axis_names),
-        units.axis_units(axis_names),
+        axis_units,
         "path",
         tuple(events),
         dict(meta or {}),
+        periodic=periodic,
+        velocity_limits=vlim,
+        acceleration_limits=alim,
     )
 
 
-def _check_robot(robot: Robot) -> None:
+def failure_state(ad: Adapter) -> dict[str, Any]:
+    """S's failures of the current generation (issue 35) as JSON values, kept with G in
+    both database states (an ``ExperiencePlanner``'s and a ``cellplan adapt --db`` run's)
+    so a continued session does not pay a remembered failure again."""
+    return {
+        "s_failed_gen": ad.s_failed_gen,
+        "s_failed": {g: [list(v), why] for g, (v, why) in sorted(ad.s_failed.items())},
+    }
+
+
+def saved_failures(
+    saved: Mapping[str, Any], gen: int
+) -> tuple[dict[str, tuple[tuple[int, ...], str]], int]:
+    """S's remembered failures from a saved state (none in a database written before
+    they were kept, or one whose entries are not well formed)."""
+    raw = saved.get("s_failed")
+    failed_gen = saved.get("s_failed_gen")
+    if not isinstance(raw, dict) or failed_gen != gen:
+        return {}, gen
+    out: dict[str, tuple[tuple[int, ...], str]] = {}
+    for goal, entry in raw.items():
+        if (
+            isinstance(entry, list)
+            and len(entry) == 2
+            and isinstance(entry[0], list)
+            and all(isinstance(v, int) and not isinstance(v, bool) for v in entry[0])
+            and isinstance(entry[1], str)
+        ):
+            out[str(goal)] = (tuple(entry[0]), entry[1])
+    return out, gen
+
+
+def _check_robot(robot: Robot | UrdfRobot) -> None:
     """Object-attached subgoals (Section 2.3) need IK: a rigid robot, or a 2- or 3-link arm."""
     if isinstance(robot, PlanarArm) and robot.n_links not in (2, 3):
         raise ArgumentError(
@@ -585,27 +664,3 @@ def _check_robot(robot: Robot) -> None:
             f"{robot.n_links}-link arm (attached subgoals need inverse kinematics)",
             "robot",
         )
-
-
-def _pose(pose: Sequence[float]) -> Pose:
-    try:
-        values = [float(v) for v in pose]
-    except (TypeError, ValueError):
-        raise ArgumentError("expected (x, y, theta) numbers", "pose") from None
-    if len(values) != 3 or not all(np.isfinite(values)):
-        raise ArgumentError(f"expected three finite numbers (x, y, theta), got {pose!r}", "pose")
-    return (values[0], values[1], values[2])
-
-
-def _shape_set(shape: Any) -> ShapeSet:
-    if isinstance(shape, ShapeSet):
-        return shape
-    try:
-        spec = TypeAdapter(Shape).validate_python(shape)
-    except ValidationError as exc:
-        first = exc.errors(include_url=False)[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise ArgumentError(
-            f"{where}: {first['msg']}" if where else first["msg"], "shape"
-        ) from None
-    return ShapeSet.from_spec(spec)

@@ -11,6 +11,8 @@ Both count collision checks through the same :class:`~.space.PlanSpace`.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from cellplan.adaptive.adapt import TaskResult, derive_seed
@@ -24,7 +26,7 @@ from cellplan.adaptive.runner import (
 )
 from cellplan.adaptive.solve import PRMSession, SolveInfo, solve_rrtconnect
 from cellplan.adaptive.space import PlanSpace
-from cellplan.adaptive.world import World, preflight
+from cellplan.adaptive.world import make_world, preflight
 from cellplan.core import Progress
 from cellplan.scenario import Scenario
 
@@ -50,7 +52,7 @@ def run_peer(
     settings = settings_for(scenario, None, seed)
     n = task_count(scenario, tasks)
     preflight(scenario, settings.resolution, settings.seed)
-    world = World(scenario, settings.resolution)
+    world = make_world(scenario, settings.resolution)
     counter = CheckCounter()
     space = PlanSpace(
         world.is_free,
@@ -79,6 +81,7 @@ def run_peer(
             w = world.goal_config(goal)
             assert w is not None
             before = counter.total
+            t0 = time.perf_counter()
             u_before = u.copy()
             info = SolveInfo()
             if peer == "prm":
@@ -107,8 +110,9 @@ def run_peer(
             rows.append(
                 {
                     "task": t + 1,
-                    "checks": float(counter.total - before),
-                    "success": float(path is not None),
+                    "checks": int(counter.total - before),
+                    "success": int(path is not None),
+                    "seconds": time.perf_counter() - t0,
                 }
             )
     finally:

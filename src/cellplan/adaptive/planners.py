@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field
 
-from cellplan.core import Options, Progress, Result, Status
+from cellplan.core import Options, Progress, Result, Stat, Status
 
 if TYPE_CHECKING:
     from cellplan.adaptive.runner import TaskPath
@@ -118,25 +118,32 @@ def run_adaptive_planner(
     planner = out.planner
     assert planner is not None
     traj = paths_trajectory(
-        out.paths, planner.world.robot.axis_names, _meta(setup, planner), planner.position
+        out.paths,
+        planner.world.robot.axis_names,
+        _meta(setup, planner),
+        planner.position,
+        planner.world.robot,
+        sc.robot,
     )
-    stats: dict[str, float] = {
-        "tasks": float(len(rows)),
-        "solved": float(sum(int(r["success"]) for r in rows)),
-        "paths_ok": float(sum(int(r["path_ok"]) for r in rows)),
-        "checks": float(sum(float(r["adapt"]) for r in rows)),
-        "solve_calls": float(sum(int(r["solve_calls"]) for r in rows)),
-        "vertices": float(len(planner.graph)),
-        "edges": float(len(planner.graph.usable_edges())),
-        "generation": float(planner.world.gen),
+    # Counts are ints, measures floats (core.Stat): they keep their type in --json.
+    stats: dict[str, Stat] = {
+        "tasks": len(rows),
+        "solved": sum(int(r["success"]) for r in rows),
+        "paths_ok": sum(int(r["path_ok"]) for r in rows),
+        "checks": sum(int(r["adapt"]) for r in rows),
+        "solve_calls": sum(int(r["solve_calls"]) for r in rows),
+        "vertices": len(planner.graph),
+        "edges": len(planner.graph.usable_edges()),
+        "generation": int(planner.world.gen),
         "path_length": float(traj.duration),
         "seconds": float(sum(float(r["seconds"]) for r in rows)),
     }
     if options.baseline:
-        stats["solve_only_checks"] = float(sum(float(r["baseline"]) for r in rows))
-        if stats["solve_only_checks"] > 0:
+        solve_only = sum(int(r["baseline"]) for r in rows)
+        stats["solve_only_checks"] = solve_only
+        if solve_only > 0:
             stats["ratio"] = float(cumulative_ratio(rows)[-1])
-    stats["s_fallbacks"] = float(sum(int(r.get("s_fallbacks") or 0) for r in rows))
+    stats["s_fallbacks"] = sum(int(r.get("s_fallbacks") or 0) for r in rows)
     failed = [(int(r["task"]), str(r["goal"])) for r in rows if not (r["success"] and r["path_ok"])]
     gc.collect()
     ratio = f", cumulative cost ratio {stats['ratio']:.3f}" if "ratio" in stats else ""
@@ -168,13 +175,15 @@ def _run_peer(setup: Setup, options: PeerOptions, progress: Progress | None, pee
     rows = run_peer(setup.scenario, peer, options.tasks, options.seed, paths, progress)
     gc.collect()
     robot = setup.workcell.robot
-    traj = paths_trajectory(paths, robot.axis_names, {"scenario": setup.name}, robot.start)
+    traj = paths_trajectory(
+        paths, robot.axis_names, {"scenario": setup.name}, robot.start, robot, setup.scenario.robot
+    )
     # PRM's counts depend on its threads' timing, so they carry the timing marker.
     key = "checks_time_dependent" if peer == "prm" else "checks"
-    stats = {
-        "tasks": float(len(rows)),
-        "solved": float(sum(r["success"] for r in rows)),
-        key: float(sum(r["checks"] for r in rows)),
+    stats: dict[str, Stat] = {
+        "tasks": len(rows),
+        "solved": sum(int(r["success"]) for r in rows),
+        key: sum(int(r["checks"]) for r in rows),
         "path_length": float(traj.duration),
     }
     failed = [
@@ -214,11 +223,14 @@ def paths_trajectory(
     axis_names: Sequence[str],
     meta: dict[str, Any],
     position: Any,
+    robot: Any = None,
+    robot_spec: Any = None,
 ) -> Trajectory:
     """The tasks' executed paths end to end, one mode per goal (see the module docstring).
 
     With no task run in this call (a database that already holds every task), the
-    trajectory is one sample at the robot's ``position`` in mode ``idle``.
+    trajectory is one sample at the robot's ``position`` in mode ``idle``. ``robot`` and
+    ``robot_spec`` (the scenario's robot section) give periodic axes and speeds.
     """
     import numpy as np
 
@@ -238,8 +250,12 @@ def paths_trajectory(
             "path",
             (),
             meta,
+            periodic=getattr(robot, "periodic", ()),
         )
-    parts = [task_trajectory(axis_names, p.u, p.result, p.goal, p.changes, meta) for p in paths]
+    parts = [
+        task_trajectory(axis_names, p.u, p.result, p.goal, p.changes, meta, robot, robot_spec)
+        for p in paths
+    ]
     return Trajectory.concatenate(parts)
 
 

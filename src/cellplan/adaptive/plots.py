@@ -32,6 +32,25 @@ def _tool_trace(cell: Workcell, qa: np.ndarray, qb: np.ndarray, samples: int = 1
     return cell.robot.tool_pose(cell.robot.wrap(qa + t * cell.robot.difference(qa, qb)))[:, :2]
 
 
+CURVE_LABELS = {
+    "A0": "A0: forget G after a change",
+    "A1": "A1: verify every edge after a change",
+    "A2": "A2: repair G actively",
+    "A3": "A3: repair G on demand",
+    "rrtconnect": "Solve alone (RRTConnect from scratch)",
+    "prm": "PRM, roadmap kept",
+}
+"""Legend text of each curve of :func:`save_ratio_curves` (the paper's shorthand spelt out)."""
+
+COST_PARTS = {
+    "reach": "reach: R searching G with Reach",
+    "trace": "trace: T verifying G's edges",
+    "solve": "solve: Solve, the global planner",
+    "abstract": "abstract: Abstract cutting Solve's path",
+    "cut": "cut: corner cutting (Sec. 2.6)",
+    "repair": "repair: Repair of G after a change",
+}
+
 GRAPH_COLOR = "#1f4e9c"
 GOAL_COLOR = "#c0392b"
 
@@ -122,8 +141,11 @@ def draw_graph(ax: Any, snap: Snapshot, title: str = "") -> None:
         ax.plot(dense[:, 0], dense[:, 1], color=GOAL_COLOR, lw=0.8, alpha=0.6)
     if cell.robot.kind == "arm":
         shared.draw_robot(ax, cell, snap.u, alpha=0.35)
+    ax.set_xlabel("x (workcell units)", fontsize=8)
+    ax.set_ylabel("y (workcell units)", fontsize=8)
     ax.set_title(
-        title or f"after task {snap.task}: |V|={len(g)}, |E|={len(g.usable_edges())}", fontsize=9
+        title or (f"after task {snap.task}: {len(g)} subgoals, {len(g.usable_edges())} edges in G"),
+        fontsize=9,
     )
 
 
@@ -153,39 +175,77 @@ def save_ratio_curves(
     curves: Mapping[str, np.ndarray],
     path: str | Path,
     change_after: Sequence[int] = (),
-    title: str = "cumulative cost, Adapt / Solve only",
+    title: str = "Collision checks so far: Adapt's divided by Solve alone's",
 ) -> Path:
-    """Figure 5: cumulative-cost ratio against task number, one curve per strategy."""
+    """Figure 5: cumulative-cost ratio against task number, one curve per strategy.
+
+    Curves are named by :data:`CURVE_LABELS` (A0-A3 spelt out); the ratio is of counts of
+    collision checks, so it has no unit. The axis is logarithmic: a ratio and its
+    inverse lie equally far from 1 (nothing is stacked on it).
+    """
     fig, axes = shared.new_figure(size=5.0)
     ax = axes[0, 0]
     for name, ratio in curves.items():
         tasks = np.arange(1, len(ratio) + 1)
-        ax.plot(tasks, ratio, label=name, color=STRATEGY_COLORS.get(name), lw=1.6)
-    for t in change_after:
-        ax.axvline(t + 0.5, color="black", ls=":", lw=1)
-    ax.axhline(1.0, color="gray", lw=0.8)
+        ax.plot(
+            tasks,
+            ratio,
+            label=CURVE_LABELS.get(name, name),
+            color=STRATEGY_COLORS.get(name),
+            lw=1.6,
+        )
+    last = max((len(r) for r in curves.values()), default=0)
+    shown = [t for t in change_after if t < last]  # a change after the last task is not seen
+    for k, t in enumerate(shown):
+        label = "workcell change" if k == 0 else None
+        ax.axvline(t + 0.5, color="black", ls=":", lw=1, label=label)
+    ax.axhline(1.0, color="gray", lw=0.8, label="equal cost (ratio 1)")
     ax.set_xlabel("task number")
-    ax.set_ylabel("ratio of cumulative planning cost")
+    ax.set_ylabel("cumulative collision checks, Adapt / Solve alone (no unit)")
     ax.set_yscale("log")
+    # plain numbers (0.5, 2) on the ratio axis, not powers of ten
+    from matplotlib.ticker import MaxNLocator, ScalarFormatter
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # tasks are whole numbers
+
+    ax.yaxis.set_major_formatter(ScalarFormatter())
+    ax.yaxis.set_minor_formatter(ScalarFormatter())
     ax.set_title(title, fontsize=10)
     ax.legend(fontsize=8)
     return shared.save_figure(fig, path)
 
 
 def save_cost_split(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
-    """Per-task cost split (R, T, S, Abstract, cut, repair) as stacked bars, with Solve only."""
+    """Per-task collision checks: Adapt's split by phase (stacked) beside Solve alone's.
+
+    A linear axis (issue 34): on a logarithmic one, stacked bars show each part's share
+    wrongly. Each task has two bars side by side: Adapt's checks stacked by the phase that
+    made them (:data:`COST_PARTS`), and the Solve-only run's (black).
+    """
     fig, axes = shared.new_figure(size=5.0)
+    # wider with more tasks, so that two bars per task stay visible
+    fig.set_size_inches(min(16.0, max(6.0, 3.0 + 0.13 * len(rows))), 5.0)
     ax = axes[0, 0]
     tasks = np.array([int(r["task"]) for r in rows])
     bottom = np.zeros(len(rows))
-    for key in ("reach", "trace", "solve", "abstract", "cut", "repair"):
+    for key in COST_PARTS:
         vals = np.array([float(r[key]) for r in rows])
-        ax.bar(tasks, vals, bottom=bottom, label=key, width=0.9)
+        ax.bar(tasks - 0.2, vals, bottom=bottom, label=key, width=0.4)
         bottom += vals
-    ax.plot(tasks, [float(r["baseline"]) for r in rows], "k.", ms=3, label="Solve only")
-    ax.set_yscale("symlog", linthresh=10)
-    ax.set_xlabel("task number")
-    ax.set_ylabel("collision checks")
+    ax.bar(
+        tasks + 0.2,
+        [float(r["baseline"]) for r in rows],
+        width=0.4,
+        color="black",
+        label="Solve only",
+    )
+    ax.set_xlabel("task number (left bar: Adapt by phase; right bar: Solve alone)")
+    ax.set_ylabel("collision checks (configurations tested)")
+    ax.set_title(
+        "Collision checks per task\n" + "; ".join(COST_PARTS.values()),
+        fontsize=7,
+        wrap=True,
+    )
     # Outside the axes: inside, it covered the bars of the last tasks.
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return shared.save_figure(fig, path)

@@ -7,7 +7,7 @@ their algorithm modules when they run.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from cellplan.adaptive.drawing import draw_adaptive
@@ -19,7 +19,7 @@ from cellplan.adaptive.planners import (
     run_rrtconnect,
 )
 from cellplan.adaptive.section import AdaptiveSection
-from cellplan.core import Package, PlannerSpec, ShowcaseItem
+from cellplan.core import Fact, Package, PlannerSpec, ShowcaseItem
 
 if TYPE_CHECKING:
     from cellplan.setup import Setup
@@ -38,11 +38,13 @@ SUMMARY = (
 )
 
 
-def describe(setup: Setup) -> Mapping[str, str]:
-    """``cellplan validate`` lines; runs the check every adaptive run starts with.
+def describe(setup: Setup) -> Sequence[Fact]:
+    """``cellplan validate`` facts; runs the check every adaptive run starts with.
 
     Every goal must have an inverse-kinematics solution and be free at every stage of
-    the change schedule (:func:`~cellplan.adaptive.world.preflight`).
+    the change schedule (:func:`~cellplan.adaptive.world.preflight`). Values are typed
+    for ``validate --json``: the goals' names, the task count with how they are chosen,
+    the number of changes, and the repair, Solve and Reach settings by name.
     """
     from cellplan.adaptive.runner import settings_for, task_count
     from cellplan.adaptive.section import RandomTasks
@@ -52,13 +54,27 @@ def describe(setup: Setup) -> Mapping[str, str]:
     sec: AdaptiveSection = setup.section("adaptive")
     settings = settings_for(sc, None, None)
     preflight(sc, settings.resolution, settings.seed)
-    kind = f"random, seed {sec.tasks.seed}" if isinstance(sec.tasks, RandomTasks) else "listed"
-    return {
-        "adaptive goals": f"{len(sec.goals)} ({', '.join(sorted(sec.goals))})",
-        "adaptive tasks": f"{task_count(sc, None)} ({kind})",
-        "workcell changes": str(len(sec.changes)),
-        "repair / Solve / Reach": f"{sec.repair} / {sec.solve} / {sec.reach}",
-    }
+    random = isinstance(sec.tasks, RandomTasks)
+    seed = sec.tasks.seed if isinstance(sec.tasks, RandomTasks) else None
+    kind = f"random, seed {seed}" if random else "listed"
+    goals = sorted(sec.goals)
+    count = int(task_count(sc, None))
+    return [
+        Fact("adaptive_goals", "adaptive goals", goals, f"{len(goals)} ({', '.join(goals)})"),
+        Fact(
+            "adaptive_tasks",
+            "adaptive tasks",
+            {"count": count, "random": random, "seed": seed},
+            f"{count} ({kind})",
+        ),
+        Fact("workcell_changes", "workcell changes", len(sec.changes), str(len(sec.changes))),
+        Fact(
+            "repair_solve_reach",
+            "repair / Solve / Reach",
+            {"repair": sec.repair, "solve": sec.solve, "reach": sec.reach},
+            f"{sec.repair} / {sec.solve} / {sec.reach}",
+        ),
+    ]
 
 
 def _showcase(folder: Any) -> Sequence[ShowcaseItem]:
@@ -111,4 +127,5 @@ PACKAGE = Package(
     experiments="cellplan.adaptive.experiments",
     commands="cellplan.adaptive.commands",
     paper_runs=100,
+    workcells=("2d", "3d"),
 )

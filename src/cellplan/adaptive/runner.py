@@ -20,13 +20,18 @@ import numpy as np
 
 from cellplan import budget, units
 from cellplan.adaptive.adapt import Adapter, Hook, Settings, TaskResult, derive_seed
-from cellplan.adaptive.experience import ExperiencePlanner
+from cellplan.adaptive.experience import ExperiencePlanner, failure_state, saved_failures
 from cellplan.adaptive.graph import ExperienceGraph
 from cellplan.adaptive.repair import STRATEGIES
 from cellplan.adaptive.section import AdaptiveSection, Change, RandomTasks
-from cellplan.adaptive.solve import solve_rrtconnect, solve_two_segment
+from cellplan.adaptive.solve import (
+    check_planner_name,
+    ompl_planner_name,
+    solve_rrtconnect,
+    solve_two_segment,
+)
 from cellplan.adaptive.store import ExperienceStore
-from cellplan.adaptive.world import World, preflight
+from cellplan.adaptive.world import AnyWorld, preflight
 from cellplan.errors import ArgumentError, PersistenceError, Problem, ScenarioError
 from cellplan.scenario import Scenario
 from cellplan.workcell import Workcell
@@ -42,6 +47,9 @@ def settings_for(scenario: Scenario, repair: str | None, seed: int | None) -> Se
         raise ArgumentError(
             f"unknown repair strategy {repair!r}; choose one of {', '.join(STRATEGIES)}", "repair"
         )
+    why = check_planner_name(sec.solve)
+    if why:
+        raise ScenarioError([Problem("adaptive.solve", why)])
     return Settings(
         repair=repair or sec.repair,
         solve=sec.solve,
@@ -56,7 +64,7 @@ def settings_for(scenario: Scenario, repair: str | None, seed: int | None) -> Se
 
 def resolution_in_code(scenario: Scenario, resolution: float) -> float:
     """The section's Reach step in code units: degrees become radians for an arm."""
-    if scenario.robot is not None and scenario.robot.type == "arm":
+    if scenario.robot is not None and scenario.robot.type in ("arm", "urdf"):
         return float(units.radians(resolution))
     return float(resolution)
 
@@ -223,12 +231,14 @@ def run_adaptive(
         planner._mark = counter.snapshot()
         row = _row(t, res, base_cost, world.gen)
         outcome.rows.append(row)
-        if snapshot_at is not None and snapshot_at(t + 1):
+        cell = world.workcell()
+        # Snapshots are pictures of G over a planar cell (Figure 3).
+        if snapshot_at is not None and snapshot_at(t + 1) and isinstance(cell, Workcell):
             outcome.snapshots.append(
                 Snapshot(
                     t + 1,
                     adapter.graph.copy(),
-                    world.workcell(),
+                    cell,
                     adapter.u.copy(),
                     _goal_points(world),
                     res.path,
@@ -244,6 +254,7 @@ def run_adaptive(
                 "repaired_gen": adapter.repaired_gen,
                 "current_goal": adapter.current_goal,
                 "solve_calls": adapter._solve_calls,
+                **failure_state(adapter),
                 "u_base": [float(x) for x in u_base],
                 "repair": settings.repair,
                 "seed": settings.seed,
@@ -283,6 +294,8 @@ def restore_run(planner: ExperiencePlanner, store: ExperienceStore, saved: dict[
     adapter.current_goal = saved["current_goal"]
     adapter.tasks_done = done
     adapter._solve_calls = int(saved["solve_calls"])
+    # S's remembered failures of this generation (none in a run saved before they were kept)
+    adapter.s_failed, adapter.s_failed_gen = saved_failures(saved, world.gen)
     planner.queries = done
 
 
@@ -292,8 +305,12 @@ def describe_change(change: Change) -> str:
     return f"{change.type} {target}"
 
 
-def _goal_points(world: World) -> dict[str, tuple[float, float]]:
-    return {n: world.tool_pose_of(tag)[:2] for n, tag in world.goals.items()}
+def _goal_points(world: AnyWorld) -> dict[str, tuple[float, float]]:
+    out = {}
+    for n, tag in world.goals.items():
+        p = world.tool_pose_of(tag)
+        out[n] = (float(p[0]), float(p[1]))
+    return out
 
 
 @dataclass
@@ -344,6 +361,7 @@ def _baseline(
                 w,
                 derive_seed(settings.seed, t, 1_000_003),
                 settings.max_solve_checks,
+                planner_name=ompl_planner_name(settings.solve),
             )
     return counter.counts["baseline"] - before, path is not None
 

@@ -16,25 +16,36 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import Field
 
 from cellplan.errors import Problem
-from cellplan.schema import Name, PositiveFloat, Shape, StrictModel, Vec2
+from cellplan.scenario3d import AnyShape, Vec3
+from cellplan.schema import Name, PositiveFloat, StrictModel, Vec2
 
 if TYPE_CHECKING:
     from cellplan.scenario import Scenario
 
 TaskIndex = Annotated[int, Field(ge=0, le=1_000_000)]
 REPAIR_STRATEGIES = ("A0", "A1", "A2", "A3")
+OmplPlanner = Annotated[str, Field(pattern=r"^ompl\.[A-Za-z][A-Za-z0-9]{0,63}$")]
+"""``ompl.<Name>``: a planner class of ``ompl.geometric`` (checked before a run)."""
 
 
 class GoalSpec(StrictModel):
     """A named goal: where the tool point must go."""
 
-    at: Vec2 = Field(description="tool point in world coordinates of the initial workcell")
+    at: Vec2 | Vec3 = Field(
+        description="tool point in world coordinates of the initial workcell ((x, y) in a "
+        "planar cell, (x, y, z) metres in a 3-D one)"
+    )
     object: Name | None = Field(
         default=None, description="object the goal is attached to (moves with it)"
     )
     elbow: Literal[1, -1] = Field(default=1, description="arm IK branch: sign of joint 2")
     orientation: float | None = Field(
         default=None, description="tool orientation, degrees (3-link arms)"
+    )
+    rpy: tuple[float, float, float] | None = Field(
+        default=None,
+        description="3-D cells: the tool frame's roll, pitch, yaw in degrees (default: the "
+        "tool's z axis pointing down)",
     )
 
 
@@ -56,8 +67,8 @@ class AddObject(_Change):
     """change kind"""
     object: Name
     """name of the new object"""
-    shape: Shape
-    """its shape (workcell units)"""
+    shape: AnyShape
+    """its shape (workcell units; a solid in a 3-D cell)"""
 
 
 class RemoveObject(_Change):
@@ -72,8 +83,8 @@ class MoveObject(_Change):
     """change kind"""
     object: Name
     """name of the object moved"""
-    by: Vec2
-    """translation (workcell units)"""
+    by: Vec2 | Vec3
+    """translation (workcell units; (x, y, z) metres in a 3-D cell)"""
 
 
 class RotateObject(_Change):
@@ -93,18 +104,24 @@ class AddGoal(_Change):
     """change kind"""
     goal: Name
     """name of the new goal"""
-    at: Vec2
-    """tool point (workcell units)"""
+    at: Vec2 | Vec3
+    """tool point (workcell units; (x, y, z) metres in a 3-D cell)"""
     object: Name | None = None
     """object the goal is attached to (moves with it)"""
     elbow: Literal[1, -1] = 1
     """arm IK branch: sign of joint 2"""
     orientation: float | None = None
     """tool orientation, degrees (3-link arms)"""
+    rpy: tuple[float, float, float] | None = None
+    """3-D cells: tool roll, pitch, yaw, degrees (default: pointing down)"""
 
     def spec(self) -> GoalSpec:
         return GoalSpec(
-            at=self.at, object=self.object, elbow=self.elbow, orientation=self.orientation
+            at=self.at,
+            object=self.object,
+            elbow=self.elbow,
+            orientation=self.orientation,
+            rpy=self.rpy,
         )
 
 
@@ -131,8 +148,9 @@ class AdaptiveSection(StrictModel):
     """workcell changes after given tasks: add, remove, move, rotate objects; add, remove goals"""
     repair: Literal["A0", "A1", "A2", "A3"] = "A3"
     """repair after a change: A0 forget, A1 verify all, A2 actively, A3 on demand (Sec. 2.5)"""
-    solve: Literal["rrtconnect", "two_segment"] = "rrtconnect"
-    """the global planner S: OMPL RRTConnect, or the two-segment toy planner of Fig. 3"""
+    solve: Literal["rrtconnect", "two_segment"] | OmplPlanner = "rrtconnect"
+    """the global planner S: OMPL RRTConnect, any single-threaded OMPL geometric planner
+    by name (``ompl.RRT``, ``ompl.KPIECE1``, ...), or the two-segment toy planner of Fig. 3"""
     reach: Literal["straight", "potential"] = "straight"
     """the local planner R: a straight line in C-space, or a potential-field descent"""
     resolution: PositiveFloat = Field(
@@ -162,12 +180,15 @@ class AdaptiveSection(StrictModel):
         robot = scenario.robot
         if robot is None:
             problems.append(Problem("robot", "the adaptive section needs a robot (point or arm)"))
-        elif robot.type not in ("point", "arm"):
+        elif robot.type not in ("point", "arm", "urdf"):
             problems.append(
-                Problem("robot.type", "the adaptive planner supports point robots and arms")
+                Problem(
+                    "robot.type", "the adaptive planner supports point robots, arms and URDF arms"
+                )
             )
         elif robot.type == "arm" and len(robot.links) not in (2, 3):
             problems.append(Problem("robot.links", "object-attached IK needs a 2- or 3-link arm"))
+        problems += self._check_dimension(scenario)
         objects = set(scenario.workcell.obstacles)
         for name, goal in self.goals.items():
             if goal.object is not None and goal.object not in objects:
@@ -212,6 +233,37 @@ class AdaptiveSection(StrictModel):
                 goals.discard(change.goal)
                 if not goals:
                     problems.append(Problem(f"{where}.goal", "removes the last goal"))
+        return problems
+
+    def _check_dimension(self, scenario: Scenario) -> list[Problem]:
+        """Points and translations have the workcell's dimension; 3-D cells move objects by
+        translation only (a tag keeps the tool's orientation, Section 2.3)."""
+        solid = scenario.robot is not None and scenario.robot.type == "urdf"
+        want = 3 if solid else 2
+        problems = []
+        points = [(f"adaptive.goals.{n}.at", g.at) for n, g in self.goals.items()]
+        for i, c in enumerate(self.changes):
+            if isinstance(c, AddGoal):
+                points.append((f"adaptive.changes[{i}].at", c.at))
+            elif isinstance(c, MoveObject):
+                points.append((f"adaptive.changes[{i}].by", c.by))
+            elif isinstance(c, RotateObject) and solid:
+                problems.append(
+                    Problem(
+                        f"adaptive.changes[{i}].type",
+                        "a 3-D cell moves objects by translation only (move_object)",
+                    )
+                )
+            elif isinstance(c, AddObject) and solid != hasattr(c.shape, "pose"):
+                problems.append(
+                    Problem(
+                        f"adaptive.changes[{i}].shape",
+                        "needs a solid in a 3-D cell" if solid else "needs a planar shape",
+                    )
+                )
+        for where, value in points:
+            if len(value) != want:
+                problems.append(Problem(where, f"needs {want} coordinates in a {want}-D workcell"))
         return problems
 
     def _goal_object(self, goal: str) -> str | None:

@@ -40,6 +40,12 @@ from cellplan.adaptive.reach import reach
 from cellplan.adaptive.space import FloatArray, PlanSpace
 from cellplan.geometry import wrap_angle
 
+THREADED_PLANNERS = frozenset(
+    {"PRM", "PRMstar", "LazyPRM", "LazyPRMstar", "SPARS", "SPARStwo", "AnytimePathShortening"}
+)
+"""OMPL planners that evaluate the termination condition in a second thread: a Python
+condition (the check budget) deadlocks there on the GIL, so Solve refuses them."""
+
 DEFAULT_MAX_CHECKS = 200_000
 TIME_GUARD_SECONDS = 600.0
 """Wall-time guard of one Solve call: 200,000 checks take 4-15 s on the 2-core
@@ -65,6 +71,32 @@ def _ompl() -> tuple[Any, Any, Any]:
 
     ou.setLogLevel(ou.LOG_NONE)
     return ob, og, ou
+
+
+def ompl_planner_name(solve: str) -> str:
+    """The OMPL geometric planner class a ``solve`` setting names: ``rrtconnect`` is
+    ``RRTConnect``; ``ompl.<Name>`` is ``ompl.geometric.<Name>``."""
+    return "RRTConnect" if solve == "rrtconnect" else solve.removeprefix("ompl.")
+
+
+def check_planner_name(solve: str) -> str:
+    """``""`` when ``solve`` names a usable OMPL geometric planner (or ``two_segment``),
+    else why not, in one line."""
+    if solve == "two_segment":
+        return ""
+    ob, og, _ = _ompl()
+    name = ompl_planner_name(solve)
+    cls = getattr(og, name, None)
+    if not (isinstance(cls, type) and issubclass(cls, ob.Planner)):
+        return (
+            f"ompl.geometric has no planner {name!r} (e.g. ompl.RRTConnect, ompl.RRT, ompl.KPIECE1)"
+        )
+    if name in THREADED_PLANNERS:
+        return (
+            f"{name} checks its termination in a second thread, where the check budget "
+            "cannot run; choose a single-threaded planner (e.g. ompl.RRTConnect)"
+        )
+    return ""
 
 
 def _state_space(space: PlanSpace) -> Any:
@@ -146,8 +178,12 @@ def solve_rrtconnect(
     max_seconds: float = TIME_GUARD_SECONDS,
     planner_range: float | None = None,
     info: SolveInfo | None = None,
+    planner_name: str = "RRTConnect",
 ) -> FloatArray | None:
     """Solve(a, b) with OMPL RRTConnect: waypoints ``(m, dim)`` from ``a`` to ``b``, or ``None``.
+
+    ``planner_name`` picks another OMPL geometric planner by class name (checked by
+    :func:`check_planner_name`; an optimising planner spends its whole budget).
 
     The endpoints are checked first (counted); a colliding endpoint fails at once.
     The call stops after ``max_checks`` checks (the budget) or, as a guard only, after
@@ -167,7 +203,7 @@ def solve_rrtconnect(
     periodic = space.periodic
     pdef = ob.ProblemDefinition(si)
     pdef.setStartAndGoalStates(_state(state_space, a, periodic), _state(state_space, b, periodic))
-    planner = og.RRTConnect(si)
+    planner = getattr(og, planner_name)(si)
     if planner_range is not None:
         planner.setRange(planner_range)
     planner.setProblemDefinition(pdef)

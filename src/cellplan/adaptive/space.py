@@ -20,11 +20,34 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellplan.adaptive.counters import CheckCounter
+from cellplan.errors import ArgumentError
 from cellplan.geometry import wrap_angle
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IsFree = Callable[[FloatArray], BoolArray]
+
+
+def and_validity(base: IsFree, user: IsFree) -> IsFree:
+    """``base(Q) & user(Q)``: a user's validity test AND-ed with the workcell's (as OMPL's
+    ``SimpleSetup`` takes one). ``user`` sees only the rows ``base`` accepts; it must
+    return ``bool[N]`` for ``Q`` of shape ``(N, dim)``."""
+
+    def free(Q: FloatArray) -> BoolArray:
+        out = np.array(base(Q), dtype=bool)
+        if out.any():
+            rows = Q[out]
+            answer = np.asarray(user(rows))
+            if answer.shape != (rows.shape[0],) or answer.dtype != np.bool_:
+                raise ArgumentError(
+                    f"must return bool[N] for Q of shape (N, dim); for shape {rows.shape} "
+                    f"it returned {answer.dtype} of shape {answer.shape}",
+                    "validity",
+                )
+            out[out] = answer
+        return out
+
+    return free
 
 
 @dataclass

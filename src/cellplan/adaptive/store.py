@@ -689,6 +689,10 @@ def _is_objects(value: Any) -> bool:
     for obj in value.values():
         if not (isinstance(obj, dict) and _numbers(obj.get("pose")) and len(obj["pose"]) == 3):
             return False
+        if "solid" in obj:  # a 3-D cell's object (``World3D.objects_json``)
+            if not _is_solid(obj["solid"]):
+                return False
+            continue
         shape = obj.get("shape")
         if not isinstance(shape, dict) or not all(
             isinstance(shape.get(k), list) for k in ("verts", "counts", "centres", "radii")
@@ -713,14 +717,41 @@ def _is_objects(value: Any) -> bool:
     return True
 
 
+def _is_solid(value: Any) -> bool:
+    """A primitive solid as ``World3D.objects_json`` writes it: kind, 4x4 pose, size."""
+    if not isinstance(value, dict) or value.get("kind") not in _SOLID_SIZES:
+        return False
+    pose, size = value.get("pose"), _numbers(value.get("size"))
+    if not (isinstance(pose, list) and len(pose) == 4):
+        return False
+    rows = [_numbers(r) for r in pose]
+    if not all(r is not None and len(r) == 4 for r in rows):
+        return False
+    matrix = np.array(rows, float)
+    rigid = np.allclose(matrix[:3, :3] @ matrix[:3, :3].T, np.eye(3), atol=1e-6) and np.allclose(
+        matrix[3], [0.0, 0.0, 0.0, 1.0]
+    )
+    return bool(
+        rigid
+        and size is not None
+        and len(size) == _SOLID_SIZES[value["kind"]]
+        and all(math.isfinite(v) and v > 0 for v in size)
+    )
+
+
+_SOLID_SIZES = {"box": 3, "cylinder": 2, "capsule": 2, "sphere": 1}
+
+
 def _is_goals(value: Any) -> bool:
+    # A 3-D goal has a fourth entry: the tool's orientation (9 numbers) or None.
     return isinstance(value, dict) and all(
         isinstance(g, list)
-        and len(g) == 3
+        and len(g) in (3, 4)
         and (g[0] is None or isinstance(g[0], str))
         and _numbers(g[1])
         and len(g[1]) == 3
         and (g[2] is None or g[2] in (-1, 0, 1))
+        and (len(g) == 3 or g[3] is None or (_numbers(g[3]) and len(g[3]) == 9))
         for g in value.values()
     )
 

@@ -14,9 +14,11 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import shapely
+from pydantic import TypeAdapter, ValidationError
 from shapely.geometry.base import BaseGeometry
 
 from cellplan import units
@@ -32,11 +34,17 @@ from cellplan.adaptive.section import (
     RotateObject,
 )
 from cellplan.adaptive.space import FloatArray
-from cellplan.errors import Problem, ScenarioError
+from cellplan.adaptive.store import shape_from_json, shape_to_json
+from cellplan.adaptive.tags import Tag
+from cellplan.adaptive.world3d import World3D
+from cellplan.errors import ArgumentError, Problem, ScenarioError
 from cellplan.geometry import ShapeSet
 from cellplan.robots import PlanarArm, Robot
 from cellplan.scenario import Scenario
+from cellplan.schema import Shape
+from cellplan.setup import Setup, as_setup
 from cellplan.workcell import Workcell
+from cellplan.workcell3d import Workcell3D
 
 Pose = tuple[float, float, float]
 
@@ -51,15 +59,6 @@ def inverse(a: Pose) -> Pose:
     """Inverse of a pose."""
     c, s = math.cos(a[2]), math.sin(a[2])
     return (-(c * a[0] + s * a[1]), s * a[0] - c * a[1], -a[2])
-
-
-@dataclass(frozen=True)
-class Tag:
-    """An object-attached subgoal: tool pose in the frame of ``obj`` (``None``: the world)."""
-
-    obj: str | None
-    rel: Pose
-    branch: int | None
 
 
 @dataclass
@@ -257,8 +256,9 @@ class World:
             return tag.rel
         return compose(self.objects[tag.obj].pose, tag.rel)
 
-    def config_of(self, tag: Tag) -> FloatArray | None:
-        """Configuration for a tag by IK on the tag's branch; ``None`` if unreachable."""
+    def config_of(self, tag: Tag, seed: FloatArray | None = None) -> FloatArray | None:
+        """Configuration for a tag by IK on the tag's branch (closed form: ``seed``, the
+        subgoal's old configuration, is not needed); ``None`` if unreachable."""
         x, y, phi = self.tool_pose_of(tag)
         robot = self.robot
         if isinstance(robot, PlanarArm):
@@ -308,6 +308,94 @@ class World:
                 )
                 problems.append(Problem(f"{where}.{name}", f"the goal configuration {what}{when}"))
         return problems
+
+    def check_free(self, q: FloatArray, name: str) -> None:
+        """One clear line when ``q`` is outside the limits, the bounds, or in collision
+        (naming the object), or within Reach's certified clearance of something."""
+        robot = self.robot
+        shown = "(" + ", ".join(f"{v:.4g}" for v in q) + ")"
+        if not robot.within_limits(q[None, :])[0]:
+            lim = ", ".join(
+                f"{a} [{lo:.4g}, {hi:.4g}]"
+                for a, lo, hi in zip(robot.axis_names, robot.lower, robot.upper, strict=True)
+            )
+            raise ArgumentError(f"configuration {shown} is outside the joint limits: {lim}", name)
+        empty = self.base_cell.with_obstacles({})
+        if empty.collides(q[None, :], avoid_sources="none")[0]:
+            raise ArgumentError(f"configuration {shown} leaves the workcell bounds", name)
+        for margin, how in ((0.0, "collides with"), (self.margin, "is within the clearance")):
+            hits = self.hits(q, margin)
+            if hits and margin == 0.0:
+                names = ", ".join(repr(h) for h in hits)
+                raise ArgumentError(f"configuration {shown} {how} obstacle {names}", name)
+            if hits:
+                raise ArgumentError(
+                    f"configuration {shown} {how} margin {margin:.3g} of obstacle {hits[0]!r} "
+                    "(Reach certifies its segments with this clearance; a finer resolution "
+                    "shrinks it)",
+                    name,
+                )
+        if not self.is_free(q[None, :])[0]:
+            raise ArgumentError(
+                f"configuration {shown} is within the clearance margin of the workcell bounds",
+                name,
+            )
+
+    def pose_goal(self, pose: FloatArray, seed: FloatArray) -> FloatArray:
+        """Tool-pose goals are for URDF arms; a planar robot's goal is a configuration."""
+        raise ArgumentError(
+            "a (4, 4) tool-pose goal needs a 3-D arm; give a configuration or a goal's name",
+            "goal",
+        )
+
+    def shape(self, shape: Any) -> ShapeSet:
+        """A shape given to ``ExperiencePlanner.add``: a :class:`ShapeSet` or a scenario
+        shape (``{"type": "box", "min": ..., "max": ...}``, a polygon or a disc)."""
+        if isinstance(shape, ShapeSet):
+            return shape
+        try:
+            spec = TypeAdapter(Shape).validate_python(shape)
+        except ValidationError as exc:
+            first = exc.errors(include_url=False)[0]
+            where = ".".join(str(p) for p in first["loc"])
+            raise ArgumentError(
+                f"{where}: {first['msg']}" if where else first["msg"], "shape"
+            ) from None
+        return ShapeSet.from_spec(spec)
+
+    def pose_of(self, pose: Any) -> Pose:
+        """A pose argument checked: three finite numbers ``(x, y, theta)``."""
+        try:
+            values = [float(v) for v in pose]
+        except (TypeError, ValueError):
+            raise ArgumentError("expected (x, y, theta) numbers", "pose") from None
+        if len(values) != 3 or not all(np.isfinite(values)):
+            raise ArgumentError(
+                f"expected three finite numbers (x, y, theta), got {pose!r}", "pose"
+            )
+        return (values[0], values[1], values[2])
+
+    def objects_json(self) -> dict[str, Any]:
+        """The objects as JSON values (shape and pose)."""
+        return {
+            n: {"shape": shape_to_json(st.shape), "pose": list(st.pose)}
+            for n, st in sorted(self.objects.items())
+        }
+
+    def goals_json(self) -> dict[str, Any]:
+        """The goals' tags as JSON values."""
+        return {n: [t.obj, list(t.rel), t.branch] for n, t in sorted(self.goals.items())}
+
+    def restore_json(self, objects: Mapping[str, Any], goals: Mapping[str, Any], gen: int) -> None:
+        """Replace objects, goals and generation from :meth:`objects_json` / :meth:`goals_json`."""
+        self.restore(
+            {n: (shape_from_json(o["shape"]), self.pose_of(o["pose"])) for n, o in objects.items()},
+            {
+                n: Tag(obj, (float(r[0]), float(r[1]), float(r[2])), branch)
+                for n, (obj, r, branch, *_) in goals.items()
+            },
+            gen,
+        )
 
     # --- changes --------------------------------------------------------------------------
 
@@ -375,6 +463,20 @@ class World:
         self._geoms = None
 
 
+AnyWorld = World | World3D
+
+
+def make_world(scenario: Scenario | Setup, resolution: float | None = None) -> AnyWorld:
+    """The changing workcell of a scenario: planar (:class:`World`) or 3-D
+    (:class:`~.world3d.World3D`), as the scenario's workcell model is."""
+    setup = as_setup(scenario)
+    cell = setup.workcell
+    if cell.dimension == 3:
+        assert isinstance(cell, Workcell3D)
+        return World3D(setup.scenario, cell, resolution)
+    return World(setup.scenario, resolution)
+
+
 def preflight(scenario: Scenario, resolution: float | None, seed: int) -> None:
     """Check every goal at every stage of the change schedule before any work is done.
 
@@ -390,7 +492,7 @@ def preflight(scenario: Scenario, resolution: float | None, seed: int) -> None:
     """
     from cellplan.adaptive.runner import choose_goal, task_count
 
-    world = World(scenario, resolution)
+    world = make_world(scenario, resolution)
     problems = world.goal_problems("adaptive.goals")
     named = {p.field for p in problems}
     sec = world.section

@@ -21,7 +21,7 @@ from pydantic import BaseModel
 
 from cellplan.assembly.layout import DEFAULT_FILL
 from cellplan.assembly.options import STEP_MAX_RULE, GradientOptions, SequentialOptions
-from cellplan.assembly.run import MAX_FRAMES
+from cellplan.assembly.run import DEFAULT_FRAMES, MAX_FRAMES
 from cellplan.assembly.section import GeneratorSpec
 from cellplan.cliutil import (
     GifSizeOpt,
@@ -62,6 +62,10 @@ _INTEGRATOR_HELP = (
 )
 _STEP_MAX_HELP = f"gradient, implicit step: largest step in R^2n (default {STEP_MAX_RULE})"
 _RULE_HELP = f"sequential rule: paper | place (default: {_default(SequentialOptions, 'rule')})"
+_FINISH_HELP = (
+    "sequential: place (the place rule finishes a run that stopped short) or none "
+    f"(default {_default(SequentialOptions, 'finish')})"
+)
 _SEED_HELP = f"--random: seed (default {_default(GeneratorSpec, 'seed')})"
 _RADIUS_HELP = f"--random: disc radius (default {_default(GeneratorSpec, 'radius'):g})"
 _FILL_HELP = f"--random: fraction of the workspace the discs cover (default {DEFAULT_FILL:g})"
@@ -73,6 +77,8 @@ _RANDOM_FLAGS = {
     "radius": "--radius",
     "fill": "--fill",
     "log10_beta": "--log10-beta",
+    "dim": "--dim",
+    "pattern": "--pattern",
 }
 
 
@@ -112,7 +118,17 @@ def register(app: typer.Typer) -> None:
         ] = None,
         radius: Annotated[float | None, typer.Option(help=_RADIUS_HELP)] = None,
         fill: Annotated[float | None, typer.Option(help=_FILL_HELP)] = None,
-        frames: Annotated[int, typer.Option(help=f"GIF frames, 2 to {MAX_FRAMES}")] = 40,
+        dim: Annotated[
+            int | None, typer.Option(help="--random: 2 (discs, default) or 3 (spheres in a ball)")
+        ] = None,
+        pattern: Annotated[
+            str | None,
+            typer.Option(help="--random: goals hex (default; close-packed in 3-D) or stack (3-D)"),
+        ] = None,
+        finish_rule: Annotated[str | None, typer.Option("--finish", help=_FINISH_HELP)] = None,
+        frames: Annotated[
+            int, typer.Option(help=f"GIF frames, 2 to {MAX_FRAMES}")
+        ] = DEFAULT_FRAMES,
         gif_size: GifSizeOpt = None,
         output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
             "assembly-out"
@@ -137,6 +153,8 @@ def register(app: typer.Typer) -> None:
                 "--fill": fill,
                 "--log10-beta": log10_beta,
                 "--permutation": permutation or None,
+                "--dim": dim,
+                "--pattern": pattern,
             }
             problems.extend(
                 Problem(flag, "only with --random N")
@@ -172,6 +190,7 @@ def register(app: typer.Typer) -> None:
                 ("escape", escape),
                 ("integrator", integrator),
                 ("step_max", step_max),
+                ("finish", finish_rule),
             )
             if value is not None
         }
@@ -184,7 +203,16 @@ def register(app: typer.Typer) -> None:
         setup = None
         if random_n is not None:
             try:
-                setup = random_setup(random_n, seed, radius, fill, permutation, log10_beta)
+                setup = random_setup(
+                    random_n,
+                    seed,
+                    radius,
+                    fill,
+                    permutation,
+                    log10_beta,
+                    2 if dim is None else dim,
+                    pattern,
+                )
             except ArgumentError as exc:
                 problems.extend(
                     Problem(_RANDOM_FLAGS.get(p.field, p.field), p.message) for p in exc.problems

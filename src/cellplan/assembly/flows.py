@@ -525,7 +525,8 @@ def _integrate_implicit(
     """
     radii = problem.radii
     n = problem.n
-    sel = np.arange(2 * n) if moving is None else np.array([2 * moving, 2 * moving + 1])
+    dim = problem.dim
+    sel = np.arange(dim * n) if moving is None else dim * moving + np.arange(dim)
     b = np.array(b0, dtype=float)
     ev = evaluate(b, problem, k)
     evals = 1
@@ -549,9 +550,9 @@ def _integrate_implicit(
         length = min(radius, settings.goal_fraction * max(err, 1e-300))
         lw = record.log_ws[-1]
         for _ in range(60):
-            flat = np.zeros(2 * n)
+            flat = np.zeros(dim * n)
             flat[sel] = implicit_step(g, hess, length)
-            delta = flat.reshape(n, 2)
+            delta = flat.reshape(n, dim)
             b_new = b + delta
             ev_new = evaluate(b_new, problem, k)
             evals += 1

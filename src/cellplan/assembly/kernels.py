@@ -33,27 +33,37 @@ Array = NDArray[np.float64]
 def nav_kernel(
     b: Array, d: Array, radii: Array, circle: bool, w0: Array, w1: Array, k: float
 ) -> tuple[float, float, Array, Array, Array, Array, Array]:
-    """``(log_gamma, log_beta, v, rep, rep_bnd, gaps, bgap)`` at ``b``.
+    """``(log_gamma, log_beta, v, rep, rep_bnd, gaps, bgap)`` at ``b`` (n, dim).
 
-    ``circle``: the workspace is the disc of centre ``w0`` and radius ``w1[0]``;
-    otherwise the box ``[w0, w1]``. ``gaps`` has ``inf`` on its diagonal.
+    ``circle``: the workspace is the disc (ball) of centre ``w0`` and radius ``w1[0]``;
+    otherwise the box ``[w0, w1]``. ``gaps`` has ``inf`` on its diagonal. Discs (dim 2)
+    or spheres (dim 3): sums over the axes run in axis order, so that in 2-D each sum is
+    the planar code's ``x + y`` to the last bit.
     """
     n = b.shape[0]
+    dim = b.shape[1]
     gamma = 0.0
     for i in range(n):
-        ex = b[i, 0] - d[i, 0]
-        ey = b[i, 1] - d[i, 1]
-        gamma += 0.5 * (ex * ex + ey * ey)
-    g = np.zeros((n, 2))
+        sq = 0.0
+        for a in range(dim):
+            e = b[i, a] - d[i, a]
+            sq += e * e
+        gamma += 0.5 * sq
+    g = np.zeros((n, dim))
     dist = np.zeros((n, n))
     inv = np.zeros((n, n))
     gaps = np.full((n, n), np.inf)
     log_beta = 0.0
+    three = dim == 3
     for i in range(n):
         for j in range(i + 1, n):
-            dx = b[i, 0] - b[j, 0]
-            dy = b[i, 1] - b[j, 1]
-            sq = dx * dx + dy * dy
+            # scalars, not a loop over the axes: the hot loop of every flow (d = 2 or 3)
+            d0 = b[i, 0] - b[j, 0]
+            d1 = b[i, 1] - b[j, 1]
+            d2 = b[i, 2] - b[j, 2] if three else 0.0
+            sq = d0 * d0 + d1 * d1
+            if three:
+                sq += d2 * d2
             rs = radii[i] + radii[j]
             beta_ij = 0.5 * (sq - rs * rs)
             r = math.sqrt(sq)
@@ -68,44 +78,53 @@ def nav_kernel(
             iv = 1.0 / beta_ij
             inv[i, j] = iv
             inv[j, i] = iv
-            g[i, 0] += dx * iv
-            g[i, 1] += dy * iv
-            g[j, 0] -= dx * iv
-            g[j, 1] -= dy * iv
-    gb = np.zeros((n, 2))
+            g[i, 0] += d0 * iv
+            g[i, 1] += d1 * iv
+            g[j, 0] -= d0 * iv
+            g[j, 1] -= d1 * iv
+            if three:
+                g[i, 2] += d2 * iv
+                g[j, 2] -= d2 * iv
+    gb = np.zeros((n, dim))
     bgap = np.zeros(n)
     for i in range(n):
         if circle:
-            rx = b[i, 0] - w0[0]
-            ry = b[i, 1] - w0[1]
+            rsq = 0.0
+            for a in range(dim):
+                rel = b[i, a] - w0[a]
+                rsq += rel * rel
             rr = w1[0] - radii[i]
-            w = 0.5 * (rr * rr - (rx * rx + ry * ry))
+            w = 0.5 * (rr * rr - rsq)
             log_beta += math.log(w) if w > 0.0 else (-np.inf if w == 0.0 else np.nan)
-            gb[i, 0] = -rx / w
-            gb[i, 1] = -ry / w
-            bgap[i] = rr - math.sqrt(rx * rx + ry * ry)
+            for a in range(dim):
+                gb[i, a] = -(b[i, a] - w0[a]) / w
+            bgap[i] = rr - math.sqrt(rsq)
         else:
-            t0 = b[i, 0] - w0[0] - radii[i]
-            t1 = w1[0] - radii[i] - b[i, 0]
-            t2 = b[i, 1] - w0[1] - radii[i]
-            t3 = w1[1] - radii[i] - b[i, 1]
-            m = min(t0, t1, t2, t3)
+            m = np.inf
+            for a in range(dim):
+                m = min(m, b[i, a] - w0[a] - radii[i], w1[a] - radii[i] - b[i, a])
             if m > 0.0:
-                log_beta += math.log(t0) + math.log(t1) + math.log(t2) + math.log(t3)
+                s = 0.0
+                for a in range(dim):
+                    s += math.log(b[i, a] - w0[a] - radii[i])
+                    s += math.log(w1[a] - radii[i] - b[i, a])
+                log_beta += s
             else:
                 log_beta = -np.inf if m == 0.0 else np.nan
-            gb[i, 0] = 1.0 / t0 - 1.0 / t1
-            gb[i, 1] = 1.0 / t2 - 1.0 / t3
+            for a in range(dim):
+                gb[i, a] = 1.0 / (b[i, a] - w0[a] - radii[i]) - 1.0 / (w1[a] - radii[i] - b[i, a])
             bgap[i] = m
     log_gamma = math.log(gamma) if gamma > 0.0 else -np.inf
     c = gamma / k
-    v = np.empty((n, 2))
+    v = np.empty((n, dim))
     rep = np.empty((n, n))
     rep_bnd = np.empty(n)
     for i in range(n):
-        v[i, 0] = (b[i, 0] - d[i, 0]) - c * (g[i, 0] + gb[i, 0])
-        v[i, 1] = (b[i, 1] - d[i, 1]) - c * (g[i, 1] + gb[i, 1])
-        rep_bnd[i] = c * math.sqrt(gb[i, 0] ** 2 + gb[i, 1] ** 2)
+        sq = 0.0
+        for a in range(dim):
+            v[i, a] = (b[i, a] - d[i, a]) - c * (g[i, a] + gb[i, a])
+            sq += gb[i, a] ** 2
+        rep_bnd[i] = c * math.sqrt(sq)
         for j in range(n):
             rep[i, j] = c * dist[i, j] * abs(inv[i, j])
     return log_gamma, log_beta, v, rep, rep_bnd, gaps, bgap
@@ -115,68 +134,69 @@ def nav_kernel(
 def hessian_kernel(
     b: Array, d: Array, radii: Array, circle: bool, w0: Array, w1: Array, k: float
 ) -> Array:
-    """Hessian ``(2n, 2n)`` of ``L = log gamma - log(beta) / k`` in one pass over the pairs.
+    """Hessian ``(dim n, dim n)`` of ``L = log gamma - log(beta) / k`` in one pass over the pairs.
 
     The formulas of :func:`navigation.hessian_log_w_numpy` (equations (3)-(5) and the
     boundary term differentiated twice): per pair ``x = b_i - b_j``,
     ``M = D_x^2 log beta_ij = I / beta_ij - x x^T / beta_ij^2`` enters ``+M`` on the
     ``ii`` and ``jj`` blocks and ``-M`` on the ``ij`` and ``ji`` blocks of
     ``D^2 log beta``; ``D^2 log gamma = I / gamma - e e^T / gamma^2``. Workspace as in
-    :func:`nav_kernel`.
+    :func:`nav_kernel`; any dimension.
     """
     n = b.shape[0]
-    m = 2 * n
+    dim = b.shape[1]
+    m = dim * n
     hb = np.zeros((m, m))  # D^2 log beta
+    x = np.empty(dim)
     for i in range(n):
         for j in range(i + 1, n):
-            x0 = b[i, 0] - b[j, 0]
-            x1 = b[i, 1] - b[j, 1]
+            sq = 0.0
+            for a in range(dim):
+                x[a] = b[i, a] - b[j, a]
+                sq += x[a] * x[a]
             rs = radii[i] + radii[j]
-            iv = 1.0 / (0.5 * (x0 * x0 + x1 * x1 - rs * rs))
+            iv = 1.0 / (0.5 * (sq - rs * rs))
             iv2 = iv * iv
-            m00 = iv - iv2 * x0 * x0
-            m01 = -iv2 * x0 * x1
-            m11 = iv - iv2 * x1 * x1
-            a, c = 2 * i, 2 * j
-            hb[a, a] += m00
-            hb[a, a + 1] += m01
-            hb[a + 1, a] += m01
-            hb[a + 1, a + 1] += m11
-            hb[c, c] += m00
-            hb[c, c + 1] += m01
-            hb[c + 1, c] += m01
-            hb[c + 1, c + 1] += m11
-            hb[a, c] = -m00
-            hb[a, c + 1] = -m01
-            hb[a + 1, c] = -m01
-            hb[a + 1, c + 1] = -m11
-            hb[c, a] = -m00
-            hb[c, a + 1] = -m01
-            hb[c + 1, a] = -m01
-            hb[c + 1, a + 1] = -m11
+            p, q = dim * i, dim * j
+            for a in range(dim):
+                for c in range(dim):
+                    # x[lo] x[hi]: the (a, c) and (c, a) entries are the same number
+                    mac = -iv2 * x[min(a, c)] * x[max(a, c)]
+                    if a == c:
+                        mac = iv - iv2 * x[a] * x[a]
+                    hb[p + a, p + c] += mac
+                    hb[q + a, q + c] += mac
+                    hb[p + a, q + c] = -mac
+                    hb[q + a, p + c] = -mac
     for i in range(n):
-        a = 2 * i
+        p = dim * i
         if circle:
-            y0 = b[i, 0] - w0[0]
-            y1 = b[i, 1] - w0[1]
+            ysq = 0.0
+            for a in range(dim):
+                x[a] = b[i, a] - w0[a]
+                ysq += x[a] * x[a]
             rr = w1[0] - radii[i]
-            iw = 1.0 / (0.5 * (rr * rr - (y0 * y0 + y1 * y1)))
+            iw = 1.0 / (0.5 * (rr * rr - ysq))
             iw2 = iw * iw
-            hb[a, a] += -iw - iw2 * y0 * y0
-            hb[a, a + 1] += -iw2 * y0 * y1
-            hb[a + 1, a] += -iw2 * y0 * y1
-            hb[a + 1, a + 1] += -iw - iw2 * y1 * y1
+            for a in range(dim):
+                for c in range(dim):
+                    if a == c:
+                        hb[p + a, p + a] += -iw - iw2 * x[a] * x[a]
+                    else:
+                        hb[p + a, p + c] += -iw2 * x[min(a, c)] * x[max(a, c)]
         else:
-            for axis in range(2):
+            for axis in range(dim):
                 t_lo = b[i, axis] - w0[axis] - radii[i]
                 t_hi = w1[axis] - radii[i] - b[i, axis]
-                hb[a + axis, a + axis] -= 1.0 / (t_lo * t_lo) + 1.0 / (t_hi * t_hi)
+                hb[p + axis, p + axis] -= 1.0 / (t_lo * t_lo) + 1.0 / (t_hi * t_hi)
     e = np.empty(m)
     gamma = 0.0
     for i in range(n):
-        e[2 * i] = b[i, 0] - d[i, 0]
-        e[2 * i + 1] = b[i, 1] - d[i, 1]
-        gamma += 0.5 * (e[2 * i] * e[2 * i] + e[2 * i + 1] * e[2 * i + 1])
+        sq = 0.0
+        for a in range(dim):
+            e[dim * i + a] = b[i, a] - d[i, a]
+            sq += e[dim * i + a] * e[dim * i + a]
+        gamma += 0.5 * sq
     ig = 1.0 / gamma
     g2 = gamma * gamma
     out = np.empty((m, m))
@@ -194,25 +214,65 @@ def segment_kernel(b: Array, delta: Array, radii: Array, gaps: Array, fraction: 
 
     Per pair, the smallest centre distance along the segment: ``x(t) = x0 + t dx`` is
     closest to the origin at ``t = clip(-x0.dx / dx.dx, 0, 1)`` (exact; the boundary is
-    checked by the caller at the end points).
+    checked by the caller at the end points). Any dimension.
     """
     n = b.shape[0]
+    dim = b.shape[1]
     for i in range(n):
         for j in range(i + 1, n):
-            x0 = b[i, 0] - b[j, 0]
-            x1 = b[i, 1] - b[j, 1]
-            d0 = delta[i, 0] - delta[j, 0]
-            d1 = delta[i, 1] - delta[j, 1]
-            dd = d0 * d0 + d1 * d1
-            t = 0.0
-            if dd > 0.0:
-                t = min(max(-(x0 * d0 + x1 * d1) / dd, 0.0), 1.0)
-            c0 = x0 + t * d0
-            c1 = x1 + t * d1
-            gap = math.sqrt(c0 * c0 + c1 * c1) - (radii[i] + radii[j])
+            gap = _pair_segment_gap(b, delta, radii, i, j, dim)
             if not gap >= fraction * gaps[i, j]:
                 return False
     return True
+
+
+@numba.njit(cache=True)
+def _pair_segment_gap(b: Array, delta: Array, radii: Array, i: int, j: int, dim: int) -> float:
+    """Smallest gap of discs i, j along ``b -> b + delta`` (both moving straight)."""
+    dd = 0.0
+    xd = 0.0
+    for a in range(dim):
+        da = delta[i, a] - delta[j, a]
+        dd += da * da
+        xd += (b[i, a] - b[j, a]) * da
+    t = 0.0
+    if dd > 0.0:
+        t = min(max(-xd / dd, 0.0), 1.0)
+    sq = 0.0
+    for a in range(dim):
+        ca = (b[i, a] - b[j, a]) + t * (delta[i, a] - delta[j, a])
+        sq += ca * ca
+    return math.sqrt(sq) - (radii[i] + radii[j])
+
+
+@numba.njit(cache=True)
+def path_pair_gap_kernel(path: Array, radii: Array) -> float:
+    """Smallest pair gap along a path of configurations ``(m, n, dim)``, exactly.
+
+    Between rows the configuration moves straight (every disc at once, linearly), so
+    per segment and pair the closest approach is :func:`_pair_segment_gap`'s; ``inf``
+    with fewer than two discs. (The boundary gap is concave along a segment in a convex
+    workspace, so the rows bound it; the caller takes it there.)
+    """
+    m = path.shape[0]
+    n = path.shape[1]
+    dim = path.shape[2]
+    best = np.inf
+    delta = np.empty((n, dim))
+    for s in range(max(m - 1, 1)):
+        b = path[s]
+        if m > 1:
+            for i in range(n):
+                for a in range(dim):
+                    delta[i, a] = path[s + 1, i, a] - b[i, a]
+        else:
+            delta[:] = 0.0
+        for i in range(n):
+            for j in range(i + 1, n):
+                gap = _pair_segment_gap(b, delta, radii, i, j, dim)
+                if gap < best:
+                    best = gap
+    return best
 
 
 @numba.njit(cache=True)
@@ -223,27 +283,34 @@ def segments_gap_kernel(P: Array, Q: Array, x: Array, radii: Array, i: int) -> A
     closest point at ``t = clip((x_j - P).(Q - P) / |Q - P|^2, 0, 1)``, ``t = 0`` for a
     point segment) minus ``radii[j] + radii[i]``; ``inf`` with no other disc. The same
     operations, in the same order, as the numpy reference
-    :func:`routes.segments_clearance_numpy`, without its ``(S, n)`` temporaries.
+    :func:`routes.segments_clearance_numpy`, without its ``(S, n)`` temporaries. Any
+    dimension.
     """
     S = P.shape[0]
     n = x.shape[0]
+    dim = x.shape[1]
     out = np.full(S, np.inf)
+    sv = np.empty(dim)
     for s in range(S):
-        sx = Q[s, 0] - P[s, 0]
-        sy = Q[s, 1] - P[s, 1]
-        length2 = sx * sx + sy * sy
+        length2 = 0.0
+        for a in range(dim):
+            sv[a] = Q[s, a] - P[s, a]
+            length2 += sv[a] * sv[a]
         best = np.inf
         for j in range(n):
             if j == i:
                 continue
-            rx = x[j, 0] - P[s, 0]
-            ry = x[j, 1] - P[s, 1]
+            rs = 0.0
+            for a in range(dim):
+                rs += (x[j, a] - P[s, a]) * sv[a]
             t = 0.0
             if length2 > 0.0:
-                t = min(max((rx * sx + ry * sy) / length2, 0.0), 1.0)
-            dx = rx - t * sx
-            dy = ry - t * sy
-            gap = math.sqrt(dx * dx + dy * dy) - radii[j] - radii[i]
+                t = min(max(rs / length2, 0.0), 1.0)
+            sq = 0.0
+            for a in range(dim):
+                da = (x[j, a] - P[s, a]) - t * sv[a]
+                sq += da * da
+            gap = math.sqrt(sq) - radii[j] - radii[i]
             if gap < best:
                 best = gap
         out[s] = best
@@ -256,9 +323,13 @@ def triangle_safe_kernel(delta: Array, gaps: Array, bgap: Array, fraction: float
     ``|delta_i| <= fraction bgap_i`` for every disc (the RK4 step's bound, see
     :func:`flows.step_is_safe`); the same comparisons as its numpy reference."""
     n = delta.shape[0]
+    dim = delta.shape[1]
     m = np.empty(n)
     for i in range(n):
-        m[i] = math.sqrt(delta[i, 0] * delta[i, 0] + delta[i, 1] * delta[i, 1])
+        sq = 0.0
+        for a in range(dim):
+            sq += delta[i, a] * delta[i, a]
+        m[i] = math.sqrt(sq)
     for i in range(n):
         if not m[i] <= fraction * bgap[i]:
             return False
@@ -275,10 +346,14 @@ def max_dt_kernel(
     """The step bound of :func:`flows.max_dt` in one pass over the pairs (its reference
     is :func:`flows.max_dt_numpy`); a ``nan`` term makes the result ``nan``, as there."""
     n = w.shape[0]
+    dim = w.shape[1]
     s = 1.0 if stiff else 0.0
     speed = np.empty(n)
     for i in range(n):
-        speed[i] = math.sqrt(w[i, 0] * w[i, 0] + w[i, 1] * w[i, 1])
+        sq = 0.0
+        for a in range(dim):
+            sq += w[i, a] * w[i, a]
+        speed[i] = math.sqrt(sq)
     best = np.inf
     for i in range(n):
         for j in range(n):
@@ -326,7 +401,8 @@ def rk4_stages_kernel(
     ``normalize``), so both give the same steps to the last bit.
     """
     n = b.shape[0]
-    stages = np.empty((4, n, 2))
+    dim = b.shape[1]
+    stages = np.empty((4, n, dim))
     stages[0] = w1
     evals = 0
     for s in range(3):
@@ -338,7 +414,7 @@ def rk4_stages_kernel(
         evals += 1
         v = out[2]
         for i in range(n):
-            for j in range(2):
+            for j in range(dim):
                 x = -(v[i, j] * mask[i, 0]) * 1.0
                 if not np.isfinite(x):
                     return False, delta, evals

@@ -1,6 +1,7 @@
 """The navigation function of Whitcomb & Koditschek (1991), Section 3, in log space.
 
-For n discs with centres ``b`` (shape ``(n, 2)``), radii ``rho`` and goals ``d``:
+For n discs with centres ``b`` (shape ``(n, 2)``; spheres: ``(n, 3)``, the same formulas
+hold in any dimension, R^{3n} for spheres), radii ``rho`` and goals ``d``:
 
 * ``gamma = sum_i 1/2 ||b_i - d_i||^2``                         (equation (3))
 * ``beta  = prod_{i<j} beta_ij * prod_i beta_0i``                (equations (4), (5))
@@ -65,6 +66,7 @@ __all__ = [
     "log_w",
     "min_clearance",
     "pair_terms",
+    "path_min_clearance",
     "phi_linear",
     "workspace_args",
 ]
@@ -204,6 +206,29 @@ def grad_log_phi(b: Array, problem: DiscProblem, k: float) -> Array:
     return np.exp(ev.log_scale - ev.log_phi) * ev.v
 
 
+def path_min_clearance(path: Array, radii: Array, ws: Workspace) -> float:
+    """Smallest gap along a path ``(m, n, d)`` taken straight between its rows, exactly.
+
+    Issue 35: a clearance taken at the rows only overstates the minimum (by up to 10.6%
+    on a 20-disc ring). Between two rows every centre moves linearly, so per pair the
+    centre distance is smallest where the relative motion passes closest to the origin
+    (:func:`kernels.path_pair_gap_kernel`, exact); the distance of a centre to the
+    boundary of a convex workspace is concave along a segment, so the rows bound the
+    boundary gaps.
+    """
+    from cellplan.assembly.kernels import path_pair_gap_kernel
+
+    rows = np.ascontiguousarray(path, dtype=np.float64)
+    pair = float(path_pair_gap_kernel(rows, radii)) if rows.shape[1] > 1 else np.inf
+    if isinstance(ws, CircleWorkspace):
+        bnd = float(np.min(ws.radius - radii - np.linalg.norm(rows - ws.center, axis=2)))
+    else:
+        bnd = float(
+            min(np.min(rows - ws.lo - radii[:, None]), np.min(ws.hi - rows - radii[:, None]))
+        )
+    return min(pair, bnd)
+
+
 # --- the plain linear-space baseline ---------------------------------------------------------
 
 
@@ -274,7 +299,7 @@ def hessian_log_w(b: Array, problem: DiscProblem, k: float) -> Array:
 
 
 def hessian_log_w_numpy(b: Array, problem: DiscProblem, k: float) -> Array:
-    """Hessian ``(2n, 2n)`` of ``L = log gamma - log(beta) / k`` (numpy reference).
+    """Hessian ``(dn, dn)`` of ``L = log gamma - log(beta) / k`` (numpy reference; d = 2, 3).
 
     Differentiates equations (3)-(5) (and the boundary term) twice, in log form:
     ``D^2 log gamma = I / gamma - e e^T / gamma^2``; per pair, with ``x = b_i - b_j``,
@@ -286,13 +311,14 @@ def hessian_log_w_numpy(b: Array, problem: DiscProblem, k: float) -> Array:
     contacts, uses the same formulas through :func:`hessian_log_w`.
     """
     n = problem.n
+    dim = b.shape[1]
     diff, B, _ = pair_terms(b, problem.radii)
     e = (b - problem.goal).reshape(-1)
     gamma = 0.5 * float(e @ e)
-    eye2 = np.eye(2)
+    eye2 = np.eye(dim)
     inv_b = 1.0 / B
     np.fill_diagonal(inv_b, 0.0)
-    # M[i, j] = D_x^2 log beta_ij, (n, n, 2, 2), zero on the diagonal
+    # M[i, j] = D_x^2 log beta_ij, (n, n, dim, dim), zero on the diagonal
     M = (
         inv_b[:, :, None, None] * eye2
         - (inv_b * inv_b)[:, :, None, None] * diff[:, :, :, None] * diff[:, :, None, :]
@@ -310,10 +336,10 @@ def hessian_log_w_numpy(b: Array, problem: DiscProblem, k: float) -> Array:
         )
     else:
         lo, hi, r = ws.lo, ws.hi, problem.radii
-        for axis in (0, 1):
+        for axis in range(dim):
             t_lo = b[:, axis] - lo[axis] - r
             t_hi = hi[axis] - r - b[:, axis]
             blocks[idx, idx, axis, axis] -= 1.0 / t_lo**2 + 1.0 / t_hi**2
-    hess_log_beta = blocks.transpose(0, 2, 1, 3).reshape(2 * n, 2 * n)
-    hess_gamma = np.eye(2 * n) / gamma - np.outer(e, e) / gamma**2
+    hess_log_beta = blocks.transpose(0, 2, 1, 3).reshape(dim * n, dim * n)
+    hess_gamma = np.eye(dim * n) / gamma - np.outer(e, e) / gamma**2
     return hess_gamma - hess_log_beta / k

@@ -99,6 +99,12 @@ class SequentialOptions(FlowOptions):
         default="paper",
         description="high-level rule: paper (the map T, eqs. (13)-(16)) or place (ours)",
     )
+    finish: Literal["place", "none"] = Field(
+        default="place",
+        description="what a run that stopped short (paper rule: after its k-stages) does: "
+        "place (the place rule finishes from there, after spreading the discs if needed, as "
+        "the gradient planner's escape) or none",
+    )
 
 
 class ControlOptions(DiscOptions):

@@ -32,7 +32,7 @@ its log10 is the ``log10_flow_time`` statistic.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -44,7 +44,7 @@ from cellplan.assembly.options import (
     GradientOptions,
     SequentialOptions,
 )
-from cellplan.core import Progress, Result, Status
+from cellplan.core import Progress, Result, Stat, Status
 from cellplan.trajectory import Event, Trajectory
 
 if TYPE_CHECKING:
@@ -129,6 +129,7 @@ def plan_sequential(setup: Setup, options: SequentialOptions, progress: Progress
         tol,
         options.escapes,
         scenario=setup.name,
+        finish=options.finish,
     )
     if progress is not None:
         progress(1.0, 1.0, result.status.value)
@@ -193,19 +194,20 @@ def run_gradient(
     )
     straight = float(np.linalg.norm(problem.start - problem.goal))
     first = res.stages[0]
-    stats = {
+    stats: dict[str, Stat] = {
         "ratio": res.length() / straight if straight > 0 else 1.0,
         "k": float(k),
-        "rk4": float(method == "rk4"),
+        "rk4": method == "rk4",
         "step_max": step,
-        "solved_at_k": float(first.status is Status.SOLVED),
-        "escapes": float(res.escapes),
+        "solved_at_k": first.status is Status.SOLVED,
+        "escapes": int(res.escapes),
         "k_final": float(res.stages[-1].k),
-        "placed": float(res.placement.switches if res.placement is not None else 0),
+        "placed": int(res.placement.switches if res.placement is not None else 0),
         "length": res.length(),
-        "min_clearance": res.min_clearance,
-        "steps": float(res.steps),
-        "evaluations": float(res.evaluations),
+        "min_clearance": _exact_clearance(problem, res.path),
+        "min_clearance_vertices": res.min_clearance,
+        "steps": int(res.steps),
+        "evaluations": int(res.evaluations),
         "log10_flow_time": float(res.log_time / np.log(10.0)) if np.isfinite(res.log_time) else 0.0,
         "stuck_error": float(np.linalg.norm(_stuck_point(res) - problem.goal))
         if res.escapes
@@ -241,6 +243,7 @@ def run_sequential(
     escapes: int = ESCAPES,
     *,
     scenario: str = "",
+    finish: str = "none",
 ) -> Result:
     """Sequential assembly (Section 4.2); ratio over summed disc distances (footnote 6).
 
@@ -249,8 +252,15 @@ def run_sequential(
     3.2, see :func:`sequential.sequential_assembly`); ``solved_at_k``, ``escapes`` and
     ``k_final`` say so, as for the gradient planner, and ``switches`` counts every grasp
     of every stage. The ``place`` rule does not lower k.
+
+    ``finish="place"`` (the planner's default; issue 35): a run that stopped short is
+    finished by the place rule (:func:`sequential.finish_with_place`: from where it
+    stopped, else after spreading the discs one at a time), as the gradient planner's
+    escape; ``placed`` counts the finish's grasps (0 without it) and
+    ``switches_per_disc_paper`` (paper rule) the T map's own. ``finish="none"``: the
+    rule alone.
     """
-    from cellplan.assembly.sequential import sequential_assembly
+    from cellplan.assembly.sequential import finish_with_place, sequential_assembly
 
     t0 = time.perf_counter()
     res = sequential_assembly(
@@ -261,22 +271,31 @@ def run_sequential(
         tol=tol,
         escapes=escapes if rule == "paper" else 0,
     )
+    if finish == "place" and res.status is not Status.SOLVED:
+        res = finish_with_place(problem, res, k, epsilon=epsilon)
     straight = float(np.sum(np.linalg.norm(problem.start - problem.goal, axis=1)))
-    stats = {
+    stats: dict[str, Stat] = {
         "ratio": float(np.sum(res.disc_lengths())) / straight if straight > 0 else 1.0,
-        "switches": float(res.switches),
+        "switches": int(res.switches),
         "switches_per_disc": res.switches / problem.n,
         "switches_per_disc_within_0.1": res.switches_within(problem.goal, 0.1) / problem.n,
-        "solved_at_k": float(res.solved_at_k),
-        "escapes": float(res.escapes),
+        "solved_at_k": bool(res.solved_at_k),
+        "escapes": int(res.escapes),
         "k_final": float(res.k_final),
-        "min_clearance": res.min_clearance,
-        "evaluations": float(res.evaluations),
+        "min_clearance": _exact_clearance(problem, res.path),
+        "min_clearance_vertices": res.min_clearance,
+        "evaluations": int(res.evaluations),
         "final_error": float(np.linalg.norm(res.path[-1] - problem.goal)),
         "wall_s": time.perf_counter() - t0,
     }
+    stats["placed"] = int(res.placed)
+    if rule == "paper":
+        stats["switches_per_disc_paper"] = (res.switches - res.placed) / problem.n
     traj = _sequential_trajectory(res, _meta(scenario, problem, k, epsilon, tol, rule=rule))
-    message = _flow_message(res.status, res.reason, res.stages, stats, "switches")
+    if res.finished:
+        message = _finish_message(res, stats, rule)
+    else:
+        message = _flow_message(res.status, res.reason, res.stages, stats, "switches")
     return Result(res.status, message, stats=stats, solution=res, trajectory=traj)
 
 
@@ -287,10 +306,11 @@ def run_control(problem: DiscProblem, k: float, tol: float, *, scenario: str = "
     t0 = time.perf_counter()
     res = simulate_control(problem, k, tol=tol)
     straight = float(np.linalg.norm(problem.start - problem.goal))
-    stats = {
+    stats: dict[str, Stat] = {
         "ratio": res.length() / straight if straight > 0 else 1.0,
-        "min_clearance": res.min_clearance,
-        "steps": float(res.steps),
+        "min_clearance": _exact_clearance(problem, res.path),
+        "min_clearance_vertices": res.min_clearance,
+        "steps": int(res.steps),
         "settling_time": float(res.times[-1]),
         "wall_s": time.perf_counter() - t0,
     }
@@ -308,6 +328,16 @@ def run_control(problem: DiscProblem, k: float, tol: float, *, scenario: str = "
     )
 
 
+def _exact_clearance(problem: DiscProblem, path: Array) -> float:
+    """The statistic ``min_clearance``: the smallest gap along the path taken straight
+    between its rows, exact over every segment (:func:`navigation.path_min_clearance`;
+    issue 35). ``min_clearance_vertices`` is the run's own figure, taken at the rows
+    (and, for the place rule's straight moves, exactly along them)."""
+    from cellplan.assembly.navigation import path_min_clearance
+
+    return path_min_clearance(path, problem.radii, problem.workspace)
+
+
 # --- messages --------------------------------------------------------------------------------
 
 
@@ -315,7 +345,7 @@ def _flow_message(
     status: Status,
     reason: str,
     stages: Sequence[Stage],
-    stats: dict[str, float],
+    stats: Mapping[str, Stat],
     unit: str,
 ) -> str:
     """One line: what the run achieved, or where and why it stopped short of the goal."""
@@ -351,7 +381,7 @@ def _stuck_point(res: FlowResult) -> Array:
     return res.path[sum(s.steps for s in res.stages[:-1])]
 
 
-def _place_message(status: Status, stages: Sequence[Stage], stats: dict[str, float]) -> str:
+def _place_message(status: Status, stages: Sequence[Stage], stats: Mapping[str, Stat]) -> str:
     """One line for a flow finished (or not) by the place rule (from the stuck point, or
     after that failed, from the start)."""
     flow, place = stages[0], stages[1]
@@ -377,6 +407,30 @@ def _place_message(status: Status, stages: Sequence[Stage], stats: dict[str, flo
     )
 
 
+def _finish_message(res: SequentialResult, stats: Mapping[str, Stat], rule: str) -> str:
+    """One line for a run finished (or not) by the place rule (issue 35)."""
+    paper = res.stages[: len(res.stages) - res.finished]
+    finish = res.stages[len(paper) :]
+    last = paper[-1]
+    lowered = len(paper) - 1
+    grasps = sum(s.steps for s in paper)
+    who = "the paper's T map" if rule == "paper" else "the place rule"
+    why = f"{who} stopped at k={last.k:g} ({last.reason or last.status.value})"
+    if lowered:
+        why += f" after k was lowered {'once' if lowered == 1 else f'{lowered} times'}"
+    why += f", after {grasps} switches"
+    quality = f"ratio {stats['ratio']:.3f}, min clearance {stats['min_clearance']:.3g}"
+    spread = " after the discs were spread" if len(finish) > 1 else ""
+    if res.status is Status.SOLVED:
+        return (
+            f"assembled: {quality}; {why}; the place rule finished{spread} in {res.placed} grasps"
+        )
+    return (
+        f"{why}; the place rule{spread} stopped too ({finish[-1].reason}), "
+        f"{stats['final_error']:.3g} from the goal"
+    )
+
+
 def _where(reason: str, k: float) -> str:
     """``at a spurious minimum at k=32``, ``at a saddle ...``, or ``at k=32 (reason)``."""
     if reason in ("spurious minimum", "saddle"):
@@ -384,7 +438,7 @@ def _where(reason: str, k: float) -> str:
     return f"at k={k:g} ({reason or 'no reason given'})"
 
 
-def _control_message(res: ControlResult, stats: dict[str, float]) -> str:
+def _control_message(res: ControlResult, stats: Mapping[str, Stat]) -> str:
     if res.status is Status.SOLVED:
         return (
             f"at rest at the goal after t={stats['settling_time']:.3g}: ratio "
@@ -404,9 +458,10 @@ def _control_message(res: ControlResult, stats: dict[str, float]) -> str:
 # --- trajectories ----------------------------------------------------------------------------
 
 
-def disc_columns(n: int) -> tuple[str, ...]:
-    """``disc1.x, disc1.y, ..., discn.y``: the columns of an assembly trajectory."""
-    return tuple(f"disc{i + 1}.{axis}" for i in range(n) for axis in "xy")
+def disc_columns(n: int, dim: int = 2) -> tuple[str, ...]:
+    """``disc1.x, disc1.y, ..., discn.y``: the columns of an assembly trajectory
+    (spheres, ``dim`` 3: ``disc1.x, disc1.y, disc1.z, ...``)."""
+    return tuple(f"disc{i + 1}.{axis}" for i in range(n) for axis in "xyz"[:dim])
 
 
 def _arc_length(path: Array) -> Array:
@@ -425,6 +480,8 @@ def _meta(
     rule: str = "",
 ) -> dict[str, Any]:
     meta: dict[str, Any] = {"scenario": scenario, "n": problem.n, "k": k, "tolerance": tol}
+    if problem.dim != 2:
+        meta["dim"] = problem.dim
     if epsilon is not None:
         meta["epsilon"] = epsilon
     if rule:
@@ -441,7 +498,11 @@ def _trajectory(
     events: Sequence[Event],
     meta: dict[str, Any],
 ) -> Trajectory:
+    if path.shape[2] != 2:
+        return _sphere_trajectory(path, t, time_unit, mode, modes, events, meta)
     n = path.shape[1]
+    # typed fields (part: the disc) from the text the event lines write
+    typed = [Event.from_text(e.index, e.kind, e.detail) for e in events]
     return Trajectory(
         t=t,
         q=path.reshape(len(path), 2 * n),
@@ -450,7 +511,35 @@ def _trajectory(
         columns=disc_columns(n),
         units=("workcell",) * (2 * n),
         time_unit=time_unit,
-        events=tuple(sorted(events, key=lambda e: e.index)),
+        events=tuple(sorted(typed, key=lambda e: e.index)),
+        meta=meta,
+        # a controller's run is timed in seconds already; else the default disc speeds
+        seconds=np.asarray(t, float) - float(t[0]) if time_unit == "s" and len(t) else None,
+    )
+
+
+def _sphere_trajectory(
+    path: Array,
+    t: Array,
+    time_unit: str,
+    mode: NDArray[np.int64],
+    modes: tuple[str, ...],
+    events: Sequence[Event],
+    meta: dict[str, Any],
+) -> Trajectory:
+    """:func:`_trajectory` for spheres: columns ``disc1.x, disc1.y, disc1.z, ...``
+    (events typed from their text as there)."""
+    n, dim = path.shape[1], path.shape[2]
+    typed = [Event.from_text(e.index, e.kind, e.detail) for e in events]
+    return Trajectory(
+        t=t,
+        q=path.reshape(len(path), dim * n),
+        mode=mode,
+        modes=modes,
+        columns=disc_columns(n, dim),
+        units=("workcell",) * (dim * n),
+        time_unit=time_unit,
+        events=tuple(sorted(typed, key=lambda e: e.index)),
         meta=meta,
     )
 
@@ -460,11 +549,20 @@ def _stage_starts(stages: Sequence[Stage]) -> list[int]:
     return [int(v) for v in np.concatenate([[0], np.cumsum([s.steps for s in stages])])[:-1]]
 
 
-def _escape_events(stages: Sequence[Stage], starts: Sequence[int]) -> list[Event]:
-    """One ``escape`` event where each stage after the first starts (k lowered)."""
+def _escape_events(
+    stages: Sequence[Stage], starts: Sequence[int], finished: int = 0
+) -> list[Event]:
+    """One ``escape`` event where each stage after the first starts (k lowered), and a
+    ``finish`` event where each of the last ``finished`` stages starts (the sequential
+    rule's place-rule finish, issue 35: not a lowered k; detail ``place rule`` or
+    ``place rule after spreading the discs``)."""
+    first_finish = len(stages) - finished
     return [
-        Event(int(start), "escape", f"k={stage.k:g}")
-        for stage, start in zip(stages[1:], starts[1:], strict=True)
+        Event(int(start), "finish", stage.reason.split(":", 1)[0])
+        if i >= first_finish
+        else Event(int(start), "escape", f"k={stage.k:g}")
+        for i, (stage, start) in enumerate(zip(stages, starts, strict=True))
+        if i > 0
     ]
 
 
@@ -511,5 +609,5 @@ def _sequential_trajectory(res: SequentialResult, meta: dict[str, Any]) -> Traje
         int(starts[min(sum(s.steps for s in res.stages[:i]), len(lengths))])
         for i in range(len(res.stages))
     ]
-    events.extend(_escape_events(res.stages, grasp_starts))
+    events.extend(_escape_events(res.stages, grasp_starts, res.finished))
     return _trajectory(res.path, _arc_length(res.path), "path", mode, modes, events, meta)

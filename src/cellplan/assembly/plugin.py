@@ -7,13 +7,22 @@ their algorithm modules when they run.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 from cellplan.assembly.drawing import draw_discs
 from cellplan.assembly.options import ControlOptions, GradientOptions, SequentialOptions
+from cellplan.assembly.robot_options import RobotAssemblyOptions
 from cellplan.assembly.section import DiscsSection
-from cellplan.core import Options, Package, PlannerSpec, Progress, Result, ShowcaseItem
+from cellplan.core import (
+    Fact,
+    Options,
+    Package,
+    PlannerSpec,
+    Progress,
+    Result,
+    ShowcaseItem,
+)
 
 TITLE = "Navigation-function assembly planning for disc assemblies"
 CITATION = (
@@ -59,6 +68,13 @@ def _control(setup: Setup, options: Options, progress: Progress | None) -> Resul
     return plan_control(setup, options, progress)
 
 
+def _robot(setup: Setup, options: Options, progress: Progress | None) -> Result:
+    from cellplan.assembly.robot import plan_robot
+
+    assert isinstance(options, RobotAssemblyOptions)
+    return plan_robot(setup, options, progress)
+
+
 def _showcase(folder: Path) -> list[ShowcaseItem]:
     from cellplan.assembly.showcase import showcase
 
@@ -97,20 +113,54 @@ PLANNERS = (
         section="discs",
         smoke=(SMOKE, {}),
     ),
+    PlannerSpec(
+        name="assembly.robot",
+        package="assembly",
+        summary="the sequential assembly executed by a URDF arm, each move planned by "
+        "Adapt's experience graph (Sec. 4.2 with Chen 1994)",
+        options=RobotAssemblyOptions,
+        run=_robot,
+        section="discs",
+        smoke=("ur5_assembly", {}),
+    ),
 )
 
 
-def describe(setup: Setup) -> Mapping[str, str]:
-    """``cellplan validate`` lines: the discs, listed or generated, and k."""
+def describe(setup: Setup) -> Sequence[Fact]:
+    """``cellplan validate``'s fact about the discs, listed or generated, and k.
+
+    One :class:`~cellplan.core.Fact` keyed ``discs``: its text is the line a person
+    reads, its value the same with types for ``--json`` (``count`` an int, ``k`` a float
+    or ``None`` for the rule's default, ``seed`` an int).
+    """
     d = setup.scenario.discs
     k = "from n and the workspace" if d.k is None else f"{d.k:g}"
-    if d.discs is not None:
-        return {"discs": f"{len(d.discs)} listed, boundary {d.boundary.type}, k = {k}"}
-    g = d.generate
-    return {
-        "discs": f"{g.n} generated (seed {g.seed}, {g.pattern} goals, {g.starts} starts), "
-        f"boundary {d.boundary.type}, k = {k}"
+    # spheres in a 3-D cell (the discs' dimension is the workcell's)
+    spheres = hasattr(setup.scenario.workcell.bounds, "zmin")
+    kind = " spheres" if spheres else ""
+    boundary = "ball" if spheres and d.boundary.type == "disc" else d.boundary.type
+    value: dict[str, Any] = {
+        "bodies": "spheres" if spheres else "discs",
+        "boundary": boundary,
+        "k": None if d.k is None else float(d.k),
     }
+    if d.discs is not None:
+        value |= {"count": len(d.discs), "source": "listed"}
+        text = f"{len(d.discs)}{kind} listed, boundary {boundary}, k = {k}"
+    else:
+        g = d.generate
+        value |= {
+            "count": int(g.n),
+            "source": "generated",
+            "seed": int(g.seed),
+            "pattern": g.pattern,
+            "starts": g.starts,
+        }
+        text = (
+            f"{g.n}{kind} generated (seed {g.seed}, {g.pattern} goals, {g.starts} starts), "
+            f"boundary {boundary}, k = {k}"
+        )
+    return [Fact("discs", "discs", value, text)]
 
 
 PACKAGE = Package(
@@ -127,4 +177,5 @@ PACKAGE = Package(
     describe=describe,
     showcase=_showcase,
     draw=draw_discs,
+    workcells=("2d", "3d"),
 )

@@ -35,6 +35,7 @@ from cellplan.assembly.layout import (
     hex_pattern,
     legality_problems,
     log10_beta_pairs,
+    stack_pattern,
     workspace_center,
 )
 from cellplan.errors import ArgumentError, Problem, ScenarioError
@@ -74,7 +75,11 @@ Array = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class DiscProblem:
-    """n discs with radii (n,), start and goal centres (n, 2), in a workspace."""
+    """n discs with radii (n,), start and goal centres (n, 2), in a workspace.
+
+    Spheres: centres (n, 3) in a 3-D workspace (``dim`` 3); the same algorithms run in
+    R^{3n}.
+    """
 
     radii: Array
     start: Array
@@ -84,6 +89,11 @@ class DiscProblem:
     @property
     def n(self) -> int:
         return int(self.radii.shape[0])
+
+    @property
+    def dim(self) -> int:
+        """2 for discs, 3 for spheres."""
+        return int(self.goal.shape[1])
 
     @functools.cached_property
     def goal_gap(self) -> float:
@@ -117,7 +127,7 @@ def random_legal(
     ScenarioError
         When a disc cannot be placed (the workspace is too crowded).
     """
-    pos = np.zeros((n, 2))
+    pos = np.zeros((n, ws.dim))
     for i in range(n):
         r = radii[i] + min_gap
         for _ in range(tries):
@@ -143,6 +153,13 @@ def random_legal(
 
 
 def _uniform_in(ws: Workspace, margin: float, m: int, rng: np.random.Generator) -> Array:
+    if ws.dim == 3:
+        if isinstance(ws, CircleWorkspace):
+            u = rng.standard_normal((m, 3))
+            u /= np.linalg.norm(u, axis=1, keepdims=True)
+            rad = (ws.radius - margin) * np.cbrt(rng.random(m))
+            return ws.center + rad[:, None] * u
+        return ws.lo + margin + rng.random((m, 3)) * (ws.hi - ws.lo - 2.0 * margin)
     if isinstance(ws, CircleWorkspace):
         rad = (ws.radius - margin) * np.sqrt(rng.random(m))
         ang = 2.0 * math.pi * rng.random(m)
@@ -166,10 +183,12 @@ def generated_goals(gen: GeneratorSpec, ws: Workspace, rng: np.random.Generator)
     radii = np.full(gen.n, gen.radius)
     if gen.pattern == "random":
         return random_legal(gen.n, radii, ws, rng, gen.min_start_gap)
+    if gen.pattern == "stack":
+        return stack_pattern(gen.n, gen.radius, gen.gap, workspace_center(ws))
     gap = (
         gen.gap
         if gen.log10_beta_goal is None
-        else gap_for_beta(gen.n, gen.radius, gen.log10_beta_goal)
+        else gap_for_beta(gen.n, gen.radius, gen.log10_beta_goal, ws.dim)
     )
     return hex_pattern(gen.n, gen.radius, gap, workspace_center(ws))
 
@@ -181,10 +200,8 @@ def generate_problem(gen: GeneratorSpec, ws: Workspace, seed: int | None = None)
     goal = generated_goals(gen, ws, rng)
     bad = legality_problems(goal, radii, ws)
     if bad:
-        i, msg = bad[0]
-        raise ScenarioError(
-            [Problem("discs.generate", f"the goal pattern is illegal: disc {i} {msg}")]
-        )
+        _, msg = bad[0]
+        raise ScenarioError([Problem("discs.generate", f"the goal pattern is illegal: {msg}")])
     if gen.starts == "permutation":
         start = goal[random_permutation(gen.n, rng)]
     else:
@@ -211,7 +228,7 @@ def validate_problem(problem: DiscProblem) -> None:
     problems = [
         Problem(f"discs[{i}].{which}", msg)
         for which, pos in (("start", problem.start), ("goal", problem.goal))
-        for i, msg in legality_problems(pos, problem.radii, problem.workspace)
+        for i, msg in legality_problems(pos, problem.radii, problem.workspace, "discs")
     ]
     if problems:
         raise ScenarioError(problems)
@@ -221,9 +238,12 @@ def validate_problem(problem: DiscProblem) -> None:
 
 
 def generated_setup(
-    generate: Mapping[str, Any], fill: float = DEFAULT_FILL, name: str = ""
+    generate: Mapping[str, Any], fill: float = DEFAULT_FILL, name: str = "", dim: int = 2
 ) -> Setup:
     """A scenario whose ``discs:`` section generates a problem, in the default workspace.
+
+    ``dim`` 3: spheres, in the ball of :func:`default_workspace` inside a 3-D cell
+    (format version 2).
 
     ``generate`` holds the fields of :class:`~cellplan.assembly.section.GeneratorSpec`
     to set (the others take the spec's defaults); the boundary is the circle of
@@ -258,7 +278,9 @@ def generated_setup(
         ) from None
     if not 0.0 < fill <= 0.5:
         raise ScenarioError([Problem("fill", f"must be in (0, 0.5], got {fill:g}")])
-    ws = default_workspace(gen.n, gen.radius, fill)
+    if dim not in (2, 3):
+        raise ScenarioError([Problem("dim", f"must be 2 or 3, got {dim}")])
+    ws = default_workspace(gen.n, gen.radius, fill, dim)
     if not ws.radius + 1.0 <= COORD_LIMIT:  # also an infinite radius (fill 5e-324)
         raise ScenarioError(
             [
@@ -272,6 +294,28 @@ def generated_setup(
         )
     half = math.ceil(ws.radius) + 1.0
     label = name or f"random{gen.n}-seed{gen.seed}"
+    if dim == 3:
+        label = name or f"spheres{gen.n}-seed{gen.seed}"
+        data3 = {
+            "cellplan": 2,
+            "name": label,
+            "description": f"{gen.n} generated spheres filling {fill:g} of a ball",
+            "workcell": {
+                "bounds": {
+                    "xmin": -half,
+                    "ymin": -half,
+                    "zmin": -half,
+                    "xmax": half,
+                    "ymax": half,
+                    "zmax": half,
+                }
+            },
+            "discs": {
+                "boundary": {"type": "disc", "center": [0.0, 0.0, 0.0], "radius": ws.radius},
+                "generate": dict(generate),
+            },
+        }
+        return Setup(scenario_from_data(data3, source=label), label)
     data = {
         "cellplan": 1,
         "name": label,
@@ -291,7 +335,9 @@ _RANDOM_NAMES = {
     "discs.generate.seed": "seed",
     "discs.generate.radius": "radius",
     "discs.generate.log10_beta_goal": "log10_beta",
+    "discs.generate.pattern": "pattern",
     "fill": "fill",
+    "dim": "dim",
 }
 
 
@@ -302,6 +348,8 @@ def random_setup(
     fill: float | None = None,
     permutation: bool = False,
     log10_beta: float | None = None,
+    dim: int = 2,
+    pattern: str | None = None,
 ) -> Setup:
     """A random disc-assembly scenario (Section 5's problems): what ``assemble --random`` plans.
 
@@ -310,6 +358,7 @@ def random_setup(
     positions or (``permutation``) a random permutation of the goals (Section 5.2.2), in
     a circular workspace the discs cover ``fill`` of. ``None``: the generator's default
     (:class:`~cellplan.assembly.section.GeneratorSpec`; ``fill``: :data:`DEFAULT_FILL`).
+    ``dim`` 3: spheres in a ball (the close-packed cluster, or ``pattern="stack"``).
 
     Raises
     ------
@@ -325,8 +374,10 @@ def random_setup(
         generate["starts"] = "permutation"
     if log10_beta is not None:
         generate["log10_beta_goal"] = log10_beta
+    if pattern is not None:
+        generate["pattern"] = pattern
     try:
-        return generated_setup(generate, DEFAULT_FILL if fill is None else fill)
+        return generated_setup(generate, DEFAULT_FILL if fill is None else fill, dim=dim)
     except ScenarioError as exc:
         raise ArgumentError(
             [Problem(_RANDOM_NAMES.get(p.field, p.field), p.message) for p in exc.problems]

@@ -30,6 +30,30 @@ from cellplan.assembly.problems import CircleWorkspace, DiscProblem
 Array = NDArray[np.float64]
 
 
+#: Directions of the 3-D route nodes, approach points and parking spots: ours (the planar
+#: code's 24 directions and 12 corners become points on the sphere; docs/assembly.md).
+SPHERE_DIRECTIONS = 48
+SPHERE_CORNERS = 26
+#: Covering angle of the 26 corner directions (rad): every direction lies within it of a
+#: corner (0.534 measured on 200,000 random directions), so the convex hull of the corner
+#: points at ``r / cos`` of it contains the ball of radius r, as the planar polygon does.
+CORNER_HALF_ANGLE_3D = 0.54
+
+
+def unit_directions(dim: int, count: int, offset: float = 0.0) -> Array:
+    """``count`` unit vectors spread evenly: ``dim`` 2 on the circle at angles
+    ``2 pi (j + offset) / count``; ``dim`` 3 on the sphere (a Fibonacci lattice, ``offset``
+    turning it about the z axis), nearly uniform for any count."""
+    if dim == 2:
+        ang = 2.0 * np.pi * (np.arange(count) + offset) / count
+        return np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    j = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * j / count
+    rho = np.sqrt(1.0 - z * z)
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * j + 2.0 * np.pi * offset / count
+    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
+
+
 def segments_clearance(problem: DiscProblem, x: Array, i: int, P: Array, Q: Array) -> Array:
     """Smallest gap while disc i moves straight from each ``P[s]`` to ``Q[s]`` (S,).
 
@@ -63,17 +87,24 @@ def _boundary_gap(problem: DiscProblem, i: int, P: Array, Q: Array) -> Array:
 
 def segments_clearance_numpy(problem: DiscProblem, x: Array, i: int, P: Array, Q: Array) -> Array:
     """:func:`segments_clearance` on ``(S, n)`` numpy arrays (the reference of its kernel)."""
-    # components as (S, n) arrays: no (S, n, 2) temporaries, no norm calls
-    sx, sy = Q[:, 0] - P[:, 0], Q[:, 1] - P[:, 1]
-    rx = x[None, :, 0] - P[:, 0, None]
-    ry = x[None, :, 1] - P[:, 1, None]
-    length2 = sx * sx + sy * sy
+    # components as (S, n) arrays: no (S, n, d) temporaries, no norm calls; sums over
+    # the axes in axis order, as the kernel
+    dim = x.shape[1]
+    sv = [Q[:, a] - P[:, a] for a in range(dim)]
+    rv = [x[None, :, a] - P[:, a, None] for a in range(dim)]
+    length2 = np.zeros(len(P))
+    dot = np.zeros((len(P), len(x)))
+    for a in range(dim):
+        length2 = length2 + sv[a] * sv[a]
+        dot = dot + rv[a] * sv[a][:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (rx * sx[:, None] + ry * sy[:, None]) / length2[:, None]
+        t = dot / length2[:, None]
     t = np.clip(np.nan_to_num(t), 0.0, 1.0)
-    dx = rx - t * sx[:, None]
-    dy = ry - t * sy[:, None]
-    gap = np.sqrt(dx * dx + dy * dy) - problem.radii[None] - problem.radii[i]
+    sq = np.zeros((len(P), len(x)))
+    for a in range(dim):
+        da = rv[a] - t * sv[a][:, None]
+        sq = sq + da * da
+    gap = np.sqrt(sq) - problem.radii[None] - problem.radii[i]
     gap[:, i] = np.inf
     return np.minimum(np.min(gap, axis=1), _boundary_gap(problem, i, P, Q))
 
@@ -100,7 +131,7 @@ def segment_is_free(problem: DiscProblem, x: Array, i: int, target: Array) -> bo
 def route_nodes(
     problem: DiscProblem, x: Array, i: int, directions: int = 24, corners: int = 12
 ) -> Array:
-    """Nodes of the visibility graph for disc i: ``[x_i, d_i, ...]`` (N, 2).
+    """Nodes of the visibility graph for disc i: ``[x_i, d_i, ...]`` (N, d).
 
     ``corners`` points around each standing disc (a polygon circumscribing the circle
     of centre distances ``rho_i + rho_j`` plus twice the margin, so that routes hug the
@@ -108,18 +139,26 @@ def route_nodes(
     and exit points ``x_i + a u`` (``u`` one of ``directions`` unit vectors, ``a`` one or
     two times ``2 (rho_i + max rho)``). Nodes where the disc itself would not keep the
     margin are dropped (the first two are always kept).
+
+    Spheres (3-D): ``SPHERE_DIRECTIONS`` and ``SPHERE_CORNERS`` points on the sphere
+    (:func:`unit_directions`) instead of the planar ``directions`` and ``corners``; the
+    corner points lie at ``(rho_i + rho_j + 2 margin) / cos(theta)``, ``theta`` the
+    covering angle of the corner directions (``CORNER_HALF_ANGLE_3D``), so that their
+    convex hull contains the grown sphere as the planar polygon does.
     """
     goal, here = problem.goal[i], x[i]
+    dim = problem.dim
     margin = route_margin(problem)
     reach = 2.0 * (problem.radii[i] + float(np.max(problem.radii)))
-    ang = 2.0 * np.pi * np.arange(directions) / directions
-    unit = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    if dim == 3:
+        directions, corners = SPHERE_DIRECTIONS, SPHERE_CORNERS
+    unit = unit_directions(dim, directions)
     rays = np.concatenate([reach * unit, 2.0 * reach * unit])
     others = np.delete(np.arange(problem.n), i)
-    cang = 2.0 * np.pi * (np.arange(corners) + 0.5) / corners
-    cunit = np.stack([np.cos(cang), np.sin(cang)], axis=1)
-    ring = (problem.radii[i] + problem.radii[others] + 2.0 * margin) / np.cos(np.pi / corners)
-    around = (x[others][:, None, :] + ring[:, None, None] * cunit[None]).reshape(-1, 2)
+    cunit = unit_directions(dim, corners, 0.5)
+    half = np.pi / corners if dim == 2 else CORNER_HALF_ANGLE_3D
+    ring = (problem.radii[i] + problem.radii[others] + 2.0 * margin) / np.cos(half)
+    around = (x[others][:, None, :] + ring[:, None, None] * cunit[None]).reshape(-1, dim)
     nodes = np.concatenate([here[None], goal[None], goal + rays, here + rays, around])
     keep = segments_clearance(problem, x, i, nodes[2:], nodes[2:]) > margin
     return nodes[np.r_[True, True, keep]]

@@ -18,22 +18,40 @@ from cellplan.core import Result
 from cellplan.errors import ArgumentError
 from cellplan.fileio import write_json
 
-#: Most frames of the GIF: each is a drawn figure (about 50 ms and 0.7 MB of pixels at
-#: 480 px), so 500 frames take under a minute; more would not make a smoother picture.
+#: Most frames of the GIF: each is one drawing of a reused figure (about 30-60 ms and 0.7
+#: MB of pixels at 480 px), so 500 frames take well under a minute; more would not make a
+#: smoother picture.
 MAX_FRAMES = 500
+
+#: GIF frames by default (``--frames``): 24 frames at 10 per second show an assembly in
+#: about 3 s; 40 (before issue 34) made the GIF most of a run's time for little smoothness.
+DEFAULT_FRAMES = 24
+
+
+#: What each planner's short name means, for picture titles (no paper shorthand).
+ALGORITHM_TITLES = {
+    "gradient": "gradient flow (all discs at once)",
+    "sequential": "sequential (one disc at a time)",
+    "control": "damped controller (discs with mass)",
+}
 
 
 def run_title(result: Result) -> str:
-    """``gradient k=96``, ``sequential k=96 (paper)``: a picture title for the run."""
+    """A picture title that spells out the run, e.g. ``gradient flow (all discs at once),
+    navigation exponent k = 96`` or ``sequential (one disc at a time), paper's rule T,
+    navigation exponent k = 96``."""
     assert result.trajectory is not None
     meta = result.trajectory.meta
     algorithm = result.planner.removeprefix("assembly.") or "assembly"
-    rule = f" ({meta['rule']})" if "rule" in meta else ""
-    return f"{algorithm} k={float(meta['k']):g}{rule}"
+    name = ALGORITHM_TITLES.get(algorithm, algorithm)
+    rule = ""
+    if "rule" in meta:
+        rule = ", paper's rule T" if meta["rule"] == "paper" else f", {meta['rule']} rule"
+    return f"{name}{rule}, navigation exponent k = {float(meta['k']):g}"
 
 
 def write_outputs(
-    result: Result, output: Path, frames: int = 40, gif_size: int | None = None
+    result: Result, output: Path, frames: int = DEFAULT_FRAMES, gif_size: int | None = None
 ) -> dict[str, Path]:
     """Write the run's files under ``output``; returns them by name.
 
@@ -60,8 +78,7 @@ def write_outputs(
             frames,
             title,
             size=gif_size,
-            times=traj.t if len(traj.t) == len(run.path) else None,
-            time_unit=traj.time_unit,
+            trajectory=traj,
         ),
         "trajectory": traj.save(output / "trajectory.csv"),
     }

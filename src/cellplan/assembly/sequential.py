@@ -31,6 +31,12 @@ High level, two rules selectable by name:
 The output is a pick / move / release sequence that one robot can execute, with each
 disc's path.
 
+The finish (issue 35, :func:`finish_with_place`; the planner's ``finish="place"``): a run
+of either rule that stopped short is finished by the place rule from where it stopped,
+or, when that cannot unpack the discs in ``3 n`` grasps, after spreading them one at a
+time (:func:`spread_moves`), as the gradient planner's escape. Spheres (3-D) use the
+same rules with directions on the sphere (:mod:`cellplan.assembly.routes`).
+
 When the paper's T map is stuck (rule ``paper``). Every low-level flow descends phi, so
 ``L = log alpha^(1/k)`` (:func:`navigation.log_w`, a monotone function of phi) decreases
 along ``x_0, T(x_0), T^2(x_0), ...``. A stage of the T map at one k is *stuck* when
@@ -77,19 +83,24 @@ from cellplan.assembly.flows import FlowSettings, Stage, critical_point_kind, in
 from cellplan.assembly.navigation import NavEval, clearances, evaluate, hessian_log_w, log_w
 from cellplan.assembly.problems import DiscProblem, workspace_center
 from cellplan.assembly.routes import (
+    SPHERE_DIRECTIONS,
     placement_route,
     route_margin,
     segment_clearance,
     segment_is_free,
     segments_clearance,
+    unit_directions,
 )
 from cellplan.core import Status
 
 __all__ = [
+    "FINISH_SPREAD",
+    "FINISH_STAGE",
     "RULES",
     "Grasp",
     "Rule",
     "SequentialResult",
+    "finish_with_place",
     "parking_route",
     "path_clearance",
     "placement_route",
@@ -97,6 +108,7 @@ __all__ = [
     "segment_is_free",
     "segments_clearance",
     "sequential_assembly",
+    "spread_moves",
 ]
 
 Array = NDArray[np.float64]
@@ -128,6 +140,10 @@ class SequentialResult:
     reason: str = ""
     stages: list[Stage] = field(default_factory=list)
     problem: DiscProblem | None = None  # the problem solved
+    #: stages of the place-rule finish at the end of ``stages`` (:func:`finish_with_place`)
+    finished: int = 0
+    #: grasps of that finish (spreading moves included)
+    placed: int = 0
 
     @property
     def switches(self) -> int:
@@ -137,12 +153,12 @@ class SequentialResult:
     @property
     def escapes(self) -> int:
         """Number of times k was lowered after a stuck stage of the T map."""
-        return max(len(self.stages) - 1, 0)
+        return max(len(self.stages) - 1 - self.finished, 0)
 
     @property
     def k_final(self) -> float:
-        """The k of the last stage (the k asked for when k was never lowered)."""
-        return self.stages[-1].k
+        """The k of the T map's last stage (the k asked for when k was never lowered)."""
+        return self.stages[len(self.stages) - 1 - self.finished].k
 
     @property
     def solved_at_k(self) -> bool:
@@ -168,14 +184,20 @@ class SequentialResult:
         return int(hit[0]) + 1 if len(hit) else len(self.grasps)
 
     def actions(self) -> list[dict[str, object]]:
-        """The plan as pick / move / release actions for one robot."""
+        """The plan as pick / move / release actions for one robot (``metrics.json``).
+
+        ``disc`` is the disc's number as a person counts, from 1 (as in the pictures,
+        the CSV columns ``disc1.x`` and the events); disc ``d`` is index ``d - 1`` of the
+        problem's arrays.
+        """
         out: list[dict[str, object]] = []
         for g in self.grasps:
-            out.append({"action": "pick", "disc": g.disc, "at": g.path[0].tolist()})
+            d = g.disc + 1
+            out.append({"action": "pick", "disc": d, "at": g.path[0].tolist()})
             out.append(
-                {"action": "move", "disc": g.disc, "path": g.path.tolist(), "kinds": list(g.kinds)}
+                {"action": "move", "disc": d, "path": g.path.tolist(), "kinds": list(g.kinds)}
             )
-            out.append({"action": "release", "disc": g.disc, "at": g.path[-1].tolist()})
+            out.append({"action": "release", "disc": d, "at": g.path[-1].tolist()})
         return out
 
 
@@ -184,14 +206,16 @@ def parking_route(
 ) -> list[Array] | None:
     """A route of one or two straight segments taking disc i to a parking spot.
 
-    Spots lie on a circle around the goal pattern, clear of every goal and every
-    standing disc; the route goes straight or via an exit point ``x_i + a u``.
+    Spots lie on a circle (spheres: a sphere, ``SPHERE_DIRECTIONS`` points) around the
+    goal pattern, clear of every goal and every standing disc; the route goes straight
+    or via an exit point ``x_i + a u``.
     """
     centre = problem.goal.mean(axis=0)
     reach = 2.0 * (problem.radii[i] + float(np.max(problem.radii)))
     far = float(np.max(np.linalg.norm(problem.goal - centre, axis=1) + problem.radii))
-    ang = 2.0 * np.pi * (np.arange(directions) + 0.5) / directions
-    unit = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    if problem.dim == 3:
+        directions = SPHERE_DIRECTIONS
+    unit = unit_directions(problem.dim, directions, 0.5)
     spots = np.concatenate(
         [
             centre + (far + problem.radii[i] + 0.25 * reach) * unit,
@@ -330,6 +354,12 @@ def sequential_assembly(
     inner_rank = np.argsort(np.argsort(goal_depth))
     free: list[int] = []
 
+    def _open_layer(done: NDArray[np.bool_]) -> float:
+        """Depth up to which goals may be filled now (the innermost open goal's, plus
+        the smallest radius)."""
+        open_ = np.flatnonzero(~done)
+        return float(goal_depth[open_].min() + problem.radii[open_].min())
+
     def low_level(i: int, x0: Array) -> tuple[Array, Status]:
         nonlocal evals
 
@@ -423,7 +453,10 @@ def sequential_assembly(
             disc_path = list(cpath[:, i, :])
             kinds.append("flow")
             end = cpath[-1]
-            if rule == "place" and not placed[i]:
+            # spheres: only a disc of the open layer goes on to its goal (in 3-D an outer
+            # shell placed early walls the inner goals in for good; docs/assembly.md)
+            in_layer = problem.dim == 2 or bool(goal_depth[i] <= _open_layer(placed))
+            if rule == "place" and not placed[i] and in_layer:
                 onward = placement_route(problem, end, i)
                 if onward is not None:
                     disc_path.extend(onward)
@@ -453,6 +486,114 @@ def sequential_assembly(
     return SequentialResult(
         status, grasps, np.array(rows), min_clear, evals, reason, stages, problem
     )
+
+
+#: The stage names of the paper rule's finish (:func:`finish_with_place`) in ``stages``.
+FINISH_STAGE = "place rule"
+FINISH_SPREAD = "place rule after spreading the discs"
+#: Grasp budget of the finish from where the T map stopped, per disc (as the gradient
+#: planner's escape, :data:`flows.PLACE_GRASPS_PER_DISC`); then the spread and the place
+#: rule's own budget (20 n).
+FINISH_GRASPS_PER_DISC = 3
+
+
+def spread_moves(problem: DiscProblem, x: Array, factor: float) -> list[tuple[int, Array]] | None:
+    """The spreading move of :func:`flows.expand_cluster` one disc at a time.
+
+    Each disc goes straight from ``x_i`` to ``c + f (x_i - c)`` (``c`` the goals'
+    centroid), the disc farthest from ``c`` first, so that a disc moves out into room
+    its outer neighbours have already left; each move is checked exactly against the
+    standing discs (:func:`segment_is_free`). ``None`` when a move is blocked.
+    """
+    centre = problem.goal.mean(axis=0)
+    target = centre + factor * (x - centre)
+    order = np.argsort(-np.linalg.norm(x - centre, axis=1), kind="stable")
+    cur = x.copy()
+    moves: list[tuple[int, Array]] = []
+    for i in order:
+        if not segment_is_free(problem, cur, int(i), target[i]):
+            return None
+        moves.append((int(i), target[i].copy()))
+        cur[i] = target[i]
+    return moves
+
+
+def finish_with_place(
+    problem: DiscProblem,
+    stopped: SequentialResult,
+    k: float,
+    *,
+    epsilon: float = 1e-3,
+    settings: FlowSettings | None = None,
+) -> SequentialResult:
+    """Finish a paper-rule run that stopped short (stuck, or budget spent) with the place rule.
+
+    Issue 35: the paper's T map only lowers k (Section 3.2) and on tight packings ends
+    far from the goal; the gradient planner's escape (:func:`flows.gradient_flow`,
+    ``escape="place"``) is given to it too. The place rule runs from where the T map
+    stopped with ``FINISH_GRASPS_PER_DISC n`` grasps; when it cannot unpack the
+    configuration, its partial run is dropped, the discs are spread one at a time
+    (:func:`spread_moves`, factors 2.5 down to 1.1) and the place rule runs from there
+    with its own budget. Every grasp (the T map's, the spread's, the place rule's) is
+    kept and counted, so ``switches`` is the robot's whole work; ``stages`` records the
+    T map's stages and the finish's (:data:`FINISH_STAGE`, :data:`FINISH_SPREAD`).
+    """
+    from cellplan.assembly.flows import SPREAD_FACTOR
+
+    def place(start: Array, budget: int | None) -> SequentialResult:
+        return sequential_assembly(
+            problem.with_start(start),
+            k,
+            "place",
+            epsilon=epsilon,
+            settings=settings,
+            max_switches=budget,
+        )
+
+    end = stopped.path[-1]
+    stages = list(stopped.stages)
+    run = place(end, FINISH_GRASPS_PER_DISC * problem.n)
+    stages.append(Stage(k, run.status, _finish_reason(run, FINISH_STAGE), run.switches))
+    grasps, rows = list(stopped.grasps), [stopped.path]
+    evals = stopped.evaluations + run.evaluations
+    clear = stopped.min_clearance
+    if run.status is not Status.SOLVED:
+        moves = None
+        for f in np.linspace(SPREAD_FACTOR, 1.1, 15):
+            moves = spread_moves(problem, end, float(f))
+            if moves is not None:
+                break
+        x = end.copy()
+        for i, target in moves or []:
+            clear = min(clear, segment_clearance(problem, x, i, target))
+            grasps.append(Grasp(i, np.array([x[i].copy(), target]), ["spread"]))
+            x = x.copy()
+            x[i] = target
+            rows.append(x[None])
+        spread = len(moves or [])
+        run = place(x, None)
+        evals += run.evaluations
+        # the stage's steps are its grasps, the spreading moves included
+        reason = _finish_reason(run, FINISH_SPREAD)
+        stages.append(Stage(k, run.status, reason, spread + run.switches))
+    grasps.extend(run.grasps)
+    rows.append(run.path[1:])
+    return SequentialResult(
+        run.status,
+        grasps,
+        np.concatenate(rows),
+        min(clear, run.min_clearance),
+        evals,
+        stages[-1].reason,
+        stages,
+        problem,
+        len(stages) - len(stopped.stages),
+        len(grasps) - len(stopped.grasps),
+    )
+
+
+def _finish_reason(run: SequentialResult, name: str) -> str:
+    return name if run.status is Status.SOLVED else f"{name}: {run.reason or run.status.value}"
 
 
 def _no_progress(progress: list[float], window: int, min_progress: float) -> bool:

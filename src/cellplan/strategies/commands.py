@@ -13,6 +13,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
+import numpy as np
 import typer
 
 from cellplan.cliutil import (
@@ -24,6 +25,7 @@ from cellplan.cliutil import (
     check_output,
     finish,
     folder_files,
+    print_json,
     progress_bar,
     progress_enabled,
     scenario_file,
@@ -44,7 +46,14 @@ if TYPE_CHECKING:
 
 #: Every file ``simulate`` may write into its output folder (``frame_NNN.png``: one per
 #: segment of the sample path).
-SIMULATE_FILES = ("trajectory.csv", "frame_*.png", "frames.png", "simulation.gif", "metrics.json")
+SIMULATE_FILES = (
+    "trajectory.csv",
+    "frame_*.png",
+    "frames.png",
+    "simulation.gif",
+    "viewer.html",
+    "metrics.json",
+)
 
 StrategyOpt = Annotated[
     Path, typer.Option("--strategy", help="strategy file from 'cellplan solve'")
@@ -164,6 +173,28 @@ def solve_command(
     finish(result, as_json, summary, outputs)
 
 
+def write_motion_viewer(strategy: Strategy, setup: Setup, sim: Any, path: Path) -> Path:
+    """The simulated motion of a 3-D arm as one offline viewer page
+    (:func:`cellplan.view3d.write_viewer`): a frame per stage, the part drawn on the tool
+    while a mode carries it."""
+    from cellplan.scene3d import cell_scene
+    from cellplan.strategies.simulate import carried_part
+    from cellplan.view3d import write_viewer
+
+    modes = strategy.mdp.modes
+    held = [carried_part(modes[int(m)]) for m in sim.modes]
+    scene = cell_scene(
+        setup.workcell,  # type: ignore[arg-type]  # a 3-D scenario's workcell is a Workcell3D
+        sim.q,
+        np.arange(len(sim.q), dtype=float),
+        held,
+        title=f"{setup.name}: simulated assembly process",
+        time_label="stage",
+    )
+    write_viewer(scene, path)
+    return path
+
+
 def simulate_command(
     scenario: ScenarioArg,
     strategy: StrategyOpt,
@@ -191,10 +222,19 @@ def simulate_command(
     ] = None,
     gif: Annotated[bool, typer.Option(help="write an animated GIF")] = True,
     gif_size: GifSizeOpt = None,
+    frame_files: Annotated[
+        bool,
+        typer.Option(
+            help="also write each mode segment as its own frame_NNN.png (frames.png always "
+            "holds them all)"
+        ),
+    ] = False,
     as_json: JsonOpt = False,
 ) -> None:
-    """Simulate the assembly process under a strategy: trajectory.csv, frames, GIF, metrics."""
+    """Simulate the assembly process under a strategy: trajectory.csv, frames, GIF, metrics
+    (in a 3-D cell, viewer.html, where the arm's motion plays, instead of frames and GIF)."""
     from cellplan.plots import GIF_SIZE, check_gif_size
+    from cellplan.scenario3d import is_3d
     from cellplan.strategies import plots
     from cellplan.strategies.simulate import simulate_result
 
@@ -216,6 +256,7 @@ def simulate_command(
                 SIMULATE_SEED if seed is None else seed,
                 cell=setup.workcell,
                 progress=progress,
+                robot_spec=setup.scenario.robot,  # seconds at the scenario's robot.speed
                 **{k: v for k, v in given.items() if v is not None},
             )
         sim = result.solution
@@ -234,8 +275,13 @@ def simulate_command(
             staged_folder(output, keep=_existing(inputs)) as stage,
         ):
             names = {"trajectory": result.trajectory.save(stage / "trajectory.csv").name}
-            names["frames"] = plots.plot_frames(strat, setup.workcell, sim, stage)[-1].name
-            if gif:
+            if is_3d(setup.scenario):
+                # A 3-D cell has no planar frames: its motion plays in the viewer page.
+                names["viewer"] = write_motion_viewer(strat, setup, sim, stage / "viewer.html").name
+            else:
+                drawn = plots.plot_frames(strat, setup.workcell, sim, stage, each=frame_files)
+                names["frames"] = drawn[-1].name
+            if gif and not is_3d(setup.scenario):
                 names["gif"] = plots.save_animation(
                     strat, setup.workcell, sim, stage / "simulation.gif", size=width
                 ).name
@@ -285,6 +331,7 @@ def plot_command(
     output: Annotated[Path, typer.Option("-o", "--output", help="image file")] = Path(
         "strategy.png"
     ),
+    as_json: JsonOpt = False,
 ) -> None:
     """Draw the cost-to-go contours and the optimal actions of one mode (Fig. 8), at one
     phase of a time-varying strategy."""
@@ -295,13 +342,28 @@ def plot_command(
         [("--output", output)], {"SCENARIO": scenario_file(scenario), "--strategy": strategy}
     )
     setup = _load(scenario)
+    # The mode plots draw the plane; a 3-D cell is refused in one line before the strategy
+    # is read (its motion plays in the viewer page that simulate writes).
+    cell = setup.planar_workcell
     strat = _load_strategy(strategy, setup)
     try:
         m = strat.mode_index(mode, phase)
     except CellplanError as exc:  # names the option (--mode or --phase) already
         raise ArgumentError(list(exc.problems)) from None
-    cell = setup.workcell
     plots.plot_mode(strat, cell, m, output, fixed=cell.robot.start)
+    if as_json:
+        mdp = strat.mdp
+        print_json(
+            {
+                "output": str(output),
+                "mode": strat.modes[m].label,
+                "layer": int(m),
+                "phase": max(int(strat.modes[m].phase), 0),
+                "live_fraction": float(np.mean(mdp.live[m])),
+                "gain": float(strat.gain),
+            }
+        )
+        return
     stdout().print(printable(f"wrote {output}"), markup=False)
 
 

@@ -49,7 +49,13 @@ from cellplan.strategies import stencils
 from cellplan.strategies.interpolation import interp
 from cellplan.strategies.model import LayeredMDP
 from cellplan.strategies.points import action_values_at, lookahead
-from cellplan.strategies.strategy import FMP, Strategy, best_action, checked_state
+from cellplan.strategies.strategy import (
+    FMP,
+    Strategy,
+    best_action,
+    checked_state,
+    option_or_motion,
+)
 
 # Fraction of one stage's progress (l - g) below which an inconsistency is left alone.
 RAISE_FRACTION = 0.5
@@ -100,6 +106,12 @@ class Executor:
         The exact region test ``(configurations (n, dim), mode) -> (n,) bool`` that the
         lookahead applies where a configuration's cell allows FMP (default: the cell's
         word, which near a region's border can promise an FMP that is then refused).
+    option_test
+        In a model with FMP options (simultaneous requests, Section VI-2), the exact test
+        of option ``j``: ``(configurations, mode, j) -> bool``
+        (:meth:`~cellplan.strategies.simulate.RegionTest.option`). Such a model is
+        executed with rule (9) over the motions and the options the test confirms, and
+        the correction step (depth 1: the lookahead follows one FMP per mode).
     """
 
     def __init__(
@@ -110,6 +122,7 @@ class Executor:
         learn: bool = True,
         depth: int | None = None,
         fmp_test: Callable[[np.ndarray, int], np.ndarray] | None = None,
+        option_test: Callable[[np.ndarray, int, int], np.ndarray] | None = None,
     ) -> None:
         mdp = strategy.mdp
         raw = strategy.values if values is None else values
@@ -122,6 +135,10 @@ class Executor:
         self.learn = learn
         self.depth = default_depth(mdp) if depth is None else int(depth)
         self.fmp_test = fmp_test
+        self.option_test = option_test
+        self.options = mdp.opt_ptr is not None
+        if self.options:
+            self.depth = 1  # the lookahead follows one FMP per mode, not a choice of them
         na = int(mdp.nact.max())
         nodes = sum(na * max(na - 1, 1) ** i for i in range(self.depth))
         self._nodes = np.empty((nodes, len(mdp.shape)))
@@ -207,7 +224,11 @@ class Executor:
             return 0.0
         progress = float(mdp.cost[mode]) - self.offset
         residual = target - here
-        if residual <= RAISE_FRACTION * progress:
+        # A mode whose loss per stage is below the gain (few open requests, Section VI-2)
+        # makes no progress in the average-cost sense: its values rise along a path, a
+        # cycle there is consistent with them and a raise would not break it. It is left
+        # alone (and never lowered); the arrivals carry the run into costlier modes.
+        if progress <= 0.0 or residual <= RAISE_FRACTION * progress:
             return 0.0
         corners = self._idx[(self._w > 1e-12) & self.live[mode, self._idx]]
         # Raising every live corner equally raises the interpolated H(q) by exactly the
@@ -224,11 +245,28 @@ class Executor:
         In a layer with a request to finish the executor plans: the best motion sequence
         of :func:`lookahead` (falling back to (9) where no sequence stays in the domain),
         with the correction step at its start, is carried out to its end unless the mode
-        changes or a planned FMP is refused. Raises ``ValueError`` where no action is
+        changes or a planned FMP is refused. In a model with FMP options (simultaneous
+        requests) it is (9) over the motions and the options ``option_test`` confirms
+        (:func:`~.strategy.option_or_motion`), then the correction step; an option ``j``
+        is returned as ``fmp_code(j)``. Raises ``ValueError`` where no action is
         available.
         """
         mdp = self.strategy.mdp
         q, mode = checked_state(mdp, q, mode)
+        if self.options:
+            u, best = option_or_motion(
+                mdp,
+                q,
+                mode,
+                self.h,
+                self.live,
+                self._model,
+                self._out,
+                fmp_allowed is False,
+                self.option_test,
+            )
+            self._correct(q, mode, best - self.offset)
+            return u
         if self._plan and self._plan_mode == mode:
             u = self._plan.pop(0)
             if not (u == FMP and fmp_allowed is False):

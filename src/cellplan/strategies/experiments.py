@@ -24,7 +24,15 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, decide_interval
+from cellplan.core import (
+    MIN_RUNS,
+    Claim,
+    Experiment,
+    ReportPiece,
+    RunSpec,
+    Scalar,
+    decide_interval,
+)
 
 PROBLEMS = {  # bundled scenario -> grid used here (coarser than the bundled one where slow)
     "strategies_p1": "100,100",
@@ -481,6 +489,7 @@ def _section_vi() -> list[Experiment]:
         failure_experiment,
         noise_experiment,
         pending_experiment,
+        ur5_experiment,
     )
 
     return [
@@ -488,6 +497,7 @@ def _section_vi() -> list[Experiment]:
         noise_experiment.EXPERIMENT,
         pending_experiment.EXPERIMENT,
         conveyor_experiment.EXPERIMENT,
+        ur5_experiment.EXPERIMENT,  # not Section VI: the 3-D arm of issue 31
     ]
 
 
@@ -499,6 +509,7 @@ EXPERIMENTS: list[Experiment] = [
         make_runs=make_runs,
         run=run,
         report=report,
+        demo_runs=MIN_RUNS,
     ),
     Experiment(
         name="strategies.behaviours",
@@ -507,6 +518,7 @@ EXPERIMENTS: list[Experiment] = [
         make_runs=make_behaviour_runs,
         run=run_behaviours,
         report=report_behaviours,
+        demo_runs=MIN_RUNS,
     ),
     *_section_vi(),
 ]

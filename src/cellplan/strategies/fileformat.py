@@ -54,11 +54,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from cellplan.arrayfile import ArraySpec, read_arrays
 from cellplan.errors import PersistenceError, Problem, ScenarioError
 from cellplan.schema import CELLS_RANGE
+from cellplan.setup import as_setup
 from cellplan.strategies.model import build_model, estimate_memory
 from cellplan.strategies.section import MAX_NOISE_OUTCOMES, MAX_PENDING, MAX_PERIOD
 from cellplan.strategies.stencils import MAX_DIM
 from cellplan.strategies.transitions import forbid_snapping
-from cellplan.workcell import Workcell
+from cellplan.validity import ValiditySpace
 
 if TYPE_CHECKING:
     from cellplan.strategies.model import Mode
@@ -193,7 +194,7 @@ SIZE_LIMITS: dict[str, tuple[int | str, int | str]] = {
 
 
 def read_strategy(
-    path: str | Path, scenario: Any = None, cell: Workcell | None = None
+    path: str | Path, scenario: Any = None, cell: ValiditySpace | None = None
 ) -> tuple[dict[str, Any], dict]:
     """Read and check a strategy file; returns ``(meta, arrays)``.
 
@@ -267,7 +268,9 @@ def read_strategy(
         found["meta"] = meta
         if scenario is not None:  # before the arrays it sizes are inflated
             _check_scenario(meta, scenario, fail, found.get("pending"))
-            found["cell"] = cell if cell is not None else Workcell.from_scenario(scenario)
+            # The scenario's own workcell, 2-D or 3-D (the checks below read it through
+            # the validity interface).
+            found["cell"] = cell if cell is not None else as_setup(scenario).workcell
             _check_box(meta, found["cell"], fail)
 
     def working(known: Mapping[str, int]) -> int:
@@ -582,7 +585,7 @@ def _check_magnitudes(meta: StrategyMeta, a: dict, fail: Any) -> None:
         )
 
 
-def _check_box(meta: StrategyMeta, cell: Workcell, fail: Any) -> None:
+def _check_box(meta: StrategyMeta, cell: ValiditySpace, fail: Any) -> None:
     """The grid's box is the robot's C-space box (:meth:`cellplan.cspace.Grid.for_robot`)."""
     robot = cell.robot
     grid = meta.grid
@@ -600,7 +603,7 @@ def _check_box(meta: StrategyMeta, cell: Workcell, fail: Any) -> None:
 
 
 def check_geometry(
-    meta: StrategyMeta, a: Mapping[str, np.ndarray], scenario: Any, cell: Workcell, fail: Any
+    meta: StrategyMeta, a: Mapping[str, np.ndarray], scenario: Any, cell: ValiditySpace, fail: Any
 ) -> None:
     """The moves, free space, collision-free moves and live states of the file are those
     cellplan computes itself for ``scenario`` on the file's grid.

@@ -762,9 +762,14 @@ def live_problems(mdp: LayeredMDP) -> list[Problem]:
         return periodic_problems(mdp)
     problems = []
     R = mdp.n_requests
+    live = mdp.live
     if not mdp.live[0].any():
         problems.append(Problem("strategy", "no configuration in NR can serve every request"))
         problems.extend(_split_problems(mdp))
+        # NR is empty as soon as one request cannot be served, and every layer that ends
+        # in NR empties with it: judge each request on its own instead (issue 35 part 5),
+        # by the same live-state rule with NR left unconstrained.
+        live = _each_request_live(mdp)
     for r in range(R):
         mode = mdp.modes[1 + r]
         where = f"strategy.requests <{mode.part},{mode.source},{mode.destination}>"
@@ -784,14 +789,14 @@ def live_problems(mdp: LayeredMDP) -> list[Problem]:
                     f"{mode.source!r} (no free configuration in the region)",
                 )
             )
-        elif not mdp.live[mdp.c_layer(r)].any():
+        elif not live[mdp.c_layer(r)].any():
             problems.append(
                 Problem(
                     where,
                     f"destination {mode.destination!r} is unreachable while carrying {mode.part!r}",
                 )
             )
-        elif not mdp.live[mdp.w_layer(r)].any():
+        elif not live[mdp.w_layer(r)].any():
             problems.append(
                 Problem(
                     where,
@@ -809,6 +814,25 @@ def live_problems(mdp: LayeredMDP) -> list[Problem]:
                 )
             )
     return problems
+
+
+def _each_request_live(mdp: LayeredMDP) -> np.ndarray:
+    """The live states of each layer when NR is not required to serve every request: the
+    passes of :func:`compute_live` with NR's row held at its free cells, so a request's
+    C layer is live where its part can be carried to its destination and delivered, and
+    its W layer where the robot can then pick it up and do so, whatever the other
+    requests can do. Used to name only the requests that cannot be served."""
+    # NR without its arrivals: it need not reach every request's source, only stay free.
+    prob = mdp.branch_prob.copy()
+    lo, hi = mdp.branch_ptr[0], mdp.branch_ptr[1]
+    prob[lo:hi] = np.where(mdp.branch_layer[lo:hi] == 0, 1.0, 0.0)
+    alone = replace(mdp, branch_prob=prob)
+    live = np.stack([mdp.free[mdp.vcls[m]] for m in range(mdp.n_modes)])
+    fmp_ok = mdp.tf < np.inf
+    for _ in range(100):
+        if not _live_pass(alone, live, fmp_ok):
+            break
+    return live
 
 
 def _split_problems(mdp: LayeredMDP) -> list[Problem]:
@@ -854,15 +878,29 @@ def fine_motion_field(spec: Any, tool_xy: np.ndarray) -> np.ndarray:
     return out
 
 
-def start_problems(mdp: LayeredMDP, start: Sequence[float] | np.ndarray) -> list[Problem]:
+def start_problems(
+    mdp: LayeredMDP, start: Sequence[float] | np.ndarray, blocking: Sequence[str] = ()
+) -> list[Problem]:
     """A problem when ``start`` (the robot's start) is not a live state of NR, so no
-    run of the strategy could begin there (checked before solving)."""
+    run of the strategy could begin there (checked before solving). ``blocking`` names
+    the sources the empty robot touches at ``start``: sources are obstacles while the
+    robot is empty (equation (1)), so the line names them."""
     q = np.asarray(start, float)
     idx = np.floor((q - mdp.lower) / mdp.spacing).astype(np.int64)
     idx = np.where(mdp.periodic, idx % mdp.shape, np.clip(idx, 0, mdp.shape - 1))
     if mdp.live[0, int(np.ravel_multi_index(tuple(idx), tuple(mdp.shape)))]:
         return []
     shape = " x ".join(str(int(n)) for n in mdp.shape)
+    if blocking:
+        names = ", ".join(blocking)
+        return [
+            Problem(
+                "robot.start",
+                f"lies outside the strategy's domain: the robot touches source {names} there, "
+                "and sources are obstacles while the robot is empty (equation (1) of the "
+                "paper); start it outside the source regions",
+            )
+        ]
     return [
         Problem(
             "robot.start",
@@ -920,7 +958,7 @@ def build_model(
         if any(r[0] == p and r[1] == s for r in requests)
     }
     pts = grid.points()
-    tool = robot.tool_pose(pts)[:, :2]
+    tool = cell.tool_position(pts)[:, :2]
 
     def tf_of(region: str) -> np.ndarray:
         spec = sec.fine_motion_regions.get(region, sec.fine_motion)
@@ -970,7 +1008,7 @@ def build_model(
             max_pending=sec.max_pending,
             urgency=sec.urgency,
         )
-        return _checked(mdp, pending_problems(mdp, requests), start)
+        return _checked(mdp, pending_problems(mdp, requests), start, cell, others(None))
     failures = None
     if sec.failures:
 
@@ -1019,7 +1057,7 @@ def build_model(
     )
     if sec.time_varying():  # the checks refuse failures and changes with it
         mdp = _periodic_model(scenario, cell, grid, requests, geometry, mdp)
-    return _checked(mdp, live_problems(mdp), start)
+    return _checked(mdp, live_problems(mdp), start, cell, others(None))
 
 
 def _periodic_model(
@@ -1073,11 +1111,23 @@ def _periodic_model(
 
 
 def _checked(
-    mdp: LayeredMDP, problems: list[Problem], start: Sequence[float] | np.ndarray | None
+    mdp: LayeredMDP,
+    problems: list[Problem],
+    start: Sequence[float] | np.ndarray | None,
+    cell: Any = None,
+    sources: Sequence[str] = (),
 ) -> LayeredMDP:
-    """``mdp``, unless a request can never be served or the start is outside its domain."""
+    """``mdp``, unless a request can never be served or the start is outside its domain
+    (naming the ``sources`` the empty robot touches there, by ``cell``'s exact test)."""
     if not problems and start is not None:
         problems = start_problems(mdp, start)
+        if problems and cell is not None:
+            q = np.asarray(start, float)[None, :]
+            # A start clear of the fixed obstacles but touching a source (an obstacle
+            # while the robot is empty) gets a line naming the source.
+            clear = not bool(cell.collides(q, None, [])[0])
+            blocking = [s for s in sources if clear and bool(cell.collides(q, None, [s])[0])]
+            problems = start_problems(mdp, start, blocking)
     if problems:
         raise ScenarioError(problems)
     return mdp

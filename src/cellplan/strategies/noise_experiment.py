@@ -19,7 +19,15 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, decide_interval
+from cellplan.core import (
+    MIN_RUNS,
+    Claim,
+    Experiment,
+    ReportPiece,
+    RunSpec,
+    Scalar,
+    decide_interval,
+)
 
 PROBLEM = "strategies_noise"
 CELLS = "100,100"
@@ -195,4 +203,5 @@ EXPERIMENT = Experiment(
     make_runs=make_runs,
     run=run,
     report=report,
+    demo_runs=MIN_RUNS,
 )

@@ -11,8 +11,12 @@ Policies (:data:`PENDING_POLICIES`):
 
 * ``optimal``: the solved strategy, one step of equation (9) at the real configuration
   (every move, stay, and every FMP option the robot's grid cell allows, the best taken;
-  with a workcell an FMP must also pass the exact region test of the request it serves);
-  the pick decides which open request is served.
+  with a workcell an FMP option must also pass the exact region test of the request it
+  serves); the pick decides which open request is served. It runs through the Section V
+  :class:`~cellplan.strategies.execution.Executor` (its LRTA* correction, one per run), so
+  a configuration whose grid cell promises an FMP that the exact test refuses cannot hold
+  the robot in a cycle: each pass raises the promised value until leaving is better
+  (issue 35: a delivery 0.018 short of D2's edge held a run for 147,000 stages).
 * ``fcfs``: first come, first served. The robot serves the oldest waiting request with
   the Section V strategy of that request alone (the W and C layers of the same model
   with one request open, :func:`single_request_model`), and while nothing is open it
@@ -32,9 +36,10 @@ from typing import Any
 
 import numpy as np
 
+from cellplan.strategies.execution import Executor
 from cellplan.strategies.model import NR, LayeredMDP, Mode, compute_live
 from cellplan.strategies.pending import mode_keys
-from cellplan.strategies.simulate import Request, Simulation
+from cellplan.strategies.simulate import Request, Simulation, region_test
 from cellplan.strategies.stencils import fmp_code
 from cellplan.strategies.strategy import FMP, STAY, Strategy, best_action
 
@@ -154,11 +159,12 @@ class Rules:
         p, s, d = _triple(self.names[carried])
         return self.index[(names, p, s, d)]
 
-    def optimal(self, q: np.ndarray, m: int, forbid_fmp: bool = False) -> int:
-        """The best action of (9) at ``q`` in mode ``m``: a move, stay or an FMP code
-        (the strategy's own query, :meth:`Strategy.action`); stay where none is available."""
+    def optimal(self, executor: Executor, q: np.ndarray, m: int) -> int:
+        """The best action of (9) at ``q`` in mode ``m`` by the run's ``executor`` (a move,
+        stay or an FMP code, the options confirmed by its exact test, with its
+        correction step); stay where none is available."""
         try:
-            return self.strategy.action(q, m, forbid_fmp)
+            return executor.action(q, m)
         except ValueError:
             return STAY
 
@@ -233,6 +239,8 @@ def simulate_pending(
     qs[0], ms[0] = q, m
     opt = mdp.options
     every = max(1, stages // 200)
+    test = _CountingTest(region_test(strategy, cell, regions)) if cell is not None else None
+    executor = Executor(strategy, option_test=test)
     for k in range(stages):
         if progress is not None and k % every == 0:
             progress(float(k), float(stages), f"stage {k:,} of {stages:,}")
@@ -240,7 +248,13 @@ def simulate_pending(
         forbid = False
         while True:
             if policy == "optimal":
-                u = rules.optimal(q, m, forbid)
+                before = test.refused if test is not None else 0
+                u = rules.optimal(executor, q, m)
+                if test is not None and test.refused > before:
+                    refused += test.refused - before
+                    events.append((k, "fmp_refused", mdp.modes[m].label))
+                j = -1 if u >= STAY else (0 if u == FMP else -3 - u)
+                break  # the executor confirmed its FMP options by the exact test
             elif carried is not None:
                 u = rules.serve(q, carried_type, True, forbid)
                 u = fmp_code(0) if u == FMP else u
@@ -322,8 +336,24 @@ def simulate_pending(
         durations=durations,
         turned_away=turned,
         fmp_refused=refused,
+        corrections=executor.corrections,
+        raised=executor.raised,
         arrivals=int(arrive.sum()),
     )
+
+
+class _CountingTest:
+    """An option's exact region test (:meth:`~.simulate.RegionTest.option`) that counts
+    its refusals, for the run's ``fmp_refused``."""
+
+    def __init__(self, test: Any) -> None:
+        self.test = test
+        self.refused = 0
+
+    def __call__(self, points: np.ndarray, m: int, j: int) -> np.ndarray:
+        ok = np.asarray(self.test.option(points, m, j), dtype=bool)
+        self.refused += int((~ok).sum())
+        return ok
 
 
 def _choose(policy: str, q: np.ndarray, waiting_type: list[int], rules: Rules) -> int:

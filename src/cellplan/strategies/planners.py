@@ -157,6 +157,7 @@ def run_strategies(
         options.seed,
         cell=cell,
         regions=section.regions,
+        robot_spec=setup.scenario.robot,  # seconds at the scenario's robot.speed
     )
     stats = dict(solved.stats())
     stats.update({f"sim_{k}": v for k, v in sample.stats.items()})

@@ -144,11 +144,27 @@ def plot_mode(
             width=0.004,
         )
     symbols = {FMP: ("o", "#1f77b4"), STAY: ("x", "k"), OTHER_AXIS: ("+", "#7b2cbf")}
+    names = {
+        FMP: "fine motion (pick or place)",
+        STAY: "stay",
+        OTHER_AXIS: "move along another axis",
+    }
     for x, y, u in marks:
         sym, color = symbols[u]
         ax2.plot(scale(x), scale(y), sym, color=color, ms=3)
-    legend = "o: FMP, x: stay" + (", +: move along another axis" if len(mdp.shape) > 2 else "")
-    ax2.set_title(wrap_title(f"optimal actions, mode {label} ({legend})", 60), fontsize=9)
+    # One legend entry per kind of mark shown (handles only: nothing more is plotted).
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D([], [], marker=symbols[u][0], ls="", color=symbols[u][1], ms=4, label=names[u])
+        for u in sorted({u for _, _, u in marks})
+    ]
+    if pts:
+        handles.append(Line2D([], [], color=base.COLORS["path"], label="move (arrow: direction)"))
+    if handles:
+        ax2.legend(handles=handles, fontsize=7, loc="upper right", framealpha=0.85)
+    words = spell_mode(replace(mdp.modes[mode], phase=-1))  # the label gives the phase
+    ax2.set_title(wrap_title(f"optimal actions, mode {label} ({words})", 60), fontsize=9)
     ax2.set_xlabel(xl + (" (deg)" if angular else ""))
     ax2.set_ylabel(yl + (" (deg)" if angular else ""))
     ax2.set_aspect("equal" if not angular else "auto")
@@ -274,6 +290,27 @@ def carried_part(mode: Any) -> str | None:
     return None
 
 
+def spell_mode(mode: Any) -> str:
+    """A mode in words for a title: ``<P1,S1,D1,W>`` is "waiting: P1 from S1 to D1"
+    (the paper's shorthand, Section II-C, spelled out)."""
+    at = f" (phase {mode.phase})" if mode.phase >= 0 else ""
+    route = f"{mode.part} from {mode.source} to {mode.destination}"
+    if mode.kind == "NR":
+        text = "no request"
+    elif mode.kind == "W":
+        text = f"waiting: {route}"
+    elif mode.kind == "C":
+        text = f"carrying {route}"
+    elif mode.kind == "X":
+        text = f"carrying rejected {mode.part} (from {mode.source}) to {mode.reject}"
+    else:  # Q: simultaneous requests (Section VI-2)
+        waiting = ", ".join(w.replace(",", " ", 1).replace(",", "->") for w in mode.waiting)
+        text = f"waiting: {waiting or 'none'}"
+        if mode.part:
+            text += f"; carrying {route}"
+    return text + at
+
+
 def wrap_title(text: str, width: int) -> str:
     """A title on lines of at most ``width`` characters (a mode label of simultaneous
     requests lists every waiting request); lines break at spaces only."""
@@ -299,6 +336,41 @@ def _frame(
     ax.set_ylabel("")
 
 
+def _axis_labels(ax: Any, cell: Any, x: bool = True, y: bool = True) -> None:
+    """The workcell's axes, in its length unit where the scenario gives one."""
+    unit = getattr(cell, "units", None)
+    suffix = f" ({unit})" if isinstance(unit, str) and unit else ""
+    if x:
+        ax.set_xlabel(f"x{suffix}", fontsize=7)
+    if y:
+        ax.set_ylabel(f"y{suffix}", fontsize=7)
+
+
+def _frame_legend(ax: Any, fig: Any = None) -> None:
+    """What a frame draws: the tool's path, the robot at the segment's start (faded) and
+    end, the carried part, and the regions (the request's shaded). With ``fig``, one
+    legend under the whole grid of panels instead of on ``ax``."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    c = base.COLORS
+    handles = [
+        Line2D([], [], color=c["path"], lw=1.2, label="tool path"),
+        Patch(facecolor=c["robot"], edgecolor="black", alpha=0.25, label="robot, segment start"),
+        Patch(facecolor=c["robot"], edgecolor="black", label="robot, segment end"),
+        Patch(facecolor=c["part"], edgecolor="black", label="carried part"),
+        Patch(facecolor=c["source"], alpha=0.5, label="source"),
+        Patch(facecolor=c["destination"], alpha=0.5, label="destination"),
+        Patch(facecolor=c["obstacle"], label="obstacle"),
+    ]
+    if fig is not None:
+        fig.legend(
+            handles=handles, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=7
+        )
+        return
+    ax.legend(handles=handles, fontsize=6, loc="upper right", framealpha=0.85)
+
+
 FRAMES_SHOWN = 60
 """Most mode segments drawn, in ``frames.png`` and as ``frame_###.png`` each; a longer run
 says how many it leaves out."""
@@ -310,23 +382,28 @@ def plot_frames(
     sim: Simulation,
     outdir: str | Path,
     max_frames: int = FRAMES_SHOWN,
+    each: bool = False,
 ) -> list[Path]:
-    """Figs. 9-15: one frame per mode segment (regions of the request shaded, the carried
-    part drawn), saved one PNG each plus ``frames.png``, a grid of the same segments laid out
-    for the workcell's aspect ratio (:func:`cellplan.plots.grid_shape`).
+    """Figs. 9-15: one panel per mode segment (regions of the request shaded, the carried
+    part drawn) in ``frames.png``, a grid laid out for the workcell's aspect ratio
+    (:func:`cellplan.plots.grid_shape`), with axis labels and a legend; with ``each``,
+    also one PNG per segment (``frame_NNN.png``). Returns the paths, ``frames.png`` last.
 
     Only the first ``max_frames`` segments are drawn: a long run has thousands of segments
-    (about one per ten stages) at about 0.3 s a picture, and the trajectory file holds them all.
+    (about one per ten stages), and the trajectory file holds them all. The separate
+    PNGs are off by default: saving them was most of ``simulate``'s time (docs/benchmarks.md).
     """
     outdir = Path(outdir)
     segs = sim.segments()
     shown = segs[:max_frames]
     paths = []
-    for i, (a, b) in enumerate(shown):
+    for i, (a, b) in enumerate(shown if each else []):
         fig, axes = base.new_figure(size=4.0)
-        label = strategy.mdp.modes[int(sim.modes[a])].label
-        title = wrap_title(f"({i + 1}) stages {a}-{b}: {label}", 52)
+        words = spell_mode(strategy.mdp.modes[int(sim.modes[a])])
+        title = wrap_title(f"({i + 1}) stages {a}-{b}: {words}", 52)
         _frame(axes[0, 0], strategy, cell, sim, a, b, title)
+        _axis_labels(axes[0, 0], cell)
+        _frame_legend(axes[0, 0])
         paths.append(base.save_figure(fig, outdir / f"frame_{i + 1:03d}.png", dpi=80))
     xmin, ymin, xmax, ymax = cell.bounds
     aspect = (xmax - xmin) / (ymax - ymin)
@@ -334,7 +411,7 @@ def plot_frames(
     panel = min(3.2, 13.0 / cols)  # panel width in inches; the page is about 13 wide
     titles = [
         wrap_title(
-            f"({i + 1}) {strategy.mdp.modes[int(sim.modes[a])].label}, stages {a}-{b}",
+            f"({i + 1}) {spell_mode(strategy.mdp.modes[int(sim.modes[a])])}, stages {a}-{b}",
             int(16 * panel),  # about the characters of a 7-point line across the panel
         )
         for i, (a, b) in enumerate(shown)
@@ -346,6 +423,10 @@ def plot_frames(
         ax.set_axis_off()
     for i, (a, b) in enumerate(shown):
         _frame(axes.ravel()[i], strategy, cell, sim, a, b, titles[i])
+        # Axis names on the left column and the bottom row of the panels drawn.
+        _axis_labels(axes.ravel()[i], cell, x=i + cols >= len(shown), y=i % cols == 0)
+    if shown:
+        _frame_legend(axes.ravel()[0], fig)
     if len(segs) > len(shown):
         fig.suptitle(
             f"the first {len(shown)} of {len(segs)} mode segments (all stages: trajectory.csv)",

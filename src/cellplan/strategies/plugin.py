@@ -7,10 +7,10 @@ their algorithm modules when they run.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from cellplan.core import Package, PlannerSpec
+from cellplan.core import Fact, Package, PlannerSpec
 from cellplan.strategies.planners import StrategiesOptions, run_strategies
 from cellplan.strategies.section import StrategySection
 
@@ -39,8 +39,13 @@ if TYPE_CHECKING:
     from cellplan.strategies.model import LayeredMDP
 
 
-def describe(setup: Setup) -> Mapping[str, str]:
-    """``cellplan validate`` lines; runs the checks ``cellplan solve`` runs before solving.
+def describe(setup: Setup) -> Sequence[Fact]:
+    """``cellplan validate`` facts; runs the checks ``cellplan solve`` runs before solving.
+
+    Typed values for ``validate --json``: ``assembly_modes`` (int), ``failure_modes`` (int:
+    the fine motions that can fail), ``noisy_motion`` (int: landings per move),
+    ``strategy_grid`` (list of cells per axis), ``free_live_nr`` (``{"free": float,
+    "live": float}``, fractions of the grid).
 
     Builds the model on the strategy's grid (:func:`~cellplan.strategies.model.build_model`,
     the same call the planner makes), which refuses a request that can never be served
@@ -71,23 +76,40 @@ def describe(setup: Setup) -> Mapping[str, str]:
     if mdp.period > 1:
         modes = periodic_line(mdp)
     failing = int(sum(np.diff(mdp.fmp_outcomes().ptr) > 1))
-    lines = {"assembly modes": modes}
+    facts = [Fact("assembly_modes", "assembly modes", int(mdp.n_modes), modes)]
     if failing:
-        lines["failure modes"] = (
-            f"{failing} of the {mdp.n_modes - 1} fine motions can fail (Section VI-3); "
-            f"states: {int(mdp.live.sum()):,}"
+        facts.append(
+            Fact(
+                "failure_modes",
+                "failure modes",
+                failing,
+                f"{failing} of the {mdp.n_modes - 1} fine motions can fail (Section VI-3); "
+                f"states: {int(mdp.live.sum()):,}",
+            )
         )
     if len(mdp.noise_prob) > 1:
-        lines["noisy motion"] = (
-            f"{len(mdp.noise_prob)} landings per move (Section VI-4), a move allowed where "
-            f"every landing is free; states: {int(mdp.live.sum()):,}"
+        facts.append(
+            Fact(
+                "noisy_motion",
+                "noisy motion",
+                len(mdp.noise_prob),
+                f"{len(mdp.noise_prob)} landings per move (Section VI-4), a move allowed "
+                f"where every landing is free; states: {int(mdp.live.sum()):,}",
+            )
         )
-    return {
-        **lines,
-        "strategy grid": f"{shape} cells",
-        "free / live (NR)": f"{free_nr:.3f} / {live_nr:.3f} of the grid (live: every request "
-        "can be served from there)",
-    }
+    facts.append(
+        Fact("strategy_grid", "strategy grid", [int(n) for n in mdp.shape], f"{shape} cells")
+    )
+    facts.append(
+        Fact(
+            "free_live_nr",
+            "free / live (NR)",
+            {"free": free_nr, "live": live_nr},
+            f"{free_nr:.3f} / {live_nr:.3f} of the grid (live: every request can be served "
+            "from there)",
+        )
+    )
+    return facts
 
 
 def pending_line(R: int, k: int, mdp: LayeredMDP) -> str:
@@ -145,4 +167,7 @@ PACKAGE = Package(
     paper_runs=10,
     describe=describe,
     showcase=showcase,
+    # A 3-D cell works through the validity interface when its arm has 1 to 3 active
+    # joints (the grid's dimension); section.check refuses other arms in one line.
+    workcells=("2d", "3d"),
 )

@@ -31,6 +31,9 @@ if TYPE_CHECKING:
 _SUM_TOL = 1e-9
 
 MAX_REQUESTS = 1000
+#: Most active joints of a 3-D arm the strategy's grid holds (a grid of 4 joints at the
+#: paper's resolution would not fit in memory: 48^4 cells times 2R + 1 layers).
+MAX_ARM_JOINTS = 3
 #: Smallest arrival probability per stage: the idle stretch between requests lasts
 #: ``1 / P`` stages, and the solver takes differences of values of that size; at
 #: ``P >= sqrt(eps)`` (float64's ``eps``, so about 1.5e-8) half of float64's digits
@@ -395,6 +398,12 @@ class StrategySection(StrictModel):
         robot = scenario.robot
         if robot is None:
             return [Problem("robot", "the strategy section needs a robot")]
+        if robot.type == "urdf":
+            # The grid of a 3-D arm is its active joints; what is refused here is what the
+            # 3-D model does not hold, one line each, before anything is built.
+            arm = self._check_arm3d(scenario)
+            if arm:
+                return arm
         if not scenario.parts:
             problems.append(Problem("parts", "the strategy section needs at least one part"))
         if not scenario.sources:
@@ -645,7 +654,7 @@ class StrategySection(StrictModel):
             return []
         factor = max([1.0, *self.carry_speed_factor.values()])
         b = scenario.workcell.bounds
-        if robot.type == "arm":
+        if robot.type in ("arm", "urdf"):
             limit, unit = 360.0, "degrees, a full turn"
         else:
             limit, unit = math.hypot(b.xmax - b.xmin, b.ymax - b.ymin), "the workcell's diagonal"
@@ -668,6 +677,40 @@ class StrategySection(StrictModel):
                 )
             )
         return out
+
+    def _check_arm3d(self, scenario: Scenario) -> list[Problem]:
+        """A URDF arm in a 3-D cell: 1 to :data:`MAX_ARM_JOINTS` active joints named in
+        ``robot.joints`` (the grid's axes, known before the URDF is read), and only the
+        Section V model (the Section VI extensions are built and tested on planar cells
+        only)."""
+        robot = scenario.robot
+        joints = getattr(robot, "joints", None)
+        problems: list[Problem] = []
+        if joints is None or not 1 <= len(joints) <= MAX_ARM_JOINTS:
+            given = "lists none" if joints is None else f"lists {len(joints)}"
+            problems.append(
+                Problem(
+                    "robot.joints",
+                    f"{given}; the strategies grid holds 1 to {MAX_ARM_JOINTS} active joints of "
+                    "a 3-D arm: list them and lock the others (robot.locked)",
+                )
+            )
+        unsupported = {
+            "strategy.period": self.time_varying(),
+            "strategy.noise": self.noise is not None,
+            "strategy.failures": bool(self.failures),
+            "strategy.max_pending": self.simultaneous(),
+            "strategy.fine_motion.point": self.fine_motion.point is not None,
+        } | {
+            f"strategy.fine_motion_regions.{name}.point": spec.point is not None
+            for name, spec in self.fine_motion_regions.items()
+        }
+        problems.extend(
+            Problem(field, "is not available in a 3-D workcell yet (the Section V model is)")
+            for field, used in unsupported.items()
+            if used
+        )
+        return problems
 
     def _check_requests(self, scenario: Scenario, requests: list[RequestSpec]) -> list[Problem]:
         problems: list[Problem] = []
@@ -854,4 +897,6 @@ def _dimension(robot: object) -> int:
         return 2
     if kind == "rotating":
         return 3
+    if kind == "urdf":  # checked to list 1 to MAX_ARM_JOINTS joints before this is read
+        return len(getattr(robot, "joints", None) or [])
     return len(getattr(robot, "links", []))

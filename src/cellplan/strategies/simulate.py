@@ -30,7 +30,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cellplan import units
+from cellplan import timing, units
 from cellplan.core import Progress, Result, Status
 from cellplan.strategies.baselines import home_values, per_request_values
 from cellplan.strategies.execution import Executor
@@ -453,11 +453,23 @@ class RegionTest:
     regions: str
 
     def __call__(self, points: np.ndarray, m: int) -> np.ndarray:
+        return self.option(points, m, 0)
+
+    def option(self, points: np.ndarray, m: int, j: int) -> np.ndarray:
+        """The test of FMP option ``j`` of mode ``m``: the only option of a W, C or X mode;
+        with simultaneous requests (Section VI-2, a Q mode) the delivery of the carried
+        request (its destination, with its part), or while empty the pick of the ``j``-th
+        waiting request type in the order of the model's options (its source)."""
         mode = self.mdp.modes[m]
         if mode.kind == "W":
             region, part = mode.source, None
         elif mode.kind == "X":
             region, part = mode.reject, mode.part
+        elif mode.kind == "Q" and not mode.part:
+            # The options of an empty Q mode are its distinct waiting request types, in
+            # the order of mode.waiting (pending.assemble_pending).
+            waiting = list(dict.fromkeys(mode.waiting))
+            region, part = waiting[j].split(",")[1], None
         else:
             region, part = mode.destination, mode.part
         offset = region_offset(self.mdp, region, m)
@@ -536,24 +548,43 @@ def to_trajectory(
     sim: Simulation,
     cell: Any = None,
     meta: Mapping[str, str | int | float | bool] | None = None,
+    robot_spec: Any = None,
 ) -> Trajectory:
     """A simulated run as a :class:`~cellplan.trajectory.Trajectory`.
 
-    ``t`` is the stage, ``q`` the configuration (radians for angles), ``mode`` the
-    assembly mode of each stage (``NR``, ``<P1,S1,D1,W>`` ...), and the events are the
-    simulation's (:attr:`Simulation.events`).
+    ``t`` is the stage, ``q`` the configuration (radians for angles; periodic axes
+    unwrapped), ``mode`` the assembly mode of each stage (``NR``, ``<P1,S1,D1,W>`` ...),
+    and the events are the simulation's (:attr:`Simulation.events`), typed. ``seconds``
+    is ``stage x stage_duration``: the time of the longest step of any action at the
+    robot's speeds (``robot_spec``: the scenario's robot section; else the URDF's or the
+    default speeds), :func:`cellplan.timing.stage_duration`.
     """
     names = axis_names(strategy, cell)
+    axis_units = units.axis_units(names)
+    robot = cell.robot if cell is not None else None
+    _, vlim, alim = timing.robot_motion(robot_spec, robot, names, axis_units)
+    mdp = strategy.mdp
+    dim = len(mdp.shape)
+    step = np.abs(np.asarray(mdp.disp, float)).reshape(-1, dim)
+    if mdp.heading_axis >= 0:
+        # Robot-frame translation: a step along the heading may move either workcell axis.
+        planar = np.linalg.norm(step[:, :2], axis=1)
+        step[:, 0] = planar
+        step[:, 1] = planar
     return Trajectory(
         t=np.arange(len(sim.modes), dtype=float),
         q=sim.q,
         mode=sim.modes,
-        modes=tuple(m.label for m in strategy.mdp.modes),
+        modes=tuple(m.label for m in mdp.modes),
         columns=names,
-        units=units.axis_units(names),
+        units=axis_units,
         time_unit="stage",
-        events=tuple(Event(k, kind, detail) for k, kind, detail in sim.events),
+        events=tuple(Event.from_text(k, kind, detail) for k, kind, detail in sim.events),
         meta=dict(meta or {}),
+        periodic=tuple(bool(p) for p in np.asarray(mdp.periodic).reshape(-1)),
+        stage_duration=timing.stage_duration(step, vlim),
+        velocity_limits=vlim,
+        acceleration_limits=alim,
     )
 
 
@@ -571,6 +602,7 @@ def simulate_result(
     learn: bool = True,
     max_wait: float | None = None,
     progress: Progress | None = None,
+    robot_spec: Any = None,
 ) -> Result:
     """Run a strategy in the stochastic assembly process and return the run as a Result.
 
@@ -604,6 +636,9 @@ def simulate_result(
         Bound on any request's waiting time (time units); default :func:`wait_bound`.
     progress
         ``progress(done, stages, text)`` during the run (see :func:`simulate`).
+    robot_spec
+        The scenario's robot section: its ``speed`` times the trajectory's seconds
+        (default: the URDF's or the default speeds, :mod:`cellplan.timing`).
 
     Returns
     -------
@@ -672,7 +707,10 @@ def simulate_result(
         raise ArgumentError([Problem("start", f"collides with the workcell ({collision[1]})")])
     bound = float(max_wait) if max_wait is not None else wait_bound(strategy)
     metrics = sim.metrics()
-    stats = {k: v for k, v in metrics.items() if np.isfinite(v)}
+    # Counts are stored as ints (their JSON keeps them integers); measures as floats.
+    stats: dict[str, int | float | bool] = {
+        k: int(v) if k in COUNT_METRICS else v for k, v in metrics.items() if np.isfinite(v)
+    }
     stats["wait_bound"] = bound
     status, message = _verdict(strategy, sim, metrics, bound)
     if collision is not None:
@@ -694,11 +732,26 @@ def simulate_result(
         planner="strategies.simulate",
         stats=stats,
         solution=sim,
-        trajectory=to_trajectory(strategy, sim, cell, meta),
+        trajectory=to_trajectory(strategy, sim, cell, meta, robot_spec),
         options={"stages": int(stages), "seed": int(seed), "policy": policy, "max_wait": bound},
     )
 
 
+#: The metrics of a run that are counts (:meth:`Simulation.metrics` gives floats, for
+#: averaging over seeds; a result's ``stats`` keeps these as ints).
+COUNT_METRICS = frozenset(
+    (
+        "stages",
+        "requests",
+        "served",
+        "open_requests",
+        "fmp_refused",
+        "corrections",
+        "fmp_failures",
+        "turned_away",
+        "arrivals",
+    )
+)
 #: Samples of a checked motion per grid cell it crosses (:func:`first_collision`).
 SAMPLES_PER_CELL = 4
 #: Segments checked in one batch (bounds the samples held at once).

@@ -146,19 +146,22 @@ class SolveResult:
     def converged(self) -> bool:
         return self.status is Status.SOLVED
 
-    def stats(self) -> dict[str, float]:
+    def stats(self) -> dict[str, int | float | bool]:
+        """The figures of the solve for :attr:`cellplan.core.Result.stats`: counts as
+        ``int``, the stability flag as ``bool``, measures as ``float`` (each keeps its
+        type in JSON)."""
         return {
-            "gain": self.gain,
-            "gain_lower": self.gain_lower,
-            "gain_upper": self.gain_upper,
-            "span": self.span,
-            "sweeps": float(self.sweeps),
-            "full_sweeps": float(self.full_sweeps),
-            "eval_sweeps": float(self.eval_sweeps),
-            "outer_iterations": float(self.outer_iterations),
-            "stable": float(self.stable),
-            "policy_changes": float(self.policy_changes),
-            "seconds": self.seconds,
+            "gain": float(self.gain),
+            "gain_lower": float(self.gain_lower),
+            "gain_upper": float(self.gain_upper),
+            "span": float(self.span),
+            "sweeps": int(self.sweeps),
+            "full_sweeps": int(self.full_sweeps),
+            "eval_sweeps": int(self.eval_sweeps),
+            "outer_iterations": int(self.outer_iterations),
+            "stable": bool(self.stable),
+            "policy_changes": int(self.policy_changes),
+            "seconds": float(self.seconds),
         }
 
 

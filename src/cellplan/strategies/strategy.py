@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import operator
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -32,7 +33,7 @@ from cellplan.strategies.model import LayeredMDP, Mode
 from cellplan.strategies.motion import motion_ok
 from cellplan.strategies.points import action_values_at, compiled_for, fmp_options_at, query
 from cellplan.strategies.solver import SolveResult
-from cellplan.strategies.stencils import MAX_DIM, displacement, fmp_code, wrap
+from cellplan.strategies.stencils import MAX_DIM, cell_containing, displacement, fmp_code, wrap
 
 FMP = -2
 STAY = -1
@@ -86,6 +87,19 @@ class Strategy:
     mdp: LayeredMDP
     values: np.ndarray
     meta: dict[str, Any]
+
+    def __repr__(self) -> str:
+        """One line: grid, modes, gain and the solve's status (no arrays)."""
+        shape = " x ".join(str(int(n)) for n in self.mdp.shape)
+        gain = self.meta.get("gain")
+        text = f"{gain:.6g} per stage" if isinstance(gain, (int, float)) else "unknown"
+        status = self.meta.get("status", "unknown")
+        name = self.meta.get("scenario_name")
+        where = f"{name!r}, " if name else ""
+        return (
+            f"Strategy({where}{shape} cells, {self.mdp.n_modes} modes, gain {text}, "
+            f"status {status})"
+        )
 
     @staticmethod
     def from_solution(mdp: LayeredMDP, result: SolveResult, scenario: Any = None) -> Strategy:
@@ -336,8 +350,9 @@ class Strategy:
         One compiled evaluation of equation (9), a few microseconds: the compiled code is
         called directly (:func:`~cellplan.strategies.points.compiled_for`). With a workcell
         :meth:`attach` ed, an FMP is returned only where the exact region test allows it.
-        Raises :class:`~cellplan.errors.ArgumentError` for a ``q`` that is not a finite
-        configuration of the grid's dimension or a ``mode`` that is not a layer index, and
+        ``mode`` is a layer index or a mode's name (:meth:`mode_index`: ``"NR"``,
+        ``"<P1,S1,D1,W>"`` ...). Raises :class:`~cellplan.errors.ArgumentError` for a ``q``
+        that is not a finite configuration of the grid's dimension or an unknown ``mode``, and
         ``ValueError`` when no action is available (``q`` outside the live states).
         """
         q, mode = checked_state(self.mdp, q, mode, finite=self.mdp.opt_ptr is not None)
@@ -363,22 +378,15 @@ class Strategy:
     ) -> int:
         """:meth:`action` for a model with FMP options (simultaneous requests, Section VI-2):
         the best of the motions, stay and every FMP option the grid cell of ``q`` allows
-        (FMP first on a tie). Returns ``fmp_code(j)`` for option ``j``. The exact region
-        test is not applied: an option's region depends on the request it serves."""
-        mdp = self.mdp
-        action_values_at(q, mode, self._h0, mdp.live, 0.0, False, self._model, out)
-        nopt = int(mdp.options[mode + 1] - mdp.options[mode])
-        allowed = np.full(nopt, not forbid_fmp, np.bool_)
-        j, fval = fmp_options_at(q, mode, self._h0, mdp.live, allowed, self._model)
-        motions = out[1:]
-        if j >= 0 and not (np.nanmin(motions, initial=np.inf) < fval):
-            return int(fmp_code(j))
-        if np.all(np.isnan(motions)):
-            raise ValueError(
-                "no action is available here (the state is outside the strategy's domain)"
-            )
-        i = int(np.nanargmin(motions))
-        return STAY if i == 0 else i - 1
+        (FMP first on a tie). Returns ``fmp_code(j)`` for option ``j``. With a workcell
+        :meth:`attach` ed, each option is confirmed by the exact region test of the
+        request it serves (:meth:`~.simulate.RegionTest.option`), as a single FMP is."""
+        test = self.__dict__.get("_fmp_test")
+        option_test = test.option if test is not None else None
+        u, _ = option_or_motion(
+            self.mdp, q, mode, self._h0, self.mdp.live, self._model, out, forbid_fmp, option_test
+        )
+        return u
 
     def cell_centre(self, q: np.ndarray) -> np.ndarray:
         """Centre of the grid cell containing ``q``."""
@@ -523,6 +531,51 @@ def _mode_fields(mode: Mode) -> list[str]:
     return [*fields, *mode.waiting] if mode.kind == "Q" else fields
 
 
+def option_or_motion(
+    mdp: LayeredMDP,
+    q: np.ndarray,
+    mode: int,
+    h: np.ndarray,
+    live: np.ndarray,
+    model: Model,
+    out: np.ndarray,
+    forbid_fmp: bool = False,
+    option_test: Callable[[np.ndarray, int, int], np.ndarray] | None = None,
+) -> tuple[int, float]:
+    """Equation (9) at ``q`` in a mode with FMP options (simultaneous requests, Section
+    VI-2): the best of the motions, stay and the FMP options, on the values ``h`` (the
+    strategy's, or an executor's corrected copy). Returns ``(action, value)``: the action
+    as :meth:`Strategy.action` (``fmp_code(j)`` for option ``j``, FMP first on a tie) and
+    its right-hand side of (9).
+
+    An option is offered where the grid cell of ``q`` allows it and, with ``option_test``
+    (``(points, mode, j) -> bool array``, :meth:`.simulate.RegionTest.option`), where the
+    exact region test of the
+    request it serves passes at ``q`` (its source for a pick, its destination with the
+    part for a delivery): the same rule as the single FMP of the other models, so a
+    delivery the workcell refuses is never chosen. Raises ``ValueError`` when no action
+    is available.
+    """
+    action_values_at(q, mode, h, live, 0.0, False, model, out)
+    o0, o1 = int(mdp.options[mode]), int(mdp.options[mode + 1])
+    allowed = np.full(o1 - o0, not forbid_fmp, np.bool_)
+    if option_test is not None and not forbid_fmp:
+        g = model.grid
+        c = int(cell_containing(q, g.shape, g.lower, g.spacing, g.periodic))
+        point = np.asarray(q, dtype=float)[None, :]
+        for j in np.flatnonzero(np.isfinite(mdp.tf[o0:o1, c])):
+            allowed[j] = bool(option_test(point, mode, int(j))[0])
+    j, fval = fmp_options_at(q, mode, h, live, allowed, model)
+    motions = out[1:]
+    best_motion = float(np.nanmin(motions)) if not np.all(np.isnan(motions)) else np.inf
+    if j >= 0 and not (best_motion < fval):
+        return int(fmp_code(j)), float(fval)
+    if np.all(np.isnan(motions)):
+        raise ValueError("no action is available here (the state is outside the strategy's domain)")
+    i = int(np.nanargmin(motions))
+    return (STAY if i == 0 else i - 1), best_motion
+
+
 def best_action(vals: np.ndarray) -> int:
     """Index convention of :meth:`Strategy.action` from an ``action_values`` vector."""
     if np.all(np.isnan(vals)):
@@ -605,12 +658,25 @@ def checked_state(
         raise ArgumentError([Problem("q", "contains NaN or infinite values")])
     if mode is None:
         return arr, 0
+    if isinstance(mode, str):
+        # A mode by name, as Strategy.mode_index reads it ("NR", "<P1,S1,D1,W>",
+        # "1,1,1,W", a Q label, "...@phase"); its error names the API's argument.
+        try:
+            return arr, Strategy(mdp, np.empty(0), {}).mode_index(mode)
+        except PersistenceError as exc:
+            raise ArgumentError([Problem("mode", p.message) for p in exc.problems]) from None
     try:
         m = operator.index(mode)
     except TypeError:
         m = -1
     if not 0 <= m < mdp.n_modes or isinstance(mode, bool):
         raise ArgumentError(
-            [Problem("mode", f"expected a layer index in [0, {mdp.n_modes}), got {mode!r}")]
+            [
+                Problem(
+                    "mode",
+                    f"expected a layer index in [0, {mdp.n_modes}), got {mode!r} (or a mode "
+                    "name such as 'NR')",
+                )
+            ]
         )
     return arr, m

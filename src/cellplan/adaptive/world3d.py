@@ -1,0 +1,425 @@
+"""The changing 3-D workcell of a URDF arm: objects, named goals as tool poses, generations.
+
+The 3-D counterpart of :class:`~.world.World`, with the same methods, so that
+:class:`~.adapt.Adapter` and :class:`~.experience.ExperiencePlanner` run on either
+without asking which one they have. Objects are the solids of the cell; they are
+added, removed and *translated* (a pose here is an offset ``(x, y, z)`` in metres from
+where the scenario put the object).
+
+Subgoals are attached to objects through the tool's pose (Chen, Section 2.3): a tag
+holds the tool position relative to the object's offset and the tool's orientation.
+Objects only translate, so the orientation relative to the object is the world
+orientation; a vertex of G keeps it implicitly in its configuration, a named goal
+explicitly (``rpy`` in the scenario). After an object moves, inverse kinematics
+(:func:`cellplan.arm.ik`, damped least squares) seeded from the subgoal's old
+configuration brings the subgoal back onto the moved pose; the first attempt starts
+there, so the solution stays on the same branch whenever one exists nearby.
+
+Validity for Reach (:meth:`World3D.is_free`) is certified: a configuration passes only
+when the whole joint-space ball of radius ``resolution / 2`` around it is free
+(:meth:`cellplan.workcell3d.Workcell3D.collides_within`, each sphere of the arm's cover
+checked with the clearance its lever bound allows). Reach samples a segment at most
+``resolution`` apart, so every point of a segment lies within ``resolution / 2`` of a
+sample: a segment that passes Reach is free everywhere along it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from pydantic import TypeAdapter, ValidationError
+
+from cellplan import arm as arms
+from cellplan import solids, units
+from cellplan.adaptive.section import (
+    AdaptiveSection,
+    AddGoal,
+    AddObject,
+    Change,
+    GoalSpec,
+    MoveObject,
+    RemoveGoal,
+    RemoveObject,
+)
+from cellplan.adaptive.space import FloatArray
+from cellplan.adaptive.tags import Tag
+from cellplan.errors import ArgumentError, Problem
+from cellplan.scenario import Scenario
+from cellplan.scenario3d import Solid
+from cellplan.workcell3d import UrdfRobot, Workcell3D
+
+Offset = tuple[float, float, float]
+
+DOWN = (1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0)
+"""The tool's z axis pointing down (a pick from above): the default goal orientation."""
+
+IK_RESTARTS = 8
+"""Random restarts of a goal's IK after the attempt from the seed configuration."""
+
+
+@dataclass
+class Object3D:
+    """A solid as the scenario placed it and its current offset (a translation)."""
+
+    solid: solids.Solid
+    pose: Offset = (0.0, 0.0, 0.0)
+
+    def placed(self) -> solids.Solid:
+        """The solid in the world now."""
+        if self.pose == (0.0, 0.0, 0.0):
+            return self.solid
+        shift = np.eye(4)
+        shift[:3, 3] = self.pose
+        return self.solid.transformed(shift)
+
+
+def solid_from_spec(spec: Any, field: str) -> solids.Solid:
+    """A primitive solid of a scenario (box, cylinder, sphere, capsule) in code units."""
+    xyz, rpy = units.pose_from_file(spec.pose.xyz, spec.pose.rpy)
+    pose = solids.pose_matrix(xyz, rpy)
+    if spec.type == "box":
+        return solids.box(spec.size, pose)
+    if spec.type == "cylinder":
+        return solids.cylinder(spec.radius, spec.length, pose)
+    if spec.type == "sphere":
+        return solids.sphere(spec.radius, pose)
+    if spec.type == "capsule":
+        return solids.capsule(spec.radius, spec.length, pose)
+    raise ArgumentError(f"a {spec.type} cannot be added to a changing cell here", field)
+
+
+def _rotation(rpy_degrees: Sequence[float] | None) -> tuple[float, ...]:
+    if rpy_degrees is None:
+        return DOWN
+    _, rpy = units.pose_from_file((0.0, 0.0, 0.0), rpy_degrees)
+    return tuple(float(v) for v in solids.pose_matrix(np.zeros(3), rpy)[:3, :3].ravel())
+
+
+class World3D:
+    """Objects, goals and arm of one adaptive problem in a 3-D cell (see the module
+    docstring); the same methods as :class:`~.world.World`."""
+
+    def __init__(
+        self, scenario: Scenario, cell: Workcell3D, resolution: float | None = None
+    ) -> None:
+        self.scenario: Scenario | None = scenario
+        self.section: AdaptiveSection | None = scenario.adaptive
+        self.base_cell = cell.with_obstacles({})
+        self.robot: UrdfRobot = cell.robot
+        self.radius = 0.0 if resolution is None else resolution / 2.0
+        levers = arms.sphere_levers(self.robot.arm)
+        # The largest clearance any sphere is checked with (for messages).
+        self.margin = float(np.linalg.norm(levers, axis=1).max()) * self.radius
+        self.objects: dict[str, Object3D] = {n: Object3D(s) for n, s in cell.obstacles.items()}
+        self.goals: dict[str, Tag] = {}
+        self.attach_radius: float | None = None
+        self.gen = 0
+        self._cell: Workcell3D | None = None
+        self._goal_cache: dict[tuple[str, int], FloatArray | None] = {}
+        if self.section is not None:
+            self.attach_radius = self.section.attach_radius
+            for name, goal in self.section.goals.items():
+                self.goals[name] = self._goal_tag(goal)
+
+    # --- geometry -------------------------------------------------------------------------
+
+    def workcell(self) -> Workcell3D:
+        """The cell with the objects where they are now."""
+        if self._cell is None:
+            self._cell = self.base_cell.with_obstacles(
+                {n: self.objects[n].placed() for n in sorted(self.objects)}
+            )
+        return self._cell
+
+    def is_free(self, Q: FloatArray) -> np.ndarray:
+        """Certified validity: the joint-space ball of radius ``resolution / 2`` is free."""
+        return ~self.workcell().collides_within(Q, self.radius, avoid_sources="none")
+
+    def is_free_exact(self, Q: FloatArray) -> np.ndarray:
+        """No contact (re-checks of executed paths)."""
+        return ~self.workcell().collides(Q, avoid_sources="none")
+
+    def hits(self, q: FloatArray, margin: float = 0.0) -> list[str]:
+        """Names of the objects one configuration meets (within ``margin``), sorted."""
+        q = np.asarray(q, float)[None, :]
+        return [
+            n
+            for n in sorted(self.objects)
+            if self.base_cell.with_obstacles({n: self.objects[n].placed()}).collides(
+                q, avoid_sources="none", margin=margin
+            )[0]
+        ]
+
+    def check_free(self, q: FloatArray, name: str) -> None:
+        """One line when ``q`` leaves the limits or the bounds, touches an object (named),
+        collides with the arm itself, or lies closer to something than Reach certifies."""
+        if self.is_free(q[None, :])[0]:
+            return  # the common case, one check; the reasons below only when it fails
+        robot = self.robot
+        shown = "(" + ", ".join(f"{v:.4g}" for v in q) + ")"
+        if not robot.within_limits(q[None, :])[0]:
+            lim = ", ".join(
+                f"{a} [{lo:.4g}, {hi:.4g}]"
+                for a, lo, hi in zip(robot.axis_names, robot.lower, robot.upper, strict=True)
+            )
+            raise ArgumentError(f"configuration {shown} is outside the joint limits: {lim}", name)
+        if self.base_cell.collides(q[None, :], avoid_sources="none")[0]:
+            raise ArgumentError(
+                f"configuration {shown} leaves the workcell bounds or collides with the arm itself",
+                name,
+            )
+        hits = self.hits(q)
+        if hits:
+            names = ", ".join(repr(h) for h in hits)
+            raise ArgumentError(f"configuration {shown} collides with obstacle {names}", name)
+        if not self.is_free(q[None, :])[0]:
+            raise ArgumentError(
+                f"configuration {shown} is closer to an obstacle or a wall than Reach's "
+                f"certified clearance (up to {self.margin:.3g} m at the tool for resolution "
+                f"{2 * self.radius:.3g} rad; a finer resolution shrinks it)",
+                name,
+            )
+
+    # --- tags and inverse kinematics ------------------------------------------------------
+
+    def tool(self, q: FloatArray) -> tuple[float, float, float]:
+        """The tool position of one configuration (metres)."""
+        p = self.robot.tool_pose(np.asarray(q, float)[None, :])[0, :3, 3]
+        return (float(p[0]), float(p[1]), float(p[2]))
+
+    def nearest_object(self, point: FloatArray) -> tuple[str | None, float]:
+        """The object nearest to a workspace point and its (exact) distance."""
+        if not self.objects:
+            return None, math.inf
+        names = sorted(self.objects)
+        prepared = solids.SolidSet.build([self.objects[n].placed() for n in names])
+        d = solids.distances(prepared, np.asarray(point, float)[None, :])[0]
+        k = int(np.argmin(d))
+        return names[k], float(d[k])
+
+    def tag_of(self, q: FloatArray) -> Tag:
+        """Attach a configuration to the nearest object (within ``attach_radius``), 2.3.
+
+        ``rel`` is the tool position relative to the object's offset; the orientation is
+        the configuration's own (objects only translate)."""
+        p = np.array(self.tool(q))
+        obj, dist = self.nearest_object(p)
+        radius = self.attach_radius
+        if obj is None or (radius is not None and dist > radius):
+            return Tag(None, (float(p[0]), float(p[1]), float(p[2])), None)
+        rel = p - np.asarray(self.objects[obj].pose)
+        return Tag(obj, (float(rel[0]), float(rel[1]), float(rel[2])), None)
+
+    def tool_pose_of(self, tag: Tag) -> tuple[float, float, float]:
+        """World tool position of a tag in the current environment."""
+        if tag.obj is None or tag.obj not in self.objects:
+            return (float(tag.rel[0]), float(tag.rel[1]), float(tag.rel[2]))
+        off = self.objects[tag.obj].pose
+        return (tag.rel[0] + off[0], tag.rel[1] + off[1], tag.rel[2] + off[2])
+
+    def config_of(self, tag: Tag, seed: FloatArray | None = None) -> FloatArray | None:
+        """A configuration for a tag by IK from ``seed`` (the subgoal's old configuration);
+        ``None`` if no free solution is found. The orientation is the tag's, else the
+        seed's."""
+        start = np.asarray(self.robot.start if seed is None else seed, float)
+        target = np.eye(4)
+        if tag.rot is not None:
+            target[:3, :3] = np.asarray(tag.rot, float).reshape(3, 3)
+        else:
+            target[:3, :3] = self.robot.tool_pose(start[None, :])[0, :3, :3]
+        target[:3, 3] = self.tool_pose_of(tag)
+
+        def valid(q: FloatArray) -> bool:
+            return bool(self.is_free(q[None, :])[0])
+
+        result = arms.ik(
+            self.robot.arm,
+            target,
+            q0=start,
+            restarts=IK_RESTARTS if seed is None else 2,
+            seed=0,
+            valid=valid,
+        )
+        return np.asarray(result.q, float) if result.success else None
+
+    def pose_goal(self, pose: FloatArray, seed: FloatArray) -> FloatArray:
+        """The configuration of a tool-pose goal (``(4, 4)``, world frame): IK from ``seed``
+        (where the robot stands), then with restarts; one line when none is free."""
+        if not np.all(np.isfinite(pose)):
+            raise ArgumentError("the tool pose must be finite", "goal")
+        target = np.asarray(pose, float)
+        x, y, z = target[:3, 3]
+        inside = np.all(target[:3, 3] >= self.base_cell.lo) and np.all(
+            target[:3, 3] <= self.base_cell.hi
+        )
+        if not inside:
+            raise ArgumentError(
+                f"the tool pose at ({x:.3g}, {y:.3g}, {z:.3g}) m lies outside the workcell bounds",
+                "goal",
+            )
+
+        def valid(q: FloatArray) -> bool:
+            return bool(self.is_free(q[None, :])[0])
+
+        try:
+            result = arms.ik(self.robot.arm, target, q0=seed, restarts=IK_RESTARTS, valid=valid)
+        except ArgumentError as exc:
+            raise ArgumentError(f"not a rigid tool pose: {exc}", "goal") from None
+        if not result.success:
+            raise ArgumentError(
+                f"no collision-free inverse-kinematics solution reaches the tool pose at "
+                f"({x:.3g}, {y:.3g}, {z:.3g}) m ({result.message})",
+                "goal",
+            )
+        return np.asarray(result.q, float)
+
+    def _goal_tag(self, goal: GoalSpec) -> Tag:
+        at = tuple(float(v) for v in goal.at)
+        rot = _rotation(goal.rpy)
+        if goal.object is None:
+            return Tag(None, (at[0], at[1], at[2]), None, rot)
+        off = self.objects[goal.object].pose
+        return Tag(goal.object, (at[0] - off[0], at[1] - off[1], at[2] - off[2]), None, rot)
+
+    def goal_config(self, name: str) -> FloatArray | None:
+        """A goal's configuration now (``None``: no free IK solution); cached per generation."""
+        key = (name, self.gen)
+        if key not in self._goal_cache:
+            self._goal_cache[key] = self.config_of(self.goals[name])
+        q = self._goal_cache[key]
+        return None if q is None else q.copy()
+
+    def goal_problems(self, where: str, when: str = "") -> list[Problem]:
+        """Goals without a free IK solution now (fields ``where.<goal>``)."""
+        problems = []
+        for name in sorted(self.goals):
+            if self.goal_config(name) is None:
+                x, y, z = self.tool_pose_of(self.goals[name])
+                problems.append(
+                    Problem(
+                        f"{where}.{name}",
+                        f"no collision-free inverse-kinematics solution reaches the tool pose "
+                        f"at ({x:.3g}, {y:.3g}, {z:.3g}) m{when}",
+                    )
+                )
+        return problems
+
+    # --- changes --------------------------------------------------------------------------
+
+    def apply(self, change: Change) -> set[str]:
+        """Apply one scheduled change; the names of objects whose pose changed."""
+        if isinstance(change, AddObject):
+            self.add_object(change.object, solid_from_spec(change.shape, "shape"))
+        elif isinstance(change, RemoveObject):
+            self.remove_object(change.object)
+        elif isinstance(change, MoveObject):
+            p = self.objects[change.object].pose
+            by = [float(v) for v in change.by]
+            return self.set_pose(change.object, (p[0] + by[0], p[1] + by[1], p[2] + by[2]))
+        elif isinstance(change, AddGoal):
+            self.goals[change.goal] = self._goal_tag(change.spec())
+        elif isinstance(change, RemoveGoal):
+            del self.goals[change.goal]
+        return set()
+
+    def add_object(self, name: str, shape: solids.Solid, pose: Sequence[float] = (0, 0, 0)) -> None:
+        """Add a solid, shifted by ``pose = (x, y, z)``."""
+        self.objects[name] = Object3D(shape, _offset(pose))
+        self._changed()
+
+    def remove_object(self, name: str) -> None:
+        """Remove an object (subgoals attached to it stay where they are)."""
+        del self.objects[name]
+        self._changed()
+
+    def set_pose(self, name: str, pose: Sequence[float]) -> set[str]:
+        """Shift an object to ``pose = (x, y, z)`` from where the scenario put it."""
+        self.objects[name].pose = _offset(pose)
+        self._changed()
+        return {name}
+
+    def shape(self, shape: Any) -> solids.Solid:
+        """A solid given to ``ExperiencePlanner.add``: a :class:`cellplan.solids.Solid`
+        or a scenario solid (``{"type": "box", "size": [...], "pose": {...}}``)."""
+        if isinstance(shape, solids.Solid):
+            return shape
+        try:
+            spec = TypeAdapter(Solid).validate_python(shape)
+        except ValidationError as exc:
+            first = exc.errors(include_url=False)[0]
+            where = ".".join(str(p) for p in first["loc"])
+            raise ArgumentError(f"{where}: {first['msg']}", "shape") from None
+        return solid_from_spec(spec, "shape")
+
+    def pose_of(self, pose: Sequence[float]) -> Offset:
+        """A pose argument checked: three finite numbers (metres)."""
+        return _offset(pose)
+
+    # --- persistence ----------------------------------------------------------------------
+
+    def objects_json(self) -> dict[str, Any]:
+        """The objects as JSON values (solid kind, pose, size, offset)."""
+        out: dict[str, Any] = {}
+        for n, o in sorted(self.objects.items()):
+            if o.solid.kind == "mesh":
+                raise ArgumentError(f"object {n!r} is a mesh; it cannot be saved", "db")
+            out[n] = {
+                "solid": {
+                    "kind": o.solid.kind,
+                    "pose": o.solid.pose.tolist(),
+                    "size": o.solid.size.tolist(),
+                },
+                "pose": list(o.pose),
+            }
+        return out
+
+    def goals_json(self) -> dict[str, Any]:
+        """The goals' tags as JSON values."""
+        return {
+            n: [t.obj, list(t.rel), t.branch, None if t.rot is None else list(t.rot)]
+            for n, t in sorted(self.goals.items())
+        }
+
+    def restore_json(self, objects: Mapping[str, Any], goals: Mapping[str, Any], gen: int) -> None:
+        """Replace objects, goals and generation from :meth:`objects_json` / :meth:`goals_json`."""
+        self.objects = {
+            n: Object3D(
+                solids.Solid(o["solid"]["kind"], np.array(o["solid"]["pose"]), o["solid"]["size"]),
+                _offset(o["pose"]),
+            )
+            for n, o in objects.items()
+        }
+        self.goals = {
+            n: Tag(
+                g[0],
+                (float(g[1][0]), float(g[1][1]), float(g[1][2])),
+                g[2],
+                None if len(g) < 4 or g[3] is None else tuple(float(v) for v in g[3]),
+            )
+            for n, g in goals.items()
+        }
+        self.gen = gen
+        self._cell = None
+        self._goal_cache = {}
+
+    def _changed(self) -> None:
+        self.gen += 1
+        self._cell = None
+
+
+def _offset(pose: Sequence[float]) -> Offset:
+    try:
+        values = [float(v) for v in pose]
+    except (TypeError, ValueError):
+        raise ArgumentError("expected (x, y, z) numbers (metres)", "pose") from None
+    if len(values) != 3 or not all(np.isfinite(values)):
+        raise ArgumentError(
+            f"expected three finite numbers (x, y, z) in metres (3-D objects translate "
+            f"only), got {pose!r}",
+            "pose",
+        )
+    return (values[0], values[1], values[2])

@@ -1,0 +1,145 @@
+"""Issue 35 part 1: executing a simultaneous-requests strategy never locks up.
+
+A grid cell offers an FMP wherever its centre lies in the region; at a real configuration
+near the region's edge the exact region test can refuse it. Rule (9) alone then moves to
+a neighbour whose cell offers it again, is refused again, and comes back: the run of
+issue 35 alternated between two points 0.018 short of D2's edge for 147,000 stages. The
+options of the model are executed through the Section V executor (its LRTA* correction),
+and each option is confirmed by its own exact test.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_strategies_pending import pending, solved
+
+from cellplan.api import load
+from cellplan.strategies.execution import Executor
+from cellplan.strategies.pending import mode_keys
+from cellplan.strategies.pending_sim import simulate_pending
+from cellplan.strategies.simulate import region_test
+from cellplan.strategies.stencils import fmp_option
+from cellplan.strategies.strategy import STAY, Strategy
+
+
+class EdgeRefusingTest:
+    """An exact test stricter than the grid: it confirms an option only where the option's
+    region test of the workcell passes with the configuration moved ``depth`` inwards on
+    both sides, so every grid cell at the edge of a region promises an FMP it refuses."""
+
+    def __init__(self, strategy: Strategy, cell, depth: float) -> None:
+        self.exact = region_test(strategy, cell, "contact")
+        self.depth = depth
+        self.refused = 0
+
+    def option(self, points: np.ndarray, m: int, j: int) -> np.ndarray:
+        ok = self.exact.option(points, m, j)
+        for axis in range(points.shape[1]):
+            for sign in (-1.0, 1.0):
+                moved = points.copy()
+                moved[:, axis] += sign * self.depth
+                ok &= self.exact.option(moved, m, j)
+        self.refused += int((~ok).sum())
+        return ok
+
+    __call__ = option
+
+
+def run_until_fmp(strategy: Strategy, executor, q, m, test, stages: int) -> int:
+    """Stages until the executor takes an FMP in mode ``m`` (no arrivals); -1 if none."""
+    for k in range(stages):
+        u = executor.action(q, m) if executor is not None else strategy.action(q, m)
+        j = int(fmp_option(u))
+        if j >= 0:
+            assert test.option(q[None, :], m, j)[0]  # every FMP taken passes the exact test
+            return k
+        if u != STAY:
+            q = strategy.next_configuration(q, m, u)
+    return -1
+
+
+@pytest.fixture(scope="module")
+def strategy_and_cell():
+    sc, cell = pending(2, 16)
+    return solved(sc, cell), cell
+
+
+def test_refused_fmp_options_never_hold_the_executor(strategy_and_cell):
+    strategy, cell = strategy_and_cell
+    mdp = strategy.mdp
+    test = EdgeRefusingTest(strategy, cell, depth=0.6 * float(mdp.spacing.max()))
+    rng = np.random.default_rng(35)
+    # Carrying with another request waiting (a loss of two per stage, above the gain),
+    # and waiting for two requests: a delivery, and a choice of two picks.
+    keys = mode_keys(mdp)
+    modes = [m for key, m in keys.items() if len(key[0]) + bool(key[1]) == 2]
+    assert len(modes) >= 3 and all(mdp.cost[m] > strategy.gain for m in modes)
+    tried = 0
+    for m in modes:
+        live = np.flatnonzero(mdp.live[m])
+        for c in rng.choice(live, size=min(8, len(live)), replace=False):
+            idx = np.array(np.unravel_index(c, tuple(mdp.shape)))
+            q = mdp.lower + (idx + rng.uniform(0.05, 0.95, len(idx))) * mdp.spacing
+            executor = Executor(strategy, option_test=test)
+            k = run_until_fmp(strategy, executor, q, m, test, 400)
+            assert k >= 0, f"mode {mdp.modes[m].label} from {q}: no FMP in 400 stages"
+            tried += 1
+    assert tried >= 24
+    # The situation was built: the test refused options that the grid cells offered.
+    assert test.refused > 0
+
+
+def test_the_plain_rule_takes_only_options_the_exact_test_confirms(strategy_and_cell):
+    # Strategy.action with a workcell attached confirms each option by its own exact test
+    # (the source of the request a pick serves, the destination of the carried part).
+    strategy, cell = strategy_and_cell
+    mdp = strategy.mdp
+    attached = strategy.attach(cell)
+    exact = region_test(strategy, cell, "contact")
+    rng = np.random.default_rng(7)
+    taken = 0
+    for m in range(1, mdp.n_modes):
+        for c in np.flatnonzero(np.isfinite(mdp.tf[mdp.options[m] : mdp.options[m + 1]]).any(0))[
+            :40
+        ]:
+            idx = np.array(np.unravel_index(c, tuple(mdp.shape)))
+            q = mdp.lower + (idx + rng.uniform(0, 1, len(idx))) * mdp.spacing
+            if not mdp.live[m, c]:
+                continue
+            u = attached.action(q, m)
+            j = int(fmp_option(u))
+            if j >= 0:
+                taken += 1
+                assert exact.option(q[None, :], m, j)[0]
+    assert taken > 0
+
+
+@pytest.mark.slow
+def test_issue_35_reproducer_delivers_from_the_locked_points():
+    # The bundled scenario: the run of issue 35 (seed 1235) alternated between these two
+    # points carrying P2 to D2, 0.018 short of D2's edge. From either, the executor
+    # delivers, with the workcell's own exact test, and a long run of that seed serves
+    # every request.
+    setup = load("strategies_pending")
+    strategy = Strategy.from_solution(*_solve(setup), setup.scenario)
+    cell = setup.workcell
+    test = region_test(strategy, cell, setup.scenario.strategy.regions)
+    keys = mode_keys(strategy.mdp)
+    carried = [m for (w, p, s, d), m in keys.items() if (p, s, d) == ("P2", "S2", "D2")]
+    for q0 in ([76.018, 88.527], [76.018, 91.527]):
+        for m in carried:
+            if not strategy.mdp.live[m, strategy.cell_of(np.array(q0))]:
+                continue
+            executor = Executor(strategy, option_test=test.option)
+            assert run_until_fmp(strategy, executor, np.array(q0), m, test, 2000) >= 0
+    sim = simulate_pending(strategy, 20000, 1235, cell=cell, regions="contact")
+    assert all(r.delivery >= 0 for r in sim.requests[:-3])
+
+
+def _solve(setup):
+    from cellplan.strategies.model import build_model
+    from cellplan.strategies.solver import solve
+
+    mdp = build_model(setup.scenario, setup.workcell)
+    return mdp, solve(mdp, "auto", 1e-9)
