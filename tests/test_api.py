@@ -146,3 +146,14 @@ def test_draw_of_a_3d_cell_takes_a_view_and_a_2d_one_refuses_it(tmp_path):
     assert (tmp_path / "ur5.png").is_file()
     with pytest.raises(ArgumentError, match=r"^view: views apply to 3-D cells"):
         cellplan.draw(cellplan.load("strategies_tiny"), view="top")
+
+
+def test_loads_takes_text_or_a_mapping_and_refuses_the_rest():
+    import yaml
+
+    text = cellplan.registry.scenario_path("strategies_tiny").read_text()
+    from_text = cellplan.loads(text)
+    from_mapping = cellplan.loads(yaml.safe_load(text))
+    assert from_mapping.scenario.digest() == from_text.scenario.digest()
+    with pytest.raises(ScenarioError, match="expected YAML text or a mapping, got int"):
+        cellplan.loads(3)  # type: ignore[arg-type]

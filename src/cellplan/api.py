@@ -15,6 +15,7 @@ to a problem and validated options) without running it, as Gymnasium's ``make`` 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -40,10 +41,23 @@ def load(path_or_name: str | Path) -> Setup:
     return as_setup(path_or_name)
 
 
-def loads(text: str) -> Setup:
-    """Parse and validate scenario YAML text."""
-    from cellplan.scenario import loads_scenario
+def loads(text: str | Mapping[str, Any]) -> Setup:
+    """Validate a scenario given as YAML text, or as a mapping already parsed.
 
+    Raises
+    ------
+    ScenarioError
+        One problem per mistake, each naming its field; anything but text or a mapping
+        is one line.
+    """
+    from cellplan.scenario import loads_scenario, scenario_from_data
+
+    if isinstance(text, Mapping):
+        return Setup(scenario_from_data(dict(text), "<mapping>"), "<mapping>")
+    if not isinstance(text, str):
+        raise ScenarioError(
+            [Problem("<input>", f"expected YAML text or a mapping, got {type(text).__name__}")]
+        )
     return Setup(loads_scenario(text), "<string>")
 
 
