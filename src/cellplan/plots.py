@@ -114,8 +114,11 @@ def figure_to_rgb(fig: Figure, width: int = GIF_SIZE) -> np.ndarray:
 
 
 def frame_counter(ax: Axes, text: str) -> None:
-    """The stage or time counter of a GIF frame, boxed in the top-left corner of ``ax``."""
-    ax.text(
+    """The stage or time counter of a GIF frame, boxed in the top-left corner of ``ax``
+    (2-D or 3-D axes)."""
+    # On 3-D axes ``text`` takes (x, y, z); ``text2D`` places text in axes coordinates.
+    draw = getattr(ax, "text2D", ax.text)
+    draw(
         0.02,
         0.98,
         text,

@@ -284,7 +284,7 @@ def save_animation(
             for idx in moments:
                 fig, axes = core_plots.new_figure(size=4.8)
                 draw_configuration(axes[0][0], problem, path, idx, textwrap.fill(title, 60))
-                _counter3d(fig.axes[0], label(idx))
+                core_plots.frame_counter(fig.axes[0], label(idx))
                 rgb = core_plots.figure_to_rgb(fig, size)
                 plt.close(fig)
                 yield rgb
@@ -310,22 +310,6 @@ def save_animation(
         )
     finally:
         plt.close(fig)
-
-
-def _counter3d(ax: Any, text: str) -> None:
-    """:func:`cellplan.plots.frame_counter` on 3-D axes (``text2D``: axes coordinates)."""
-    ax.text2D(
-        0.02,
-        0.98,
-        text,
-        transform=ax.transAxes,
-        ha="left",
-        va="top",
-        fontsize=9,
-        family="monospace",
-        bbox={"boxstyle": "round,pad=0.25", "fc": "white", "ec": "#57606a", "alpha": 0.85},
-        gid="frame-counter",
-    )
 
 
 def _frames(
