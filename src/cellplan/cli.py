@@ -406,7 +406,7 @@ def export(
 
 @app.command()
 def demo(output: OutputOpt = Path("cellplan-out"), as_json: JsonOpt = False) -> None:
-    """Run quick versions of every experiment and write OUTPUT/index.html (about 1 minute)."""
+    """Run quick versions of every experiment and write OUTPUT/index.html (about 2 minutes)."""
     from cellplan.demo import run_demo
 
     index = run_demo(output, console=console)
