@@ -10,7 +10,7 @@ same free bitmaps, two ways:
 
 * ``every layer``: the baseline, the previous code: :func:`.domain.live_layer` on every
   layer, pass after pass, until a pass changes nothing (the last pass only confirms);
-* ``compute_live``: :func:`cellplan.strategies.model.compute_live`, which skips a layer
+* ``compute_live``: :func:`cellplan.strategies.model.mdp.compute_live`, which skips a layer
   whose inputs did not change since it settled and copies the result of a layer with the
   same inputs.
 
@@ -29,8 +29,8 @@ import numpy as np
 
 import cellplan
 from cellplan.registry import resolve_scenario_path
-from cellplan.strategies.domain import live_layer
-from cellplan.strategies.model import LayeredMDP, build_model, compute_live
+from cellplan.strategies.model.domain import live_layer
+from cellplan.strategies.model.mdp import LayeredMDP, build_model, compute_live
 
 D1 = "  D1: {components: [{type: box, min: [44, 84], max: [52, 92]}]}\n"
 

@@ -5,9 +5,9 @@ Run: ``.venv/bin/python benchmarks/bench_policy_iteration.py`` (``--grids 50,100
 
 In one process, on problem 1 at each grid:
 
-* the Section V model: :func:`~cellplan.strategies.solver.solve_structured`,
-  :func:`~cellplan.strategies.policy_iteration.solve_policy_iteration` and
-  :func:`~cellplan.strategies.solver.solve_general` (relative value iteration, the only
+* the Section V model: :func:`~cellplan.strategies.solve.solver.solve_structured`,
+  :func:`~cellplan.strategies.solve.policy_iteration.solve_policy_iteration` and
+  :func:`~cellplan.strategies.solve.solver.solve_general` (relative value iteration, the only
   solver for general models before policy iteration);
 * a failure model (Section VI-3, ``strategy.failures``): every delivery fails with
   probability ``--failure`` and is retried in place after ``--rework`` time units. The
@@ -27,10 +27,10 @@ import argparse
 from typing import Any
 
 import cellplan
-from cellplan.strategies.model import build_model
-from cellplan.strategies.policy_iteration import solve_policy_iteration
-from cellplan.strategies.section import FailureSpec
-from cellplan.strategies.solver import SolveResult, solve_general, solve_structured
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.model.section import FailureSpec
+from cellplan.strategies.solve.policy_iteration import solve_policy_iteration
+from cellplan.strategies.solve.solver import SolveResult, solve_general, solve_structured
 
 
 def retry_scenario(scenario: Any, f: float, rework: float) -> Any:

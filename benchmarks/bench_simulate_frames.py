@@ -16,9 +16,9 @@ import time
 from pathlib import Path
 
 import cellplan
-from cellplan.strategies import plots
 from cellplan.strategies.commands import SIMULATE_SEED, SIMULATE_STAGES
-from cellplan.strategies.simulate import simulate_result
+from cellplan.strategies.experiments import plots
+from cellplan.strategies.sim.simulate import simulate_result
 
 
 def main() -> None:

@@ -51,15 +51,15 @@ import scipy.sparse as sp
 from numba import njit
 
 from cellplan.errors import CellplanError
-from cellplan.strategies import sweeps
-from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
-from cellplan.strategies.model import LayeredMDP, build_model
-from cellplan.strategies.section import SolverSpec
-from cellplan.strategies.solver import SolveResult, solve, solve_structured
-from cellplan.strategies.stencils import decode, table_stencil
-from cellplan.strategies.strategy import Strategy
-from cellplan.strategies.sweeps import sweep_policy
-from cellplan.strategies.threads import default_threads
+from cellplan.strategies.model.mdp import LayeredMDP, build_model
+from cellplan.strategies.model.section import SolverSpec
+from cellplan.strategies.model.stencils import decode, table_stencil
+from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.solve import sweeps
+from cellplan.strategies.solve.evaluation import evaluate, layer_system, live_cells
+from cellplan.strategies.solve.solver import SolveResult, solve, solve_structured
+from cellplan.strategies.solve.sweeps import sweep_policy
+from cellplan.strategies.solve.threads import default_threads
 from cellplan.workcell import load_workcell
 
 

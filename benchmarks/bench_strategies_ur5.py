@@ -23,7 +23,7 @@ import numpy as np
 import cellplan
 from cellplan import arm as arms
 from cellplan.cspace import Grid
-from cellplan.strategies.model import build_model
+from cellplan.strategies.model.mdp import build_model
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """Fit the structured solver's rules on one set of problems, report them on another.
 
-The outer loop of :func:`cellplan.strategies.solver.solve_structured` has a few rules with a
+The outer loop of :func:`cellplan.strategies.solve.solver.solve_structured` has a few rules with a
 constant (when the passes stop being capped, when the certificate is tried along the
 Newton step, how exact the inner solves are). They are chosen on the *fit* set, problems 2,
 4, 5 and problem 1 at 141 x 141, and reported on the *held-out* set, the targets of the
@@ -22,8 +22,8 @@ import argparse
 import os
 import time
 
-from cellplan.strategies import solver
-from cellplan.strategies.model import LayeredMDP, build_model
+from cellplan.strategies.model.mdp import LayeredMDP, build_model
+from cellplan.strategies.solve import solver
 from cellplan.workcell import load_workcell
 
 SETS = {
@@ -40,7 +40,7 @@ def apply(setting: str) -> dict[str, float]:
     for item in setting.split(","):
         name, _, value = item.partition("=")
         if not hasattr(solver, name):
-            raise SystemExit(f"{name}: not a constant of cellplan.strategies.solver")
+            raise SystemExit(f"{name}: not a constant of cellplan.strategies.solve.solver")
         old[name] = getattr(solver, name)
         setattr(solver, name, type(old[name])(float(value)))
     return old

@@ -187,7 +187,7 @@ def test_a_real_demo_experiment_decides_every_claim(tmp_path):
     decided (the slow test below runs the whole demo)."""
     from rich.console import Console
 
-    from cellplan.strategies.experiments import EXPERIMENTS
+    from cellplan.strategies.experiments.paper import EXPERIMENTS
 
     exp = next(e for e in EXPERIMENTS if e.name == "strategies.anticipation")
     assert exp.demo_runs is not None

@@ -408,7 +408,7 @@ strategy:
 def _strategy_run(tmp_path_factory, text, stages=150):
     """``(strategy, simulated run)`` of a scenario text (or a bundled name)."""
     import cellplan
-    from cellplan.strategies.simulate import simulate_result
+    from cellplan.strategies.sim.simulate import simulate_result
 
     if "\n" in text:
         path = tmp_path_factory.mktemp("sc") / "scenario.yaml"

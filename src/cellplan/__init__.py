@@ -14,7 +14,7 @@ without running it; :func:`draw` draws a scenario (what ``cellplan show`` writes
 paper package registers its planners (:mod:`cellplan.strategies`, :mod:`cellplan.adaptive`,
 :mod:`cellplan.assembly`). Two conveniences are imported on
 first use, so that ``import cellplan`` loads no numba kernel or OMPL:
-``cellplan.simulate`` (:func:`cellplan.strategies.simulate.simulate_result`) runs a solved
+``cellplan.simulate`` (:func:`cellplan.strategies.sim.simulate.simulate_result`) runs a solved
 strategy in the stochastic assembly process, and ``cellplan.ExperiencePlanner``
 (:class:`cellplan.adaptive.ExperiencePlanner`) answers start-to-goal queries against an
 experience graph.
@@ -34,7 +34,7 @@ from cellplan.trajectory import Event, Trajectory
 
 if TYPE_CHECKING:
     from cellplan.adaptive import ExperiencePlanner as ExperiencePlanner
-    from cellplan.strategies.simulate import simulate_result
+    from cellplan.strategies.sim.simulate import simulate_result
 
     simulate = simulate_result
 
@@ -66,7 +66,7 @@ __version__ = "0.1.0"
 # Conveniences that live in a package, imported on first use so that ``import cellplan``
 # does not load numba kernels or OMPL.
 _LAZY = {
-    "simulate": ("cellplan.strategies.simulate", "simulate_result"),
+    "simulate": ("cellplan.strategies.sim.simulate", "simulate_result"),
     "ExperiencePlanner": ("cellplan.adaptive", "ExperiencePlanner"),
 }
 

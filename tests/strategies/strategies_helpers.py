@@ -88,7 +88,7 @@ def assert_validate_names(cellplan, tmp_path, text: str, expected: str) -> None:
 def lu_entries(monkeypatch) -> list[int]:
     """Record the entries of every sparse LU that policy iteration factorises (SuperLU's
     own count: its factors live in C memory, which tracemalloc does not see)."""
-    from cellplan.strategies import policy_iteration
+    from cellplan.strategies.solve import policy_iteration
 
     seen: list[int] = []
     real = policy_iteration.splu

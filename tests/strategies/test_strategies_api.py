@@ -11,8 +11,8 @@ from strategies_helpers import TINY
 import cellplan
 from cellplan.core import Status, check_stats
 from cellplan.errors import ArgumentError
-from cellplan.strategies.simulate import simulate_result, wait_bound
-from cellplan.strategies.strategy import FMP, STAY
+from cellplan.strategies.policy.strategy import FMP, STAY
+from cellplan.strategies.sim.simulate import simulate_result, wait_bound
 from cellplan.trajectory import Trajectory
 
 
@@ -178,7 +178,7 @@ def test_summary_is_json(result):
 
 def test_showcase_makes_its_pictures_through_the_api_silently(tmp_path, monkeypatch, capsys):
     from cellplan.registry import packages
-    from cellplan.strategies import showcase
+    from cellplan.strategies.experiments import showcase
 
     # The demo's recipe on the tiny cell (same modes, shorter run), to keep the suite fast.
     monkeypatch.setattr(showcase, "SCENARIO", "strategies_tiny")
@@ -211,7 +211,7 @@ def test_mode_numbers_follow_the_file_order():
 
 def test_an_attached_workcell_vetoes_fmp_the_exact_test_refuses():
     """``Strategy.action`` never returns an FMP that the attached region test refuses."""
-    from cellplan.strategies.strategy import FMP
+    from cellplan.strategies.policy.strategy import FMP
 
     setup = cellplan.load("strategies_tiny")
     strategy = cellplan.plan(setup, "strategies", sample_stages=1).solution

@@ -7,9 +7,9 @@ import itertools
 import numpy as np
 import pytest
 
-from cellplan.strategies import behaviours
-from cellplan.strategies.behaviours import follow
-from cellplan.strategies.strategy import FMP, STAY, solve_scenario
+from cellplan.strategies.experiments import behaviours
+from cellplan.strategies.experiments.behaviours import follow
+from cellplan.strategies.policy.strategy import FMP, STAY, solve_scenario
 from cellplan.workcell import load_workcell
 
 

@@ -19,9 +19,9 @@ from strategies_helpers import lu_entries, tiny
 import cellplan
 from cellplan import api, budget
 from cellplan.errors import ArgumentError
-from cellplan.strategies.model import estimate_memory
-from cellplan.strategies.simulate import simulate_result
-from cellplan.strategies.strategy import solve_scenario
+from cellplan.strategies.model.mdp import estimate_memory
+from cellplan.strategies.policy.strategy import solve_scenario
+from cellplan.strategies.sim.simulate import simulate_result
 
 
 def test_memory_estimate_matches_measured_allocations():

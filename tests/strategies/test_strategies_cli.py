@@ -97,8 +97,8 @@ def test_no_snap_solve_records_the_transition_law(cellplan, scenario, tmp_path):
 
 def test_solve_json_then_simulate_writes_the_trajectory(cellplan, scenario, tmp_path):
     from cellplan.api import load
-    from cellplan.strategies.simulate import simulate_result
-    from cellplan.strategies.strategy import Strategy
+    from cellplan.strategies.policy.strategy import Strategy
+    from cellplan.strategies.sim.simulate import simulate_result
     from cellplan.trajectory import Trajectory
 
     npz = tmp_path / "s.npz"
@@ -174,9 +174,9 @@ def test_gif_frames_are_wide_and_carry_a_stage_counter(tmp_path, frame_counters)
     from strategies_helpers import tiny
 
     from cellplan.plots import GIF_SIZE
-    from cellplan.strategies.plots import save_animation
-    from cellplan.strategies.simulate import simulate
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.experiments.plots import save_animation
+    from cellplan.strategies.policy.strategy import solve_scenario
+    from cellplan.strategies.sim.simulate import simulate
 
     sc, cell = tiny(12)
     strategy, _ = solve_scenario(sc, cell)
@@ -195,9 +195,9 @@ def test_frames_png_shows_every_segment_laid_out_for_the_cell(tmp_path, monkeypa
     from strategies_helpers import tiny
 
     import cellplan.plots
-    from cellplan.strategies import plots
-    from cellplan.strategies.simulate import simulate
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.experiments import plots
+    from cellplan.strategies.policy.strategy import solve_scenario
+    from cellplan.strategies.sim.simulate import simulate
 
     sc, cell = tiny(12)
     strategy, _ = solve_scenario(sc, cell)
@@ -221,9 +221,9 @@ def test_frames_png_shows_every_segment_laid_out_for_the_cell(tmp_path, monkeypa
 def test_a_long_run_draws_at_most_max_frames_pictures(tmp_path):
     from strategies_helpers import tiny
 
-    from cellplan.strategies import plots
-    from cellplan.strategies.simulate import simulate
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.experiments import plots
+    from cellplan.strategies.policy.strategy import solve_scenario
+    from cellplan.strategies.sim.simulate import simulate
 
     sc, cell = tiny(12)
     strategy, _ = solve_scenario(sc, cell)
@@ -247,7 +247,7 @@ def test_seconds_follow_the_scenarios_robot_speed(cellplan, tmp_path, speed):
     stage lasts its longest step at that speed (timing.stage_duration), so it scales as
     1 / speed."""
     from cellplan.api import load, plan
-    from cellplan.strategies.strategy import Strategy
+    from cellplan.strategies.policy.strategy import Strategy
     from cellplan.trajectory import Trajectory
 
     text = TINY.replace("CELLS", "16").replace(

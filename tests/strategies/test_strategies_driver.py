@@ -9,9 +9,9 @@ from hypothesis import strategies as st
 from strategies_helpers import tiny
 
 from cellplan.core import Status
-from cellplan.strategies import solver
-from cellplan.strategies.model import build_model
-from cellplan.strategies.solver import (
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.solve import solver
+from cellplan.strategies.solve.solver import (
     _certificate_due,
     _Drift,
     _inner_accuracy,
@@ -19,7 +19,7 @@ from cellplan.strategies.solver import (
     _moved_along_newton,
     _normalise_nr,
 )
-from cellplan.strategies.threads import Workers
+from cellplan.strategies.solve.threads import Workers
 
 TOL = 1e-6
 finite = st.floats(-1e3, 1e3, allow_nan=False)

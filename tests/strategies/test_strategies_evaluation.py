@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from strategies_helpers import tiny
 
-from cellplan.strategies import coldstart, evaluation
-from cellplan.strategies.model import build_model
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.solve import coldstart, evaluation
 
 
 def _csr(n: int, edges: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +107,7 @@ def test_dijkstra_values_are_shortest_paths_on_the_main_corner_graph():
 
 
 def test_stability_check_on_near_ties_equals_a_full_second_sweep():
-    from cellplan.strategies import solver
+    from cellplan.strategies.solve import solver
 
     sc, cell = tiny(16)
     mdp = build_model(sc, cell)
@@ -133,7 +133,7 @@ def test_stability_check_on_near_ties_equals_a_full_second_sweep():
 )
 def test_span_and_near_ties_equal_the_array_formulas(M, N, seed, span):
     """The loops that replace the certificate's temporaries give the same numbers."""
-    from cellplan.strategies import bellman as bk
+    from cellplan.strategies.solve import bellman as bk
 
     rng = np.random.default_rng(seed)
     live = rng.random((M, N)) < 0.7
@@ -150,7 +150,7 @@ def test_span_and_near_ties_equal_the_array_formulas(M, N, seed, span):
 
 
 def test_span_of_a_nan_residual_is_nan():
-    from cellplan.strategies import bellman as bk
+    from cellplan.strategies.solve import bellman as bk
 
     h = np.zeros((1, 3))
     th = np.array([[0.5, np.nan, 0.2]])
@@ -159,7 +159,7 @@ def test_span_of_a_nan_residual_is_nan():
 
 
 def test_bellman_into_a_given_array_equals_a_fresh_one():
-    from cellplan.strategies import solver
+    from cellplan.strategies.solve import solver
 
     sc, cell = tiny(12)
     mdp = build_model(sc, cell)

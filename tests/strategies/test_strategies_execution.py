@@ -7,9 +7,9 @@ import pytest
 from strategies_helpers import tiny
 
 from cellplan.errors import ArgumentError
-from cellplan.strategies.execution import Executor, default_depth
-from cellplan.strategies.simulate import Request, Simulation, simulate
-from cellplan.strategies.strategy import FMP, STAY, Strategy, solve_scenario
+from cellplan.strategies.policy.execution import Executor, default_depth
+from cellplan.strategies.policy.strategy import FMP, STAY, Strategy, solve_scenario
+from cellplan.strategies.sim.simulate import Request, Simulation, simulate
 from cellplan.workcell import load_workcell
 
 
@@ -151,7 +151,7 @@ def test_rotating_robot_makes_progress_with_its_own_motions_only(p3):
 
 
 def test_no_snap_model_keeps_only_moves_that_land_among_free_cells(solved):
-    from cellplan.strategies.stencils import stencil
+    from cellplan.strategies.model.stencils import stencil
 
     _, strategy = solved
     sc, cell = tiny(cells=16)

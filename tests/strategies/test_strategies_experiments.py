@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from cellplan.core import Claim, Experiment
-from cellplan.strategies.experiments import (
+from cellplan.strategies.experiments.paper import (
     BEHAVIOURS,
     EXPERIMENTS,
     PROBLEMS,

@@ -19,10 +19,10 @@ from strategies_helpers import TINY, assert_validate_names, tiny, tiny_failures
 from test_strategies_fileformat import _write, assert_refused, check_load, craft, solved_file
 
 from cellplan.errors import PersistenceError
-from cellplan.strategies.model import build_model
-from cellplan.strategies.simulate import simulate
-from cellplan.strategies.solver import solve
-from cellplan.strategies.strategy import Strategy, solve_scenario
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.policy.strategy import Strategy, solve_scenario
+from cellplan.strategies.sim.simulate import simulate
+from cellplan.strategies.solve.solver import solve
 
 BIN = (
     "  D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}\n"
@@ -257,8 +257,8 @@ def test_crafted_failure_files_are_refused_cleanly_or_usable(data, failure_base,
 
 
 def test_quick_failure_experiment_reports_three_claims(tmp_path):
-    from cellplan.strategies.experiments import EXPERIMENTS
-    from cellplan.strategies.failure_experiment import SCALES
+    from cellplan.strategies.experiments.failure_experiment import SCALES
+    from cellplan.strategies.experiments.paper import EXPERIMENTS
 
     exp = next(e for e in EXPERIMENTS if e.name == "strategies.failures")
     specs = exp.make_runs(2, True)

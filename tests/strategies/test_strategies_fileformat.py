@@ -29,9 +29,9 @@ from hypothesis import strategies as st
 from cellplan.api import load
 from cellplan.errors import CellplanError, PersistenceError
 from cellplan.setup import Setup
-from cellplan.strategies.fileformat import ARRAYS
-from cellplan.strategies.simulate import simulate_result
-from cellplan.strategies.strategy import Strategy, solve_scenario
+from cellplan.strategies.policy.fileformat import ARRAYS
+from cellplan.strategies.policy.strategy import Strategy, solve_scenario
+from cellplan.strategies.sim.simulate import simulate_result
 
 SCENARIO = "strategies_tiny"
 

@@ -12,11 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_strategies_kernels import landing, models, random_actions, ref_transition
 
-from cellplan.strategies.actions import ActionSet
-from cellplan.strategies.bellman import bellman_dense, bellman_rows
-from cellplan.strategies.improvement import RUN, improvable, improve_layer
-from cellplan.strategies.model import Geometry, LayeredMDP, assemble
-from cellplan.strategies.sweeps import (
+from cellplan.strategies.model.actions import ActionSet
+from cellplan.strategies.model.mdp import Geometry, LayeredMDP, assemble
+from cellplan.strategies.solve.bellman import bellman_dense, bellman_rows
+from cellplan.strategies.solve.improvement import RUN, improvable, improve_layer
+from cellplan.strategies.solve.sweeps import (
     dense_cells,
     layer_iteration,
     sweep_policy,

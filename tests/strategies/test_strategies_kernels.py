@@ -13,13 +13,13 @@ import numpy as np
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from cellplan.strategies.actions import ActionSet
-from cellplan.strategies.bellman import bellman_all
-from cellplan.strategies.evaluation import evaluate, layer_system, live_cells
-from cellplan.strategies.interpolation import interp
-from cellplan.strategies.model import Geometry, LayeredMDP, assemble
-from cellplan.strategies.stencils import MAX_DIM, stencil
-from cellplan.strategies.sweeps import other_branches, sweep_layer, sweep_policy, sweep_self
+from cellplan.strategies.model.actions import ActionSet
+from cellplan.strategies.model.interpolation import interp
+from cellplan.strategies.model.mdp import Geometry, LayeredMDP, assemble
+from cellplan.strategies.model.stencils import MAX_DIM, stencil
+from cellplan.strategies.solve.bellman import bellman_all
+from cellplan.strategies.solve.evaluation import evaluate, layer_system, live_cells
+from cellplan.strategies.solve.sweeps import other_branches, sweep_layer, sweep_policy, sweep_self
 
 # --- references ---------------------------------------------------------------------------
 

@@ -18,9 +18,9 @@ from strategies_helpers import TINY, assert_validate_names, tiny
 
 from cellplan.registry import scenario_path
 from cellplan.scenario import loads_scenario
-from cellplan.strategies.model import build_model
-from cellplan.strategies.motion import valid_moves
-from cellplan.strategies.solver import solve
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.model.motion import valid_moves
+from cellplan.strategies.solve.solver import solve
 from cellplan.workcell import Workcell
 
 BASE = TINY.replace("CELLS", "16")
@@ -105,8 +105,8 @@ def test_a_single_exact_landing_is_the_section_v_model():
 
 
 def test_noise_costs_time_and_the_simulator_draws_the_landings():
-    from cellplan.strategies.simulate import simulate
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.policy.strategy import solve_scenario
+    from cellplan.strategies.sim.simulate import simulate
 
     sc, cell = noisy()
     strategy, result = solve_scenario(sc, cell)
@@ -141,7 +141,7 @@ def test_bundled_noise_scenario_keeps_clear_of_the_walls_in_the_passages(tmp_pat
     # narrow passages (the wall with the opening, and the wide passage beside it) keep a
     # larger clearance than with exact motion; measured by the report's experiment, on
     # its quick grid, per seed.
-    from cellplan.strategies.noise_experiment import EXPERIMENT
+    from cellplan.strategies.experiments.noise_experiment import EXPERIMENT
 
     specs = EXPERIMENT.make_runs(3, True)
     rows = [EXPERIMENT.run(s) for s in specs]
@@ -160,9 +160,9 @@ def test_a_landing_blocked_off_centre_stops_the_robot_and_counts_as_staying():
     # (near a wall); execution guards it (the robot stops) and the point query values it
     # as staying, so the robot always has a move. Before this rule a run on the bundled
     # noise scenario at 100 x 100 stood still for 9,930 of 10,000 stages.
-    from cellplan.strategies.motion import motion_ok
-    from cellplan.strategies.stencils import MAX_DIM
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.model.motion import motion_ok
+    from cellplan.strategies.model.stencils import MAX_DIM
+    from cellplan.strategies.policy.strategy import solve_scenario
 
     sc, cell = noisy()
     strategy, _ = solve_scenario(sc, cell)
@@ -191,8 +191,8 @@ def test_a_landing_blocked_off_centre_stops_the_robot_and_counts_as_staying():
 def test_bundled_noise_runs_match_the_gain_at_100_cells():
     # The run that stood still before the guard: 10,000 stages at 100 x 100, seed 0.
     from cellplan.api import load
-    from cellplan.strategies.simulate import simulate
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.policy.strategy import solve_scenario
+    from cellplan.strategies.sim.simulate import simulate
 
     setup = load("strategies_noise")
     strategy, result = solve_scenario(setup.scenario, setup.workcell)
@@ -259,7 +259,7 @@ def test_validate_reports_the_landings(cellplan, tmp_path):
 def test_a_noisy_file_with_more_table_rows_than_actions_round_trips(tmp_path):
     # 16 headings and 3 landings make 64 rows of move tables: more than the 62 actions a
     # class may have (the valid bitmask), which the file's size limit once confused.
-    from cellplan.strategies.strategy import Strategy, solve_scenario
+    from cellplan.strategies.policy.strategy import Strategy, solve_scenario
 
     text = TINY.replace("CELLS", "16").replace("headings: 8", "headings: 16") + NOISE
     sc = loads_scenario(text)

@@ -18,17 +18,17 @@ from strategies_helpers import TINY, assert_validate_names, lu_entries, tiny
 from test_strategies_solver import sparse_rvi
 
 from cellplan.api import load
-from cellplan.strategies.model import build_model
-from cellplan.strategies.pending import pending_modes
-from cellplan.strategies.pending_sim import (
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.model.section import mode_counts
+from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.solve.solver import solve
+from cellplan.strategies.variants.pending import pending_modes
+from cellplan.strategies.variants.pending_sim import (
     PENDING_POLICIES,
     Rules,
     simulate_pending,
     single_request_model,
 )
-from cellplan.strategies.section import mode_counts
-from cellplan.strategies.solver import solve
-from cellplan.strategies.strategy import Strategy
 
 
 def pending(k: int, cells: int = 12, extra: str = "") -> tuple:
@@ -196,7 +196,7 @@ def test_too_many_modes_are_refused_before_building(cellplan, tmp_path):
 
 
 def test_quick_pending_experiment_reports_three_claims(tmp_path):
-    from cellplan.strategies.pending_experiment import EXPERIMENT
+    from cellplan.strategies.experiments.pending_experiment import EXPERIMENT
 
     rows = [EXPERIMENT.run(s) for s in EXPERIMENT.make_runs(2, True)]
     for r in rows:
@@ -234,7 +234,7 @@ def test_solve_simulate_and_gif_on_the_command_line(cellplan, tmp_path):
 def test_with_the_workcell_every_fmp_passes_the_exact_region_test():
     # simulate() with the workcell confirms each pick at its request's source and each
     # delivery at the carried request's destination, as the Section V simulator does.
-    from cellplan.strategies.simulate import simulate
+    from cellplan.strategies.sim.simulate import simulate
 
     sc, cell = pending(2, 16)
     strategy = solved(sc, cell)
@@ -258,8 +258,8 @@ def test_the_memory_estimate_counts_the_modes_and_options_of_simultaneous_reques
     import gc
     import tracemalloc
 
-    from cellplan.strategies.model import estimate_memory
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.model.mdp import estimate_memory
+    from cellplan.strategies.policy.strategy import solve_scenario
 
     sc, cell = pending(3, 40)
     solve_scenario(sc, cell)  # compile first

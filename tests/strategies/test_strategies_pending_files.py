@@ -32,10 +32,7 @@ from test_strategies_fileformat import _write, craft, solved_file
 
 from cellplan.api import loads
 from cellplan.errors import PersistenceError
-from cellplan.strategies.fileformat import mode_of, read_strategy
-from cellplan.strategies.model import Mode
-from cellplan.strategies.pending import option_count, pending_modes
-from cellplan.strategies.plots import (
+from cellplan.strategies.experiments.plots import (
     carried_part,
     mode_regions,
     plot_frames,
@@ -43,9 +40,12 @@ from cellplan.strategies.plots import (
     save_animation,
     wrap_title,
 )
-from cellplan.strategies.section import mode_counts
-from cellplan.strategies.simulate import Simulation
-from cellplan.strategies.strategy import Strategy
+from cellplan.strategies.model.mdp import Mode
+from cellplan.strategies.model.section import mode_counts
+from cellplan.strategies.policy.fileformat import mode_of, read_strategy
+from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.sim.simulate import Simulation
+from cellplan.strategies.variants.pending import option_count, pending_modes
 
 REQUESTS = [("P1", "S1", "D1"), ("P1", "S2", "D1"), ("P1", "S1", "D2")]
 #: The scenario's modes and FMP options (three request types, at most two open at once).
@@ -139,7 +139,7 @@ def test_a_pending_strategy_round_trips_exactly(pending_base, tmp_path):
     setup, path, _, _ = pending_base
     loaded = Strategy.load(path, setup.scenario)
     again = Strategy.load(loaded.save(tmp_path / "again.npz"), setup.scenario)
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.policy.strategy import solve_scenario
 
     fresh, _ = solve_scenario(setup.scenario, setup.workcell)
     for strat in (loaded, again):

@@ -15,12 +15,12 @@ import pytest
 from test_strategies_pending import pending, solved
 
 from cellplan.api import load
-from cellplan.strategies.execution import Executor
-from cellplan.strategies.pending import mode_keys
-from cellplan.strategies.pending_sim import simulate_pending
-from cellplan.strategies.simulate import region_test
-from cellplan.strategies.stencils import fmp_option
-from cellplan.strategies.strategy import STAY, Strategy
+from cellplan.strategies.model.stencils import fmp_option
+from cellplan.strategies.policy.execution import Executor
+from cellplan.strategies.policy.strategy import STAY, Strategy
+from cellplan.strategies.sim.simulate import region_test
+from cellplan.strategies.variants.pending import mode_keys
+from cellplan.strategies.variants.pending_sim import simulate_pending
 
 
 class EdgeRefusingTest:
@@ -138,8 +138,8 @@ def test_issue_35_reproducer_delivers_from_the_locked_points():
 
 
 def _solve(setup):
-    from cellplan.strategies.model import build_model
-    from cellplan.strategies.solver import solve
+    from cellplan.strategies.model.mdp import build_model
+    from cellplan.strategies.solve.solver import solve
 
     mdp = build_model(setup.scenario, setup.workcell)
     return mdp, solve(mdp, "auto", 1e-9)

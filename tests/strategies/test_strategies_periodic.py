@@ -17,12 +17,12 @@ from test_strategies_solver import sparse_rvi
 import cellplan
 from cellplan.core import Status
 from cellplan.scenario import loads_scenario
-from cellplan.strategies.baselines import per_request_values
-from cellplan.strategies.model import build_model
-from cellplan.strategies.periodic import belt_offset, region_offset
-from cellplan.strategies.simulate import simulate
-from cellplan.strategies.solver import solve
-from cellplan.strategies.strategy import FMP, Strategy
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.policy.baselines import per_request_values
+from cellplan.strategies.policy.strategy import FMP, Strategy
+from cellplan.strategies.sim.simulate import simulate
+from cellplan.strategies.solve.solver import solve
+from cellplan.strategies.variants.periodic import belt_offset, region_offset
 from cellplan.workcell import Workcell
 
 # The tiny workcell with S1 on a belt moving right and requests in two phases of eight.
@@ -205,7 +205,7 @@ def test_scenario_mistakes_are_one_line_each(cellplan, tmp_path, extra, expected
 
 
 def test_quick_conveyor_experiment_reports_three_claims(tmp_path):
-    from cellplan.strategies.conveyor_experiment import EXPERIMENT
+    from cellplan.strategies.experiments.conveyor_experiment import EXPERIMENT
 
     rows = [EXPERIMENT.run(s) for s in EXPERIMENT.make_runs(2, True)]
     for r in rows:
@@ -241,8 +241,8 @@ def test_a_pocket_the_robot_can_never_leave_is_not_live():
     # A waiting robot in the pocket could stay there for ever, phase after phase: the
     # greatest fixed point of the stationary computation keeps those states (checked
     # below, so the test can tell the two apart); the least one over the phases does not.
-    from cellplan.strategies.model import _live_pass
-    from cellplan.strategies.transitions import forbid_snapping
+    from cellplan.strategies.model.mdp import _live_pass
+    from cellplan.strategies.model.transitions import forbid_snapping
 
     middle = "    middle: {type: box, min: [12, 12], max: [18, 16]}\n"
     text = TINY.replace("CELLS", "15").replace(middle, middle + RING) + BELT

@@ -32,9 +32,9 @@ from test_strategies_pending_files import _SameDigest, refused
 
 from cellplan.api import loads
 from cellplan.errors import PersistenceError
-from cellplan.strategies.fileformat import VERSION, read_strategy
-from cellplan.strategies.plots import plot_mode
-from cellplan.strategies.strategy import Strategy, solve_scenario
+from cellplan.strategies.experiments.plots import plot_mode
+from cellplan.strategies.policy.fileformat import VERSION, read_strategy
+from cellplan.strategies.policy.strategy import Strategy, solve_scenario
 
 PERIOD = 6
 #: Modes of one phase: NR, two W and two C (requests <P1,S1,D1> and <P1,S2,D1>).
@@ -549,7 +549,7 @@ def test_the_belt_track_spans_the_region_over_the_period(tv_base, section_v_base
     """The track drawn for S1 runs from where a part comes in (x 2 to 6) to where the last
     phase leaves it, the region moved by (PERIOD - 1) stages of its belt."""
     from cellplan.plots import new_figure
-    from cellplan.strategies.plots import draw_belts
+    from cellplan.strategies.experiments.plots import draw_belts
 
     setup, path, _, _ = tv_base
     strat = Strategy.load(path, setup.scenario)
@@ -572,8 +572,8 @@ def test_frames_and_gif_draw_the_belt_region_where_it_is_at_each_stage(
     """A run through the phases: each frame and GIF picture draws the workcell with S1
     moved by its belt's offset at the stage's phase (S2, on no belt, never moves)."""
     import cellplan.plots
-    from cellplan.strategies.plots import plot_frames, save_animation
-    from cellplan.strategies.simulate import Simulation
+    from cellplan.strategies.experiments.plots import plot_frames, save_animation
+    from cellplan.strategies.sim.simulate import Simulation
 
     setup, path, _, _ = tv_base
     strat = Strategy.load(path, setup.scenario)

@@ -16,10 +16,10 @@ import cellplan
 from cellplan.core import Status
 from cellplan.errors import ScenarioError
 from cellplan.scenario import loads_scenario
-from cellplan.strategies.bundles import Outcomes
-from cellplan.strategies.model import LayeredMDP, build_model, compute_live
-from cellplan.strategies.policy_iteration import solve_policy_iteration
-from cellplan.strategies.solver import solve, solve_structured
+from cellplan.strategies.model.bundles import Outcomes
+from cellplan.strategies.model.mdp import LayeredMDP, build_model, compute_live
+from cellplan.strategies.solve.policy_iteration import solve_policy_iteration
+from cellplan.strategies.solve.solver import solve, solve_structured
 
 
 def sparse_rvi_outcomes(mdp, tol=1e-11, max_iter=400000):
@@ -85,7 +85,7 @@ def _agree(a, b, mdp):
 
 
 def _bellman_gap(mdp, res):
-    from cellplan.strategies.solver import bellman
+    from cellplan.strategies.solve.solver import bellman
 
     h = np.where(mdp.live, res.values, 0.0)
     return bellman(mdp, h)
@@ -136,9 +136,9 @@ def test_structured_refuses_a_model_with_outcomes(tiny_model):
 
 
 def test_solve_scenario_names_the_field_of_a_refused_method(monkeypatch):
-    import cellplan.strategies.model as model_mod
+    import cellplan.strategies.model.mdp as model_mod
     from cellplan.errors import ArgumentError
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.policy.strategy import solve_scenario
 
     sc, cell = tiny(cells=8, extra="")
     build = model_mod.build_model
@@ -212,7 +212,7 @@ def test_memory_estimate_bounds_policy_iterations_allocations(monkeypatch):
     import gc
     import tracemalloc
 
-    from cellplan.strategies.model import estimate_memory
+    from cellplan.strategies.model.mdp import estimate_memory
 
     sc, cell = tiny(cells=48)
     mdp = build_model(sc, cell)
@@ -240,7 +240,7 @@ def test_cli_solves_by_policy_iteration_and_refuses_structured_on_failures(
 ):
     import json
 
-    import cellplan.strategies.model as model_mod
+    import cellplan.strategies.model.mdp as model_mod
 
     path = tmp_path / "tiny.yaml"
     path.write_text(TINY.replace("CELLS", "10"))
@@ -268,7 +268,7 @@ def test_non_convergence_is_reported(tiny_model):
 
 
 def test_a_failed_evaluation_is_recovered_by_value_iteration(tiny_model, monkeypatch):
-    import cellplan.strategies.policy_iteration as pi
+    import cellplan.strategies.solve.policy_iteration as pi
 
     real = pi.evaluate
     calls = []

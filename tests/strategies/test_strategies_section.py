@@ -11,7 +11,7 @@ from strategies_helpers import TINY, tiny
 
 from cellplan.errors import ScenarioError
 from cellplan.scenario import loads_scenario
-from cellplan.strategies.section import Rate
+from cellplan.strategies.model.section import Rate
 
 
 @given(st.floats(1e-4, 50.0), st.floats(1e-3, 10.0))
@@ -91,7 +91,7 @@ def test_uniform_requests_cover_every_combination():
 
 
 def test_unreachable_region_is_named_before_solving():
-    from cellplan.strategies.model import build_model
+    from cellplan.strategies.model.mdp import build_model
 
     text = TINY.replace("CELLS", "16").replace(
         "D1: {components: [{type: box, min: [13, 25], max: [17, 28]}]}",

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from strategies_helpers import tiny
 
-from cellplan.strategies.simulate import compare_policies, simulate
-from cellplan.strategies.strategy import solve_scenario
+from cellplan.strategies.policy.strategy import solve_scenario
+from cellplan.strategies.sim.simulate import compare_policies, simulate
 
 
 @pytest.fixture(scope="module")

@@ -10,10 +10,10 @@ import scipy.sparse as sp
 from strategies_helpers import empty, tiny
 
 from cellplan.core import Status
-from cellplan.strategies.model import build_model
-from cellplan.strategies.solver import _Layers, solve_general, solve_structured
-from cellplan.strategies.sweeps import other_branches
-from cellplan.strategies.threads import Workers
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.solve.solver import _Layers, solve_general, solve_structured
+from cellplan.strategies.solve.sweeps import other_branches
+from cellplan.strategies.solve.threads import Workers
 from cellplan.workcell import load_workcell
 
 
@@ -288,8 +288,8 @@ strategy:
 
 def test_rotating_robot_matches_plain_sparse_rvi_and_serves_requests():
     from cellplan.scenario import loads_scenario
-    from cellplan.strategies.simulate import simulate
-    from cellplan.strategies.strategy import Strategy
+    from cellplan.strategies.policy.strategy import Strategy
+    from cellplan.strategies.sim.simulate import simulate
     from cellplan.workcell import Workcell
 
     sc = loads_scenario(ROTATING)

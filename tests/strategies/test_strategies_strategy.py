@@ -12,8 +12,8 @@ from strategies_helpers import tiny
 
 import cellplan
 from cellplan.errors import ArgumentError, PersistenceError
-from cellplan.strategies.points import query
-from cellplan.strategies.strategy import FMP, STAY, Strategy, solve_scenario
+from cellplan.strategies.model.points import query
+from cellplan.strategies.policy.strategy import FMP, STAY, Strategy, solve_scenario
 
 
 @pytest.fixture(scope="module")

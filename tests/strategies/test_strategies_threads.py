@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 from strategies_helpers import TINY, tiny
 
 from cellplan.scenario import loads_scenario
-from cellplan.strategies import threads
-from cellplan.strategies.model import build_model
-from cellplan.strategies.solver import _Layers, solve
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.solve import threads
+from cellplan.strategies.solve.solver import _Layers, solve
 from cellplan.workcell import Workcell
 
 

@@ -22,8 +22,8 @@ import cellplan
 from cellplan.errors import ScenarioError
 from cellplan.registry import scenario_path
 from cellplan.scenario import scenario_from_data
-from cellplan.strategies import arm_behaviours, ur5_experiment
-from cellplan.strategies.strategy import FMP
+from cellplan.strategies.experiments import arm_behaviours, ur5_experiment
+from cellplan.strategies.policy.strategy import FMP
 
 
 def _data(name: str = "strategies_ur5") -> dict:
@@ -174,7 +174,7 @@ def test_the_planner_solves_a_3d_cell_and_its_sample_run_is_collision_free():
     assert result.trajectory is not None and result.trajectory.q.shape[1] == 3
     # The simulator's own exact check (first_collision) ran on the 3-D cell; confirm it
     # independently: every stage's motion, with the part of its mode, sampled finely.
-    from cellplan.strategies.simulate import carried_part
+    from cellplan.strategies.sim.simulate import carried_part
 
     strategy = result.solution
     q = result.trajectory.q
@@ -223,7 +223,7 @@ def test_cells_of_and_crossings_agree_with_a_direct_count():
 
 def test_the_simulated_motion_plays_in_a_viewer_page(tmp_path):
     from cellplan.strategies.commands import write_motion_viewer
-    from cellplan.strategies.simulate import simulate_result
+    from cellplan.strategies.sim.simulate import simulate_result
 
     setup, result = _one_request()
     run = simulate_result(result.solution, 40, 2, cell=setup.workcell)
@@ -234,7 +234,7 @@ def test_the_simulated_motion_plays_in_a_viewer_page(tmp_path):
 
 
 def test_the_ur5_showcase_draws_a_run_and_writes_its_viewer_page(tmp_path, monkeypatch, capsys):
-    from cellplan.strategies import showcase
+    from cellplan.strategies.experiments import showcase
 
     data = copy.deepcopy(_data())
     data["strategy"]["requests"] = [{"part": "P1", "source": "S1", "destination": "D2"}]

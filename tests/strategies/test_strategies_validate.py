@@ -12,7 +12,7 @@ from cellplan.budget import resident_memory
 
 BASE = TINY.replace("CELLS", "24")
 
-# Each variant is refused by the strategies model (cellplan.strategies.model.build_model)
+# Each variant is refused by the strategies model (cellplan.strategies.model.mdp.build_model)
 # for one reason; the expected text is part of the line both commands print.
 VARIANTS = {
     # the destination lies under an obstacle: no configuration delivers there
@@ -119,7 +119,7 @@ def test_a_start_inside_a_source_is_refused_naming_the_source():
     # Issue 34: sources are obstacles while the robot is empty (equation (1)); the line
     # says so and names the region, rather than "outside the strategy's domain" alone.
     from cellplan.errors import ScenarioError
-    from cellplan.strategies.model import build_model
+    from cellplan.strategies.model.mdp import build_model
 
     sc, cell = tiny(16)
     sc = sc.model_copy(update={"robot": sc.robot.model_copy(update={"start": [4.0, 3.5]})})

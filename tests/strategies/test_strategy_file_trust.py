@@ -22,10 +22,10 @@ import cellplan.errors
 from cellplan.budget import format_bytes, resident_memory
 from cellplan.errors import PersistenceError, ScenarioError
 from cellplan.scenario import loads_scenario
-from cellplan.strategies.fileformat import MAX_MAGNITUDE, read_strategy
-from cellplan.strategies.section import MAX_FMP_STAGES, MIN_ARRIVAL
-from cellplan.strategies.simulate import first_collision, simulate_result
-from cellplan.strategies.strategy import Strategy
+from cellplan.strategies.model.section import MAX_FMP_STAGES, MIN_ARRIVAL
+from cellplan.strategies.policy.fileformat import MAX_MAGNITUDE, read_strategy
+from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.sim.simulate import first_collision, simulate_result
 
 TINY = Path(__file__).parents[2] / "scenarios" / "strategies_tiny.yaml"
 OBSTACLE = "  obstacles:\n    middle: {type: box, min: [12, 12], max: [18, 16]}\n"

@@ -1,7 +1,7 @@
 """CLI commands of the strategies package: ``solve``, ``simulate``, ``plot``.
 
 Each goes through the library API (:func:`cellplan.api.plan`,
-:func:`~cellplan.strategies.simulate.simulate_result`), prints one summary line on
+:func:`~cellplan.strategies.sim.simulate.simulate_result`), prints one summary line on
 stdout (or one JSON object with ``--json``) and exits 0 when solved, 1 when it ran but
 did not solve (the status line says why), 2 on bad input. Options the library defaults
 are ``None`` here and passed on only when given, so the CLI holds no default of its own.
@@ -42,7 +42,7 @@ from cellplan.strategies.planners import (
 
 if TYPE_CHECKING:
     from cellplan.setup import Setup
-    from cellplan.strategies.strategy import Strategy
+    from cellplan.strategies.policy.strategy import Strategy
 
 #: Every file ``simulate`` may write into its output folder (``frame_NNN.png``: one per
 #: segment of the sample path).
@@ -96,7 +96,7 @@ def _existing(inputs: Mapping[str, Path | None]) -> dict[str, Path]:
 
 
 def _load_strategy(path: Path, setup: Setup) -> Strategy:
-    from cellplan.strategies.strategy import Strategy
+    from cellplan.strategies.policy.strategy import Strategy
 
     if path.is_dir():  # also an empty --strategy, which the parser turns into "."
         raise ArgumentError(f"{path} is a folder, not a strategy file", "--strategy")
@@ -178,7 +178,7 @@ def write_motion_viewer(strategy: Strategy, setup: Setup, sim: Any, path: Path) 
     (:func:`cellplan.view3d.write_viewer`): a frame per stage, the part drawn on the tool
     while a mode carries it."""
     from cellplan.scene3d import cell_scene
-    from cellplan.strategies.simulate import carried_part
+    from cellplan.strategies.sim.simulate import carried_part
     from cellplan.view3d import write_viewer
 
     modes = strategy.mdp.modes
@@ -235,8 +235,8 @@ def simulate_command(
     (in a 3-D cell, viewer.html, where the arm's motion plays, instead of frames and GIF)."""
     from cellplan.plots import GIF_SIZE, check_gif_size
     from cellplan.scenario3d import is_3d
-    from cellplan.strategies import plots
-    from cellplan.strategies.simulate import simulate_result
+    from cellplan.strategies.experiments import plots
+    from cellplan.strategies.sim.simulate import simulate_result
 
     if gif_size is not None and not gif:
         raise ArgumentError("only with --gif (the default)", "--gif-size")
@@ -335,7 +335,7 @@ def plot_command(
 ) -> None:
     """Draw the cost-to-go contours and the optimal actions of one mode (Fig. 8), at one
     phase of a time-varying strategy."""
-    from cellplan.strategies import plots
+    from cellplan.strategies.experiments import plots
 
     _check_suffix(output, (".png", ".svg", ".pdf"), "--output")
     check_inputs_kept(

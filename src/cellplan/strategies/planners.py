@@ -6,7 +6,7 @@ Section IV (average-cost dynamic programming on the layered MDP, equation (9)) a
 that the result carries a motion like every planner's, simulates that strategy from the
 robot's start for ``sample_stages`` stages of the stochastic assembly process (Section
 III-B): the result's trajectory is that sample run; its ``solution`` is the
-:class:`~cellplan.strategies.strategy.Strategy`, which answers ``action(q, mode)`` at any
+:class:`~cellplan.strategies.policy.strategy.Strategy`, which answers ``action(q, mode)`` at any
 real-valued state.
 
 This module is imported whenever a scenario is loaded: it imports the algorithm modules
@@ -23,7 +23,7 @@ from pydantic import Field
 from cellplan.core import Options, Progress, Result, Status
 from cellplan.errors import ArgumentError, Problem
 from cellplan.schema import Cells
-from cellplan.strategies.section import SolverMethod
+from cellplan.strategies.model.section import SolverMethod
 
 if TYPE_CHECKING:
     from cellplan.setup import Setup
@@ -85,12 +85,12 @@ solve spend; the solve's sweeps come on top, with a progress bar). Measured with
 def check_memory(setup: Setup, cells: Sequence[int] | None, method: str | None = None) -> None:
     """Refuse a grid whose model and solve cannot fit in memory, before allocating it.
 
-    The estimate is :func:`~cellplan.strategies.model.estimate_memory` (the arrays the
+    The estimate is :func:`~cellplan.strategies.model.mdp.estimate_memory` (the arrays the
     model and the solver allocate); the refusal names the cells and where they came from.
     """
     from cellplan import budget
     from cellplan.errors import ScenarioError
-    from cellplan.strategies.model import estimate_memory, grid_shape
+    from cellplan.strategies.model.mdp import estimate_memory, grid_shape
 
     scenario, cell = setup.scenario, setup.workcell
     shape = grid_shape(scenario, cell, cells)
@@ -120,12 +120,12 @@ def run_strategies(
         scenario's tolerance) and the sample run served its requests;
         ``NOT_CONVERGED`` when the solver stopped at ``strategy.solver.max_sweeps``;
         ``FAILED`` when the solve converged but the sample run left a request waiting
-        longer than its bound (see :func:`~cellplan.strategies.simulate.simulate_result`).
+        longer than its bound (see :func:`~cellplan.strategies.sim.simulate.simulate_result`).
         ``stats`` holds the solve's figures (gain and its bracket, span, sweeps,
         seconds ...) and the sample run's metrics prefixed ``sim_``.
     """
-    from cellplan.strategies.simulate import simulate_result
-    from cellplan.strategies.strategy import solve_scenario
+    from cellplan.strategies.policy.strategy import solve_scenario
+    from cellplan.strategies.sim.simulate import simulate_result
 
     section = setup.section("strategy")
     cell = setup.workcell

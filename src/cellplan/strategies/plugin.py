@@ -11,8 +11,8 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from cellplan.core import Fact, Package, PlannerSpec
+from cellplan.strategies.model.section import StrategySection
 from cellplan.strategies.planners import StrategiesOptions, run_strategies
-from cellplan.strategies.section import StrategySection
 
 TITLE = "Optimal motion strategies under a stochastic assembly process"
 CITATION = (
@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 
     from cellplan.core import ShowcaseItem
     from cellplan.setup import Setup
-    from cellplan.strategies.model import LayeredMDP
+    from cellplan.strategies.model.mdp import LayeredMDP
 
 
 def describe(setup: Setup) -> Sequence[Fact]:
@@ -47,7 +47,7 @@ def describe(setup: Setup) -> Sequence[Fact]:
     ``strategy_grid`` (list of cells per axis), ``free_live_nr`` (``{"free": float,
     "live": float}``, fractions of the grid).
 
-    Builds the model on the strategy's grid (:func:`~cellplan.strategies.model.build_model`,
+    Builds the model on the strategy's grid (:func:`~cellplan.strategies.model.mdp.build_model`,
     the same call the planner makes), which refuses a request that can never be served
     (a source or destination no configuration reaches, a part that cannot be carried to
     its destination, a free space split between a destination and a source) and a robot
@@ -55,7 +55,7 @@ def describe(setup: Setup) -> Sequence[Fact]:
     """
     import numpy as np
 
-    from cellplan.strategies.model import build_model
+    from cellplan.strategies.model.mdp import build_model
     from cellplan.strategies.planners import check_memory
 
     sc, cell = setup.scenario, setup.workcell
@@ -115,7 +115,7 @@ def describe(setup: Setup) -> Sequence[Fact]:
 def pending_line(R: int, k: int, mdp: LayeredMDP) -> str:
     """The modes of simultaneous requests (Section VI-2): how they split, and how many each
     ``max_pending`` up to ``k`` would give (they grow as ``C(R, k)``)."""
-    from cellplan.strategies.section import mode_counts
+    from cellplan.strategies.model.section import mode_counts
 
     empty, carrying = mode_counts(R, k)
     each = ", ".join(f"{i}: {sum(mode_counts(R, i)):,}" for i in range(1, k + 1))
@@ -138,7 +138,7 @@ def periodic_line(mdp: LayeredMDP) -> str:
 
 def showcase(folder: Path) -> list[ShowcaseItem]:
     """The demo's pictures of this package (Figs. 8 and 9), made through the API."""
-    from cellplan.strategies.showcase import showcase as make
+    from cellplan.strategies.experiments.showcase import showcase as make
 
     return make(folder)
 
@@ -162,7 +162,7 @@ PACKAGE = Package(
     section="strategy",
     section_model=StrategySection,
     planners=(STRATEGIES,),
-    experiments="cellplan.strategies.experiments",
+    experiments="cellplan.strategies.experiments.paper",
     commands="cellplan.strategies.commands",
     paper_runs=10,
     describe=describe,

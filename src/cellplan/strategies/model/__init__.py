@@ -1,0 +1,1 @@
+"""The layered MDP: the grid, the actions and the tables the kernels read (Section V)."""

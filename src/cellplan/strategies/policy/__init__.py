@@ -1,0 +1,1 @@
+"""The solved strategy, its file format and its execution rules."""

@@ -1,0 +1,1 @@
+"""The stochastic simulation of a strategy against request arrivals."""

@@ -1,0 +1,1 @@
+"""The solvers: value iteration sweeps, policy iteration and their compiled kernels."""

@@ -1,0 +1,438 @@
+"""Exact evaluation of a fixed policy on one layer, in dependency order (numba).
+
+The structured solver (:mod:`cellplan.strategies.solve.solver`) runs a modified policy
+iteration on each layer: full Bellman sweeps choose the actions, and between them the
+values of the chosen actions are brought up to date. For a fixed policy the values of a
+layer solve a sparse linear system
+
+    h = c + W h,        D = c_D + W D,
+
+where row ``x`` of ``W`` holds the interpolation weights (Section IV-B of the strategies
+paper) of the landing point of the action chosen at ``x`` (times the probability of
+staying in the layer), ``c`` the stage loss minus ``g`` plus everything read from other,
+fixed layers (the FMP's next mode, request branches), and ``D = dh/dg`` the quantity the
+solver's Newton step on ``g`` needs.
+
+Repeated Gauss-Seidel sweeps solve this slowly when the policy's paths run against the
+sweep directions (the arms of problems 5 and 6 needed 30-70 sweeps per layer and outer
+pass). Here the system is solved in one pass: the dependency graph of the policy (``x``
+depends on the corners it lands between) is split into strongly connected components by
+Tarjan's algorithm, which emits them successors first, and each component is solved once
+its successors are final - a single cell directly (a self-loop divided out), a cycle of
+cells (interpolation can point back) by Gauss-Seidel on that component alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from cellplan.strategies.model.stencils import EPS_W, decode, move_corners
+
+# A component's Gauss-Seidel stops when its values change by less than this (relative).
+COMPONENT_TOL = 1e-13
+# A component that has not converged after this many sweeps is left as it is (a policy
+# that never leaves it has unbounded cost; the next full sweep replaces that policy).
+COMPONENT_SWEEPS = 10000
+
+
+@njit(cache=True)
+def live_cells(livem):  # pragma: no cover - numba
+    """``(cells, local)``: the live cells of a layer and each cell's position among them."""
+    cells = np.flatnonzero(livem)
+    local = np.full(livem.shape[0], -1, np.int64)
+    for v in range(cells.shape[0]):
+        local[cells[v]] = v
+    return cells, local
+
+
+@njit(cache=True)
+def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - numba
+    """The linear system of the policy ``pol[m]`` on layer ``m`` (other layers fixed).
+
+    The same update as :func:`cellplan.strategies.solve.sweeps.sweep_policy` restricted to the
+    recorded action, written as ``(ptr, succ, wt)`` (rows of ``W`` over the local indices
+    of ``cells``), ``const``, ``dconst`` and ``fixed`` (cells without a usable action keep
+    their value).
+    """
+    moves = model.moves
+    grid = model.grid
+    lay = model.layers
+    live = lay.live
+    tf = lay.tf
+    branch_layer = lay.branch_layer
+    branch_prob = lay.branch_prob
+    shape = grid.shape
+    d = shape.shape[0]
+    n = cells.shape[0]
+    ncorner = 1 << d
+    b0 = lay.branch_ptr[m]
+    b1 = lay.branch_ptr[m + 1]
+    nself = 0
+    for b in range(b0, b1):
+        if branch_layer[b] == m and branch_prob[b] > 0.0:
+            nself += 1
+    cap = n * max(1, nself * ncorner)
+    # One branch into the layer itself (C and W without mode changes): interior moves read
+    # the stencil tables directly (the same weights as the general loop below).
+    single = b1 - b0 == 1 and branch_layer[b0] == m and branch_prob[b0] == 1.0
+    livem = live[m]
+    hm = h[m]
+    ptr = np.zeros(n + 1, np.int64)
+    succ = np.empty(cap, np.int64)
+    wt = np.empty(cap)
+    const = np.zeros(n)
+    dconst = np.zeros(n)
+    fixed = np.zeros(n, np.bool_)
+    mi = np.empty(d, np.int64)
+    idx = np.empty(ncorner, np.int64)
+    w = np.empty(ncorner)
+    kcls = lay.vcls[m]
+    nxt = lay.fmp_next[m]
+    step_cost = lay.cost[m] - g
+    ne = 0
+    for v in range(n):
+        c = cells[v]
+        pa = pol[m, c]
+        start = ne
+        ok = True
+        if pa == -2:
+            if nxt >= 0 and tf[m, c] < np.inf and live[nxt, c] and h[nxt, c] < np.inf:
+                const[v] = tf[m, c] - g + h[nxt, c]
+                dconst[v] = -1.0 + D[nxt, c]
+            else:
+                ok = False
+        elif pa == -1:
+            cv = step_cost
+            dv = -1.0
+            for b in range(b0, b1):
+                L = branch_layer[b]
+                p = branch_prob[b]
+                if p == 0.0:
+                    continue
+                if not live[L, c] or h[L, c] == np.inf:
+                    ok = False
+                    break
+                if L == m:
+                    succ[ne] = v
+                    wt[ne] = p
+                    ne += 1
+                else:
+                    cv += p * h[L, c]
+                    dv += p * D[L, c]
+            const[v] = cv
+            dconst[v] = dv
+        elif pa >= 0 and single and moves.interior[kcls, c]:
+            t = 0
+            if moves.heading_axis >= 0:
+                decode(c, shape, mi)
+                t = mi[moves.heading_axis]
+            ssum = 0.0
+            for jj in range(ncorner):
+                wj = moves.cw[kcls, pa, t, jj]
+                if wj <= EPS_W:
+                    break
+                i = c + moves.coff[kcls, pa, t, jj]
+                if livem[i] and hm[i] < np.inf:
+                    ssum += wj
+            if ssum <= EPS_W:
+                ok = False
+            else:
+                for jj in range(ncorner):
+                    wj = moves.cw[kcls, pa, t, jj]
+                    if wj <= EPS_W:
+                        break
+                    i = c + moves.coff[kcls, pa, t, jj]
+                    if livem[i] and hm[i] < np.inf:
+                        succ[ne] = local[i]
+                        wt[ne] = wj / ssum
+                        ne += 1
+                const[v] = step_cost
+                dconst[v] = -1.0
+        elif pa >= 0:
+            inner = moves.interior[kcls, c]
+            # The multi-index is read only at the border or for a robot-frame heading.
+            if not inner or moves.heading_axis >= 0:
+                decode(c, shape, mi)
+            nc = move_corners(
+                kcls,
+                pa,
+                c,
+                mi,
+                inner,
+                moves.offs,
+                moves.fr,
+                moves.coff,
+                moves.cw,
+                moves.heading_axis,
+                grid.shape,
+                grid.periodic,
+                idx,
+                w,
+            )
+            cv = step_cost
+            dv = -1.0
+            for b in range(b0, b1):
+                L = branch_layer[b]
+                p = branch_prob[b]
+                if p == 0.0:
+                    continue
+                ssum = 0.0
+                for j in range(nc):
+                    i = idx[j]
+                    if w[j] > EPS_W and live[L, i] and h[L, i] < np.inf:
+                        ssum += w[j]
+                if ssum <= EPS_W:
+                    ok = False
+                    break
+                for j in range(nc):
+                    i = idx[j]
+                    if w[j] > EPS_W and live[L, i] and h[L, i] < np.inf:
+                        q = p * w[j] / ssum
+                        if L == m:
+                            succ[ne] = local[i]
+                            wt[ne] = q
+                            ne += 1
+                        else:
+                            cv += q * h[L, i]
+                            dv += q * D[L, i]
+            const[v] = cv
+            dconst[v] = dv
+        else:
+            ok = False
+        if not ok:
+            ne = start
+            fixed[v] = True
+        ptr[v + 1] = ne
+    return ptr, succ[:ne], wt[:ne], const, dconst, fixed
+
+
+@njit(cache=True)
+def self_system(m, h, D, g, E, ED, pself, pol, cells, local, model):  # pragma: no cover - numba
+    """The linear system of ``pol[m]`` for the NR update of :func:`.sweeps.sweep_self`.
+
+    Stay is solved exactly, ``h = (l - g + E[c, 0]) / (1 - pself)`` (a constant here); a
+    move costs ``l - g + E[c, 1 + a] + pself * h[m](x')``.
+    """
+    moves = model.moves
+    grid = model.grid
+    live = model.layers.live
+    shape = grid.shape
+    d = shape.shape[0]
+    n = cells.shape[0]
+    ncorner = 1 << d
+    ptr = np.zeros(n + 1, np.int64)
+    succ = np.empty(n * ncorner, np.int64)
+    wt = np.empty(n * ncorner)
+    const = np.zeros(n)
+    dconst = np.zeros(n)
+    fixed = np.zeros(n, np.bool_)
+    mi = np.empty(d, np.int64)
+    idx = np.empty(ncorner, np.int64)
+    w = np.empty(ncorner)
+    kcls = model.layers.vcls[m]
+    step_cost = model.layers.cost[m] - g
+    ne = 0
+    for v in range(n):
+        c = cells[v]
+        pa = pol[m, c]
+        start = ne
+        ok = True
+        if pa == -1:
+            if E[c, 0] < np.inf and pself < 1.0 - 1e-12:
+                const[v] = (step_cost + E[c, 0]) / (1.0 - pself)
+                dconst[v] = (-1.0 + ED[c, 0]) / (1.0 - pself)
+            else:
+                ok = False
+        elif pa >= 0 and E[c, 1 + pa] < np.inf:
+            const[v] = step_cost + E[c, 1 + pa]
+            dconst[v] = -1.0 + ED[c, 1 + pa]
+            if pself > 0.0:
+                inner = moves.interior[kcls, c]
+                # The multi-index is read only at the border or for a robot-frame heading.
+                if not inner or moves.heading_axis >= 0:
+                    decode(c, shape, mi)
+                nc = move_corners(
+                    kcls,
+                    pa,
+                    c,
+                    mi,
+                    inner,
+                    moves.offs,
+                    moves.fr,
+                    moves.coff,
+                    moves.cw,
+                    moves.heading_axis,
+                    grid.shape,
+                    grid.periodic,
+                    idx,
+                    w,
+                )
+                ssum = 0.0
+                for j in range(nc):
+                    i = idx[j]
+                    if w[j] > EPS_W and live[m, i] and h[m, i] < np.inf:
+                        ssum += w[j]
+                if ssum <= EPS_W:
+                    ok = False
+                else:
+                    for j in range(nc):
+                        i = idx[j]
+                        if w[j] > EPS_W and live[m, i] and h[m, i] < np.inf:
+                            succ[ne] = local[i]
+                            wt[ne] = pself * w[j] / ssum
+                            ne += 1
+        else:
+            ok = False
+        if not ok:
+            ne = start
+            fixed[v] = True
+        ptr[v + 1] = ne
+    return ptr, succ[:ne], wt[:ne], const, dconst, fixed
+
+
+@njit(cache=True)
+def components(ptr, succ):  # pragma: no cover - numba
+    """Strongly connected components, successors first (Tarjan, iterative).
+
+    Returns ``(members, comp_ptr)``: component ``k`` is
+    ``members[comp_ptr[k]:comp_ptr[k + 1]]``; every edge leaving a component points into
+    an earlier one.
+    """
+    n = ptr.shape[0] - 1
+    index = np.full(n, -1, np.int64)
+    low = np.zeros(n, np.int64)
+    onstack = np.zeros(n, np.bool_)
+    stack = np.empty(n, np.int64)
+    call_node = np.empty(n, np.int64)
+    call_edge = np.empty(n, np.int64)
+    members = np.empty(n, np.int64)
+    comp_ptr = np.zeros(n + 1, np.int64)
+    counter = 0
+    sp = 0
+    nout = 0
+    ncomp = 0
+    for s in range(n):
+        if index[s] >= 0:
+            continue
+        index[s] = counter
+        low[s] = counter
+        counter += 1
+        stack[sp] = s
+        sp += 1
+        onstack[s] = True
+        call_node[0] = s
+        call_edge[0] = ptr[s]
+        csp = 1
+        while csp > 0:
+            v = call_node[csp - 1]
+            e = call_edge[csp - 1]
+            if e < ptr[v + 1]:
+                call_edge[csp - 1] = e + 1
+                u = succ[e]
+                if index[u] < 0:
+                    index[u] = counter
+                    low[u] = counter
+                    counter += 1
+                    stack[sp] = u
+                    sp += 1
+                    onstack[u] = True
+                    call_node[csp] = u
+                    call_edge[csp] = ptr[u]
+                    csp += 1
+                elif onstack[u] and index[u] < low[v]:
+                    low[v] = index[u]
+            else:
+                if low[v] == index[v]:
+                    while True:
+                        sp -= 1
+                        u = stack[sp]
+                        onstack[u] = False
+                        members[nout] = u
+                        nout += 1
+                        if u == v:
+                            break
+                    ncomp += 1
+                    comp_ptr[ncomp] = nout
+                csp -= 1
+                if csp > 0:
+                    parent = call_node[csp - 1]
+                    if low[v] < low[parent]:
+                        low[parent] = low[v]
+    return members, comp_ptr[: ncomp + 1]
+
+
+@njit(cache=True, inline="always")
+def _row(v, ptr, succ, wt, const, dconst, hl, Dl):  # pragma: no cover - numba
+    """``(h, D)`` of row ``v`` with its self-loop divided out (``nan`` if it is total)."""
+    val = const[v]
+    der = dconst[v]
+    selfw = 0.0
+    for e in range(ptr[v], ptr[v + 1]):
+        u = succ[e]
+        if u == v:
+            selfw += wt[e]
+        else:
+            val += wt[e] * hl[u]
+            der += wt[e] * Dl[u]
+    if selfw >= 1.0 - 1e-12:
+        return np.nan, np.nan
+    return val / (1.0 - selfw), der / (1.0 - selfw)
+
+
+@njit(cache=True)
+def solve_system(ptr, succ, wt, const, dconst, fixed, hl, Dl):  # pragma: no cover - numba
+    """Solve ``h = const + W h`` and ``D = dconst + W D`` in place, component by component.
+
+    ``fixed`` rows keep their values.
+    """
+    members, comp_ptr = components(ptr, succ)
+    for k in range(comp_ptr.shape[0] - 1):
+        a = comp_ptr[k]
+        b = comp_ptr[k + 1]
+        if b - a == 1:
+            # A single cell (nearly all of them): its successors are final, one solve.
+            v = members[a]
+            if not fixed[v]:
+                val, der = _row(v, ptr, succ, wt, const, dconst, hl, Dl)
+                if val == val:  # else a total self-loop: no finite value under this policy
+                    hl[v] = val
+                    Dl[v] = der
+            continue
+        # Gauss-Seidel round a cycle needs finite starting values.
+        for j in range(a, b):
+            v = members[j]
+            if not fixed[v] and not hl[v] < np.inf:
+                hl[v] = 0.0
+        for _ in range(COMPONENT_SWEEPS):
+            worst = 0.0
+            for j in range(a, b):
+                v = members[j]
+                if fixed[v]:
+                    continue
+                val, der = _row(v, ptr, succ, wt, const, dconst, hl, Dl)
+                if val != val:
+                    continue
+                rel = abs(val - hl[v]) / (1.0 + abs(val))
+                if rel > worst:
+                    worst = rel
+                hl[v] = val
+                Dl[v] = der
+            if worst < COMPONENT_TOL:
+                break
+
+
+@njit(cache=True)
+def evaluate(hm, Dm, cells, ptr, succ, wt, const, dconst, fixed):  # pragma: no cover - numba
+    """Solve the system of :func:`layer_system` / :func:`self_system` into a layer's
+    ``hm`` and ``Dm`` (indexed by cell)."""
+    n = cells.shape[0]
+    hl = np.empty(n)
+    Dl = np.empty(n)
+    for v in range(n):
+        hl[v] = hm[cells[v]]
+        Dl[v] = Dm[cells[v]]
+    solve_system(ptr, succ, wt, const, dconst, fixed, hl, Dl)
+    for v in range(n):
+        hm[cells[v]] = hl[v]
+        Dm[cells[v]] = Dl[v]

@@ -1,0 +1,762 @@
+"""Average-cost policy iteration over every live state (Howard; Puterman 1994, Sec. 8.6).
+
+The structured solver (:func:`cellplan.strategies.solve.solver.solve_structured`) needs the
+Section V shape of the model: a carrying layer's FMP ends in NR, a waiting layer's in its
+carrying layer, with certainty, and a move lands where it is commanded. With failure
+modes (Section VI-3 of the strategies paper) an FMP has several outcomes (a retry in
+place, a rejected part carried elsewhere), with noisy motion (Section VI-4) a move has
+several landings, and relative value iteration
+(:func:`~cellplan.strategies.solve.solver.solve_general`) needs thousands of sweeps because the
+request cycle mixes slowly. Policy iteration needs a handful of iterations, each
+
+1. *assembly*: the policy's transition matrix ``P`` over the live states in CSR and its
+   cost ``c`` (the numba kernel :func:`policy_rows`, with the transition law of
+   :func:`cellplan.strategies.solve.bellman.bellman_rows`: moves land on the live corners of
+   their stencil, renormalised, in every branch, at every landing of a noisy move; stay
+   keeps the cell in every branch; FMP takes its outcomes);
+2. *unichain check* (:func:`unichain`): the strongly connected components of the chain;
+   if more than one is closed, the states that do not reach the first take actions one
+   hop nearer to it;
+3. *evaluation* (:func:`evaluate`): ``h + g = c + P h`` exactly, by one sparse LU
+   (SuperLU) on the recurrent class and back-substitution of the transient components in
+   their order (:func:`back_substitute`);
+4. *improvement*: a few value iteration sweeps from ``h`` (modified policy iteration,
+   :data:`LOOKAHEAD_SWEEPS`), then the Jacobi Bellman operator
+   (:func:`cellplan.strategies.solve.solver.bellman`); a state changes its action only where the
+   best action beats the current one by more than a small relative margin, so ties never
+   make the policy cycle.
+
+The first policy is proper by construction: NR stays where it is, and every other state
+takes an action with a successor one hop nearer to NR (hop distances through the union of
+every action's successors, Gauss-Seidel sweeps of ``d(s) = 1 + min_a min_{s'} d(s')`` by
+:func:`hop_sweep`, layers in the order they read each other), so every request is
+finished with probability one. If a factorisation fails anyway, or its solution does not
+satisfy its equations, relative value iteration sweeps from the last values stand in for
+the evaluation. The answer is certified like every solve (:func:`.solver._finish`).
+docs/strategies.md ("Policy iteration") has the choices and the measurements.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from numba import njit
+from scipy.sparse import csgraph
+from scipy.sparse.linalg import splu
+
+from cellplan.strategies.model.bundles import Model
+from cellplan.strategies.model.mdp import LayeredMDP
+from cellplan.strategies.model.stencils import (
+    EPS_W,
+    cell_of_order,
+    decode,
+    fmp_code,
+    fmp_option,
+    move_corners,
+)
+from cellplan.strategies.solve.bellman import residual_range
+from cellplan.strategies.solve.noisy import landing_row
+from cellplan.strategies.solve.solver import (
+    INNER_FACTOR,
+    Certificate,
+    Progress,
+    SolveResult,
+    _finish,
+    bellman,
+    solve_general,
+)
+from cellplan.strategies.solve.threads import Workers, workers_for
+
+log = logging.getLogger(__name__)
+
+# An action replaces the current one only if it is better by this much (relative to the
+# size of the value): ties and rounding never make the policy cycle.
+IMPROVE_MARGIN = 1e-10
+# Residual of an evaluation above which it is not trusted (relative to max |h| + 1).
+EVAL_RESIDUAL = 1e-7
+# Cap of the Gauss-Seidel sweeps of the hop distances (each at least one more hop).
+MAX_HOP_SWEEPS = 100_000
+# Relative value iteration sweeps per recovery from a failed evaluation.
+RECOVERY_SWEEPS = 200
+# Value iteration sweeps between an evaluation and the next improvement.
+LOOKAHEAD_SWEEPS = 4
+# Strongly connected components larger than this are evaluated by sparse LU, smaller ones
+# by Gauss-Seidel on the component.
+DIRECT_ABOVE = 64
+
+
+@njit(cache=True, nogil=True)
+def action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p):  # pragma: no cover
+    """Successor states of action ``a`` at live state ``(m, c)`` and their probabilities.
+
+    ``a`` is an FMP code (``-2``, or ``-3 - j`` for option ``j``), ``-1`` (stay) or a
+    move. Fills ``out_s`` (state indices from ``index``) and ``out_p``; returns
+    ``(n, cost)``, ``n = -1`` where the action is not available (FMP not allowed or an
+    outcome not live; a move not collision-free, or a branch with no live corner). The
+    law is that of
+    :func:`cellplan.strategies.solve.bellman.bellman_rows` (the same weights and renormalisation);
+    a successor may appear twice (the caller's sparse matrix sums them). ``mi`` is the
+    multi-index of ``c``; ``idx`` and ``w`` are scratch of ``2^d``.
+    """
+    lay = model.layers
+    moves = model.moves
+    grid = model.grid
+    live = lay.live
+    n = 0
+    j = fmp_option(a)
+    if j >= 0:
+        opt = lay.opt_ptr[m] + j
+        if lay.fmp_next[m] < 0 or opt >= lay.opt_ptr[m + 1] or not lay.tf[opt, c] < np.inf:
+            return -1, 0.0
+        cost = lay.tf[opt, c]
+        for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
+            p = lay.out_prob[o]
+            if p <= 0.0:
+                continue
+            L = lay.out_layer[o]
+            if not live[L, c]:
+                return -1, 0.0
+            cost += p * lay.out_cost[o]
+            out_s[n] = index[L, c]
+            out_p[n] = p
+            n += 1
+        return n, cost
+    cost = lay.cost[m]
+    b0 = lay.branch_ptr[m]
+    b1 = lay.branch_ptr[m + 1]
+    if a == -1:
+        for b in range(b0, b1):
+            L = lay.branch_layer[b]
+            if not live[L, c]:
+                return -1, 0.0
+            p = lay.branch_prob[b]
+            if p > 0.0:
+                out_s[n] = index[L, c]
+                out_p[n] = p
+                n += 1
+        return n, cost
+    k = lay.vcls[m]
+    na = moves.nact[k]
+    if a >= na or ((moves.valid[k, c] >> a) & 1) == 0:
+        return -1, 0.0
+    # With noisy motion (Section VI-4) the move lands at each of J displacements with
+    # probability noise_prob[j] (table rows na + a J + j, :mod:`.noisy`); else J = 1.
+    J = moves.noise_prob.shape[0]
+    for jn in range(J):
+        pj = moves.noise_prob[jn] if J > 1 else 1.0
+        if pj <= 0.0:
+            continue
+        nc = move_corners(
+            k,
+            landing_row(na, a, jn, J) if J > 1 else a,
+            c,
+            mi,
+            moves.interior[k, c],
+            moves.offs,
+            moves.fr,
+            moves.coff,
+            moves.cw,
+            moves.heading_axis,
+            grid.shape,
+            grid.periodic,
+            idx,
+            w,
+        )
+        for b in range(b0, b1):
+            L = lay.branch_layer[b]
+            ssum = 0.0
+            for j in range(nc):
+                if w[j] > EPS_W and live[L, idx[j]]:
+                    ssum += w[j]
+            if ssum <= EPS_W:
+                return -1, 0.0
+            p = lay.branch_prob[b] * pj
+            if p <= 0.0:
+                continue
+            for j in range(nc):
+                if w[j] > EPS_W and live[L, idx[j]]:
+                    out_s[n] = index[L, idx[j]]
+                    out_p[n] = p * w[j] / ssum
+                    n += 1
+    return n, cost
+
+
+@njit(cache=True, nogil=True)
+def policy_rows(
+    states, actions, index, starts, cols, vals, counts, cost, start, stop, model
+):  # pragma: no cover - numba
+    """Rows ``start:stop`` of the policy's transition matrix and its cost vector.
+
+    ``states`` are the flat ``m * N + c`` of the live states, ``actions`` their actions.
+    Row ``k``'s successors and probabilities are written from ``starts[k]`` on (room for
+    the most its mode can have), their number to ``counts[k]``, its loss to ``cost[k]``.
+    Returns the number of rows whose action is not available (0 for a policy chosen by
+    the Bellman operator; such a row is left empty).
+    """
+    ncell = model.layers.live.shape[1]
+    shape = model.grid.shape
+    d = shape.shape[0]
+    mi = np.empty(d, np.int64)
+    idx = np.empty(1 << d, np.int64)
+    w = np.empty(1 << d)
+    bad = 0
+    for k in range(start, stop):
+        m = states[k] // ncell
+        c = states[k] % ncell
+        decode(c, shape, mi)
+        at = starts[k]
+        room = starts[k + 1] - at
+        n, cst = action_successors(
+            m, c, actions[k], mi, index, model, idx, w, cols[at : at + room], vals[at : at + room]
+        )
+        if n < 0:
+            bad += 1
+            n = 0
+        counts[k] = n
+        cost[k] = cst
+    return bad
+
+
+@njit(cache=True, nogil=True)
+def hop_sweep(dist, act, fixed, index, order, flips, usable, model):  # pragma: no cover
+    """One Gauss-Seidel sweep of the hop distances ``d(s) = 1 + min_a min_{s'} d(s')``.
+
+    ``dist`` (per state: 0 on the targets, a large number where unknown) and ``act`` are
+    updated in place, except at the ``fixed`` states (the targets), which keep their
+    action (or take the first available one, stay first, where it is ``-3``). The layers
+    are visited in ``order``, the cells of each in the sweep order ``flips``
+    (:func:`~cellplan.strategies.model.stencils.cell_of_order`). A state takes the action with
+    the successor nearest to the targets, among the moves whose every successor is a live
+    state (``usable``, a bitmask per state, found on the first visit: -1 before); a noisy
+    move's successors for the distance are those of its first landing (Section VI-4).
+    Returns whether any distance fell.
+    """
+    lay = model.layers
+    moves = model.moves
+    live = lay.live
+    shape = model.grid.shape
+    ncell = live.shape[1]
+    d = shape.shape[0]
+    mi = np.empty(d, np.int64)
+    idx = np.empty(1 << d, np.int64)
+    w = np.empty(1 << d)
+    width = (
+        (1 << d)
+        * moves.noise_prob.shape[0]
+        * (lay.branch_prob.shape[0] + lay.out_prob.shape[0] + 1)
+    )
+    out_s = np.empty(width, np.int64)
+    out_p = np.empty(width)
+    changed = False
+    J = moves.noise_prob.shape[0]
+    j0 = 0
+    while J > 1 and moves.noise_prob[j0] <= 0.0:
+        j0 += 1
+    for m in order:
+        na = moves.nact[lay.vcls[m]]
+        for kk in range(ncell):
+            c = cell_of_order(kk, shape, flips, mi)
+            if not live[m, c]:
+                continue
+            s = index[m, c]
+            nopt = lay.opt_ptr[m + 1] - lay.opt_ptr[m]
+            if fixed[s]:
+                # The first available action: stay, the moves, then the FMP options.
+                for a in range(-1, na + nopt):
+                    if act[s] == -3:
+                        aa = a if a < na else fmp_code(a - na)
+                        n, _ = action_successors(m, c, aa, mi, index, model, idx, w, out_s, out_p)
+                        if n >= 0:
+                            act[s] = aa
+                continue
+            best = dist[s]
+            arg = act[s]
+            # FMP and stay: their successors keep the cell.
+            for j in range(nopt if lay.fmp_next[m] >= 0 else 0):
+                opt = lay.opt_ptr[m] + j
+                if not lay.tf[opt, c] < np.inf:
+                    continue
+                near = np.inf
+                for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
+                    if lay.out_prob[o] > 0.0:
+                        L = lay.out_layer[o]
+                        near = min(near, dist[index[L, c]]) if live[L, c] else -np.inf
+                if near > -np.inf and near + 1 < best:
+                    best = near + 1
+                    arg = fmp_code(j)
+            near = np.inf
+            for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+                L = lay.branch_layer[b]
+                if not live[L, c]:
+                    near = np.inf
+                    break
+                if lay.branch_prob[b] > 0.0:
+                    near = min(near, dist[index[L, c]])
+            if near + 1 < best:
+                best = near + 1
+                arg = -1
+            # Moves, written out (a helper call per move costs ten times the work here).
+            k = lay.vcls[m]
+            b0 = lay.branch_ptr[m]
+            b1 = lay.branch_ptr[m + 1]
+            vb = moves.valid[k, c]
+            # The moves every landing of which has a live corner in every branch do not
+            # change from sweep to sweep: found once per state (usable[s] < 0 until then).
+            bits = usable[s]
+            if bits < 0:
+                bits = 0
+                for a in range(na):
+                    if ((vb >> a) & 1) == 0:
+                        continue
+                    ok = True
+                    for jn in range(J):  # the landings of a noisy move (one without noise)
+                        if J > 1 and moves.noise_prob[jn] <= 0.0:
+                            continue
+                        nc = move_corners(
+                            k, landing_row(na, a, jn, J) if J > 1 else a, c, mi,
+                            moves.interior[k, c], moves.offs, moves.fr, moves.coff, moves.cw,
+                            moves.heading_axis, shape, model.grid.periodic, idx, w,
+                        )  # fmt: skip
+                        for b in range(b0, b1):
+                            L = lay.branch_layer[b]
+                            sup = False
+                            for j in range(nc):
+                                if w[j] > EPS_W and live[L, idx[j]]:
+                                    sup = True
+                                    break
+                            if not sup:
+                                ok = False
+                                break
+                        if not ok:
+                            break
+                    if ok:
+                        bits |= 1 << a
+                usable[s] = bits
+            # A hop goes through the first landing of positive probability: progress there
+            # has positive probability, which is all a proper policy needs.
+            for a in range(na):
+                if ((bits >> a) & 1) == 0:
+                    continue
+                nc = move_corners(
+                    k, landing_row(na, a, j0, J) if J > 1 else a, c, mi,
+                    moves.interior[k, c], moves.offs, moves.fr, moves.coff, moves.cw,
+                    moves.heading_axis, shape, model.grid.periodic, idx, w,
+                )  # fmt: skip
+                near = np.inf
+                for b in range(b0, b1):
+                    if lay.branch_prob[b] <= 0.0:
+                        continue
+                    L = lay.branch_layer[b]
+                    for j in range(nc):
+                        if w[j] > EPS_W and live[L, idx[j]]:
+                            near = min(near, dist[index[L, idx[j]]])
+                if near + 1 < best:
+                    best = near + 1
+                    arg = a
+            act[s] = arg
+            if best < dist[s]:
+                dist[s] = best
+                changed = True
+    return changed
+
+
+@njit(cache=True, nogil=True)
+def back_substitute(
+    indptr, indices, data, cost, g, h, order, starts, first, last
+):  # pragma: no cover
+    """``h = c - g + P h`` on the strongly connected components ``first:last`` of the chain.
+
+    The components are numbered sinks first (every edge leaves a component for one with a
+    smaller number), their states are ``order[starts[k]:starts[k + 1]]``, and ``h`` is
+    known on every state they lead to. A single state is solved directly (its self-loop
+    divided out); a small component (interpolation cycles) by Gauss-Seidel on itself
+    alone, which converges since it is transient. Returns the largest number of
+    Gauss-Seidel passes one component needed.
+    """
+    most = 0
+    for k in range(first, last):
+        a = starts[k]
+        b = starts[k + 1]
+        passes = 0
+        while True:
+            change = 0.0
+            for q in range(a, b):
+                s = order[q]
+                acc = cost[s] - g
+                diag = 1.0
+                for e in range(indptr[s], indptr[s + 1]):
+                    j = indices[e]
+                    if j == s:
+                        diag -= data[e]
+                    else:
+                        acc += data[e] * h[j]
+                new = acc / diag
+                change = max(change, abs(new - h[s]) / (1.0 + abs(new)))
+                h[s] = new
+            passes += 1
+            if b - a == 1 or change <= 1e-15 or passes >= 100_000:
+                break
+        most = max(most, passes)
+    return most
+
+
+class _Chain:
+    """The live states of a model as one index ``0..S-1`` (flat ``m * N + c`` order)."""
+
+    def __init__(self, mdp: LayeredMDP) -> None:
+        live = mdp.live
+        self.shape = live.shape
+        self.states = np.flatnonzero(live.ravel()).astype(np.int64)
+        self.size = len(self.states)
+        self.index = np.full(live.shape, -1, np.int64)
+        self.index.ravel()[self.states] = np.arange(self.size)
+        # Room for each state's row of a policy's matrix (:func:`assemble`): from
+        # ``starts[k]``; ``slot`` is each place's position in its row, ``slot_row`` its row.
+        room = row_room(mdp)[self.states // live.shape[1]]
+        self.starts = np.zeros(self.size + 1, np.int64)
+        np.cumsum(room, out=self.starts[1:])
+        self.slot_row = np.repeat(np.arange(self.size), room)
+        self.slot = np.arange(int(self.starts[-1])) - self.starts[self.slot_row]
+
+    def spread(self, x: np.ndarray, fill: float = 0.0) -> np.ndarray:
+        """A per-state vector as an ``(M, N)`` array (``fill`` outside the live states)."""
+        out = np.full(self.shape, fill)
+        out.ravel()[self.states] = x
+        return out
+
+
+def layer_order(mdp: LayeredMDP) -> np.ndarray:
+    """Layers in the order in which hop distances from NR reach them (NR first).
+
+    A layer follows the layers it reads (its branches and FMP outcomes), so one
+    Gauss-Seidel sweep carries the distances round the request cycle
+    (NR <- C <- W <- NR in the Section V model).
+    """
+    out = mdp.fmp_outcomes()
+    options = mdp.options
+    M = mdp.n_modes
+    readers: list[set[int]] = [set() for _ in range(M)]
+    for m in range(M):
+        for b in range(mdp.branch_ptr[m], mdp.branch_ptr[m + 1]):
+            readers[int(mdp.branch_layer[b])].add(m)
+        for o in range(out.ptr[options[m]], out.ptr[options[m + 1]]):
+            readers[int(out.layer[o])].add(m)
+    order = [0]
+    seen = {0}
+    for L in order:  # grows while it is walked: a breadth-first order
+        for m in sorted(readers[L] - seen):
+            seen.add(m)
+            order.append(m)
+    order += [m for m in range(M) if m not in seen]
+    return np.array(order, np.int64)
+
+
+def hop_policy(
+    mdp: LayeredMDP, chain: _Chain, targets: np.ndarray, actions: np.ndarray, model: Model
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Actions that reach ``targets`` (bool per state) with probability one.
+
+    Returns ``(actions, hop distances, sweeps)``: every other state takes an action with a
+    successor one hop nearer to the targets (hop distances through the union of every
+    action's successors, Gauss-Seidel sweeps in alternating cell orders, layers in
+    :func:`layer_order`); the targets keep their ``actions`` (or take an available one
+    where it is ``-3``). Distances stay at ``S`` (the number of states) where no target
+    can be reached.
+    """
+    S = chain.size
+    dist = np.where(targets, 0.0, float(S))
+    act = np.where(targets, actions, -3).astype(np.int64)
+    order = layer_order(mdp)
+    d = len(mdp.shape)
+    usable = np.full(S, -1, np.int64)  # per state, the moves a policy may take (bitmask)
+    sweeps = 0
+    while sweeps < MAX_HOP_SWEEPS:
+        flips = sweeps % (1 << d)
+        changed = hop_sweep(dist, act, targets, chain.index, order, flips, usable, model)
+        sweeps += 1
+        if not changed:
+            break
+    return act, dist, sweeps
+
+
+def row_room(mdp: LayeredMDP) -> np.ndarray:
+    """The most successors a state of each mode can have under one action (per mode)."""
+    out = mdp.fmp_outcomes()
+    corners = (1 << len(mdp.shape)) * len(mdp.noise_prob)  # per landing of a noisy move
+    branches = np.diff(mdp.branch_ptr)
+    options = mdp.options
+    per_option = np.diff(out.ptr)
+    fmp = np.array(
+        [per_option[options[m] : options[m + 1]].max(initial=0) for m in range(mdp.n_modes)],
+        np.int64,
+    )
+    return np.maximum(branches * corners, fmp).astype(np.int64)
+
+
+def assemble(
+    chain: _Chain, actions: np.ndarray, model: Model, workers: Workers
+) -> tuple[sp.csr_matrix, np.ndarray, int]:
+    """The policy's transition matrix over the live states (CSR), its cost vector, and the
+    number of states whose action is not available (their rows are empty).
+
+    One pass of :func:`policy_rows` writes each row into the room its mode may need
+    (:func:`row_room`); the rows are then packed.
+    """
+    S = chain.size
+    starts = chain.starts
+    cols = np.empty(int(starts[-1]), np.int64)
+    vals = np.empty(int(starts[-1]))
+    counts = np.zeros(S, np.int64)
+    cost = np.zeros(S)
+
+    def rows(r: tuple[int, int]) -> int:
+        return int(
+            policy_rows(
+                chain.states,
+                actions,
+                chain.index,
+                starts,
+                cols,
+                vals,
+                counts,
+                cost,
+                r[0],
+                r[1],
+                model,
+            )
+        )
+
+    bad = sum(workers.map(rows, workers.ranges(S)))
+    keep = chain.slot < counts[chain.slot_row]
+    indptr = np.zeros(S + 1, np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    P = sp.csr_matrix(
+        (vals[keep], cols[keep].astype(np.int32), indptr.astype(np.int32)), shape=(S, S)
+    )
+    P.sum_duplicates()
+    return P, cost, bad
+
+
+def evaluate(
+    P: sp.csr_matrix,
+    cost: np.ndarray,
+    labels: np.ndarray,
+    actions: np.ndarray,
+    memo: dict[str, Any],
+) -> tuple[float, np.ndarray, int]:
+    """``(g, h, nnz of the LU factors)`` of a unichain policy: ``h + g = c + P h``.
+
+    ``labels`` are the strongly connected components of the chain, sinks first (as
+    :func:`scipy.sparse.csgraph.connected_components` numbers them); the first closed one
+    is the recurrent class. Its equations, with ``h = 0`` at its first state, give ``g``:
+    ``(I - P)`` on the class with that state's column replaced by ones (its unknown is
+    ``g``), one sparse LU (SuperLU). The transient states follow in the components'
+    order, each known once the components it leads to are (:func:`back_substitute`);
+    components larger than :data:`DIRECT_ABOVE` states are solved by LU too. ``memo``
+    keeps the recurrent class's solution: while the class and its ``actions`` stay the
+    same (the late iterations improve transient states only), it is not factorised
+    again. Raises
+    ``RuntimeError`` (SuperLU) when a system is singular.
+    """
+    S = P.shape[0]
+    order = np.argsort(labels, kind="stable")
+    n = int(labels.max()) + 1
+    starts = np.searchsorted(labels[order], np.arange(n + 1)).astype(np.int64)
+    sizes = np.diff(starts)
+    h = np.zeros(S)
+    # Component 0 is closed (a sink is numbered before whatever leads to it); in a
+    # unichain policy it is the recurrent class.
+    members = order[starts[0] : starts[1]]
+    key = (members.tobytes(), actions[members].tobytes())
+    if memo.get("key") != key:
+        # The recurrent class changed (or its actions did): factorise its system again.
+        sub = P[members][:, members].tocoo()
+        off = sub.col != 0
+        size = len(members)
+        rows = np.concatenate([sub.row[off], np.arange(1, size), np.arange(size)])
+        cols = np.concatenate([sub.col[off], np.arange(1, size), np.zeros(size, np.int64)])
+        vals = np.concatenate([-sub.data[off], np.ones(size - 1), np.ones(size)])
+        lu = splu(sp.csc_matrix((vals, (rows, cols)), shape=(size, size)))
+        x = lu.solve(cost[members])
+        # SuperLU's own count: reading lu.L and lu.U would copy the factors.
+        memo.update(key=key, x=x, fill=int(lu.nnz))
+    x = memo["x"].copy()
+    g = float(x[0])
+    x[0] = 0.0
+    h[members] = x
+    fill = int(memo["fill"])
+    first = 1
+    for k in [*(int(k) for k in np.flatnonzero(sizes > DIRECT_ABOVE) if k > 0), n]:
+        back_substitute(P.indptr, P.indices, P.data, cost, g, h, order, starts, first, k)
+        if k == n:
+            break
+        idx = order[starts[k] : starts[k + 1]]
+        rest = cost[idx] - g + P[idx] @ h  # h is still 0 on the component itself
+        lub = splu((sp.identity(len(idx), format="csc") - P[idx][:, idx]).tocsc())
+        h[idx] = lub.solve(rest)
+        fill = max(fill, int(lub.nnz))
+        first = k + 1
+    return g, h, fill
+
+
+def unichain(
+    mdp: LayeredMDP, chain: _Chain, P: sp.csr_matrix, actions: np.ndarray, model: Model
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Make the policy unichain; returns ``(actions, component labels, states changed)``.
+
+    The recurrent classes of the policy are the closed strongly connected components of
+    its chain (:func:`scipy.sparse.csgraph.connected_components` numbers them sinks
+    first, so component 0 is closed). With several, the states that do not reach
+    component 0 take actions one hop nearer to it (:func:`hop_policy`; the class keeps
+    its actions): the others still reach it, and these now do too. The labels returned
+    are those of the policy returned (recomputed after a repair).
+    """
+    changed = 0
+    for _ in range(2):
+        _, labels = csgraph.connected_components(P, directed=True, connection="strong")
+        rows = np.repeat(np.arange(chain.size), np.diff(P.indptr))
+        cross = labels[rows] != labels[P.indices]
+        leaves = np.zeros(int(labels.max()) + 1, np.bool_)
+        leaves[labels[rows[cross]]] = True
+        if np.count_nonzero(~leaves) == 1:
+            return actions, labels, changed
+        start = int(np.flatnonzero(labels == 0)[0])
+        reach = csgraph.breadth_first_order(P.T, start, directed=True, return_predecessors=False)
+        ok = np.zeros(chain.size, np.bool_)
+        ok[reach] = True
+        hop, _, _ = hop_policy(mdp, chain, labels == 0, actions, model)
+        actions = np.where(ok, actions, hop)
+        changed += int(np.count_nonzero(~ok))
+        P, _, _ = assemble(chain, actions, model, Workers(1))
+    raise RuntimeError("policy iteration: the repaired policy is not unichain (a bug)")
+
+
+def solve_policy_iteration(
+    mdp: LayeredMDP,
+    tol: float = 1e-6,
+    max_iterations: int = 500,
+    progress: Progress | None = None,
+    threads: int | None = None,
+) -> SolveResult:
+    """Average-cost policy iteration over every live state (module docstring).
+
+    Stops when an improvement changes no action, or when the Bellman bracket of the
+    evaluated policy is already narrower than ``tol / 100``; gives up (``NOT_CONVERGED``)
+    after ``max_iterations`` iterations. The result is certified by
+    :func:`cellplan.strategies.solve.solver._finish` (``SOLVED`` only when the span test
+    passes). ``sweeps`` and ``full_sweeps`` count the Jacobi Bellman sweeps over every
+    state (per iteration one plus :data:`LOOKAHEAD_SWEEPS`, plus any recovery sweeps;
+    the certificate's two are added to ``full_sweeps``), ``eval_sweeps`` the exact
+    evaluations, ``outer_iterations`` the iterations. ``threads``: as in
+    :func:`cellplan.strategies.solve.solver.solve`.
+    """
+    t0 = time.perf_counter()
+    live = mdp.live
+    chain = _Chain(mdp)
+    model = mdp.kernel_args()
+    ref_cell = int(np.flatnonzero(live[0])[0])
+    # The first policy: NR waits where it is (stay, the reactive robot), every other state
+    # heads for NR by the fewest stages (hop distances to the NR states).
+    nr = chain.states < live.shape[1]
+    actions, dist, hops = hop_policy(mdp, chain, nr, np.full(chain.size, -3), model)
+    unreachable = int(np.count_nonzero(dist >= chain.size))
+    log.debug("first policy: %d hop sweeps, %d states unreachable", hops, unreachable)
+    if unreachable:
+        log.warning(
+            "policy iteration: %d live states cannot reach NR; solving by relative value iteration",
+            unreachable,
+        )
+        return solve_general(mdp, tol, progress=progress, threads=threads)
+    h = np.zeros(chain.size)
+    g = 0.0
+    sweeps = 0
+    evaluations = 0
+    it = 0
+    cert: Certificate | None = None
+    memo: dict[str, Any] = {}
+    with workers_for(chain.size, threads) as workers:
+        for it in range(1, max_iterations + 1):
+            P, cost, bad = assemble(chain, actions, model, workers)
+            if bad:
+                raise RuntimeError(
+                    f"policy iteration: {bad} states have an unavailable action (a bug)"
+                )
+            repaired, labels, fixed = unichain(mdp, chain, P, actions, model)
+            if fixed:
+                log.debug("iteration %d: %d states did not reach the recurrent class", it, fixed)
+                actions = repaired
+                P, cost, _ = assemble(chain, actions, model, workers)
+            try:
+                g, h_new, _ = evaluate(P, cost, labels, actions, memo)
+                evaluations += 1
+                res = cost - g + P @ h_new - h_new
+                trusted = bool(
+                    np.all(np.isfinite(h_new))
+                    and np.max(np.abs(res)) <= EVAL_RESIDUAL * (1.0 + np.max(np.abs(h_new)))
+                )
+            except RuntimeError as err:  # a singular factor
+                log.debug("iteration %d: evaluation failed (%s)", it, err)
+                trusted = False
+            hfull = chain.spread(h)
+            if trusted:
+                h = h_new
+                hfull = chain.spread(h)
+            else:
+                hfull, n = _recover(mdp, hfull, ref_cell, workers)
+                sweeps += n
+                h = hfull.ravel()[chain.states]
+            th, pol, gap = bellman(mdp, hfull, workers=workers)
+            sweeps += 1
+            lo, hi = (float(v) for v in residual_range(th, hfull, live))
+            cert = (lo, hi, th, pol, gap)
+            cert_pol = pol
+            if progress is not None:
+                progress(it, hi - lo, 0.5 * (lo + hi))
+            q = cost + P @ h
+            thv = th.ravel()[chain.states]
+            better = thv < q - IMPROVE_MARGIN * np.maximum(1.0, np.abs(q))
+            changes = int(np.count_nonzero(better))
+            log.debug(
+                "iteration %d: g %.10f bracket [%.10f, %.10f] changes %d", it, g, lo, hi, changes
+            )
+            if changes == 0 or hi - lo < tol * INNER_FACTOR:
+                break
+            cert = None
+            # Modified policy iteration: a few value iteration sweeps from the policy's
+            # values carry an improvement several states further up the paths before
+            # the next (greedy) policy is taken; late iterations otherwise move it by
+            # one state each, along every path whose better route is found at its end.
+            h2 = hfull
+            for _ in range(LOOKAHEAD_SWEEPS):
+                h2 = np.where(live, th - g, 0.0)
+                th, pol, _ = bellman(mdp, h2, workers=workers)
+                sweeps += 1
+            q2 = cost + P @ h2.ravel()[chain.states]
+            thv = th.ravel()[chain.states]
+            better2 = thv < q2 - IMPROVE_MARGIN * np.maximum(1.0, np.abs(q2))
+            if np.any(better2):
+                better = better2
+            else:
+                pol = cert_pol
+            actions = np.where(better, pol.ravel()[chain.states], actions)
+        result = _finish(
+            mdp, chain.spread(h), g, tol, sweeps, sweeps, it, "policy", t0, ref_cell, cert, workers
+        )
+    result.eval_sweeps = evaluations
+    return result
+
+
+def _recover(
+    mdp: LayeredMDP, h: np.ndarray, ref_cell: int, workers: Workers
+) -> tuple[np.ndarray, int]:
+    """Relative value iteration sweeps from ``h`` (after an evaluation that failed)."""
+    live = mdp.live
+    for _ in range(RECOVERY_SWEEPS):
+        th, _, _ = bellman(mdp, h, workers=workers)
+        h = np.where(live, th, 0.0)
+        h -= h[0, ref_cell]
+    return h, RECOVERY_SWEEPS

@@ -1,0 +1,1 @@
+"""The Section VI model variants (simultaneous requests, time-varying regions)."""

@@ -1,0 +1,387 @@
+"""Simulating simultaneous requests (Section VI-2): the optimal strategy and its baselines.
+
+One run draws, per stage, whether a request arrives and of which type from a stream
+seeded by ``seed`` alone, so every policy of one seed meets the same requests at the same
+stages (common random numbers: the paired differences between policies have far less
+noise than the policies' own figures). The process is that of
+:mod:`cellplan.strategies.variants.pending`: a request arriving while ``max_pending`` are open is
+turned away (counted); none arrives during an FMP.
+
+Policies (:data:`PENDING_POLICIES`):
+
+* ``optimal``: the solved strategy, one step of equation (9) at the real configuration
+  (every move, stay, and every FMP option the robot's grid cell allows, the best taken;
+  with a workcell an FMP option must also pass the exact region test of the request it
+  serves); the pick decides which open request is served. It runs through the Section V
+  :class:`~cellplan.strategies.policy.execution.Executor` (its LRTA* correction, one per run), so
+  a configuration whose grid cell promises an FMP that the exact test refuses cannot hold
+  the robot in a cycle: each pass raises the promised value until leaving is better
+  (issue 35: a delivery 0.018 short of D2's edge held a run for 147,000 stages).
+* ``fcfs``: first come, first served. The robot serves the oldest waiting request with
+  the Section V strategy of that request alone (the W and C layers of the same model
+  with one request open, :func:`single_request_model`), and while nothing is open it
+  waits where the Section V strategy waits (it anticipates as well as Section V allows).
+* ``nearest``: as ``fcfs``, but it serves the waiting request that the Section V
+  strategy would finish soonest from where the robot is (its W value there): shortest
+  time to serve first. The choice is made when the robot sets off and kept until the pick.
+* ``reactive``: ``fcfs`` that stays where it is while nothing is open (the reactive
+  robot of Section V-C).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from cellplan.strategies.model.mdp import NR, LayeredMDP, Mode, compute_live
+from cellplan.strategies.model.stencils import fmp_code
+from cellplan.strategies.policy.execution import Executor
+from cellplan.strategies.policy.strategy import FMP, STAY, Strategy, best_action
+from cellplan.strategies.sim.simulate import Request, Simulation, region_test
+from cellplan.strategies.variants.pending import mode_keys
+
+PENDING_POLICIES: tuple[str, ...] = ("optimal", "fcfs", "nearest", "reactive")
+
+
+@dataclass
+class PendingSimulation(Simulation):
+    """A run with simultaneous requests: :class:`Simulation` plus the queue's figures."""
+
+    open_counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    durations: np.ndarray = field(default_factory=lambda: np.zeros(0))  # time of each stage
+    turned_away: int = 0
+    arrivals: int = 0
+
+    def metrics(self) -> dict[str, float]:
+        """:meth:`Simulation.metrics` plus ``mean_open`` (the time average of the number
+        of open requests, waiting or carried), ``turned_away`` and ``arrivals`` (requests
+        drawn, turned away or not)."""
+        out = super().metrics()
+        total = float(self.durations.sum())
+        out["mean_open"] = (
+            float((self.open_counts * self.durations).sum() / total) if total else float("nan")
+        )
+        out["turned_away"] = float(self.turned_away)
+        out["arrivals"] = float(self.arrivals)
+        return out
+
+
+def single_request_model(mdp: LayeredMDP) -> LayeredMDP:
+    """The Section V model inside a simultaneous-requests model: NR, and for each request
+    type ``r`` the modes ``({r}, none)`` (W) and ``(empty, r)`` (C), requests arriving in NR
+    only, unweighted loss. Same grid, move classes and fine motions; live states anew.
+    """
+    R = len(mdp.request_prob)
+    # pending_modes puts the modes ({r}, none) right after NR, in request order.
+    names = [mdp.modes[1 + r].waiting[0] for r in range(R)]
+    triples = [_triple(name) for name in names]
+    by_key = mode_keys(mdp)
+    w_layers = [by_key[((name,), "", "", "")] for name in names]
+    c_layers = [by_key[((), p, s, d)] for p, s, d in triples]
+    keep = [0, *w_layers, *c_layers]
+    opt = mdp.options
+    tf = np.full((len(keep), mdp.n_cells), np.inf)
+    fmp_next = np.full(len(keep), -1, np.int64)
+    for i, m in enumerate(keep[1:], start=1):
+        # The W layer's single option is the pick; the C layer's the delivery (unweighted).
+        tf[i] = mdp.tf[opt[m]] * mdp.stage_time / mdp.cost[m]
+        fmp_next[i] = 1 + R + (i - 1) if i <= R else 0
+    ptr = [0]
+    layers = [0, *range(1, 1 + R)]
+    probs = [1.0 - mdp.arrival, *(mdp.arrival * mdp.request_prob)]
+    ptr.append(len(layers))
+    for i in range(1, 1 + 2 * R):
+        layers.append(i)
+        probs.append(1.0)
+        ptr.append(len(layers))
+    cost = np.full(len(keep), mdp.stage_time)
+    cost[0] = 0.0
+    used, vcls = np.unique(mdp.vcls[keep], return_inverse=True)
+    sub = replace(
+        mdp,
+        modes=[Mode(NR)]
+        + [Mode("W", p, s, d) for p, s, d in triples]
+        + [Mode("C", p, s, d) for p, s, d in triples],
+        cost=cost,
+        vcls=vcls.astype(np.int64),
+        free=mdp.free[used],
+        disp=mdp.disp[used],
+        nact=mdp.nact[used],
+        valid=mdp.valid[used],
+        offs=mdp.offs[used],
+        fr=mdp.fr[used],
+        coff=mdp.coff[used],
+        cw=mdp.cw[used],
+        interior=mdp.interior[used],
+        labels=[mdp.labels[k] for k in used],
+        fmp_next=fmp_next,
+        tf=tf,
+        branch_ptr=np.asarray(ptr, np.int64),
+        branch_layer=np.asarray(layers, np.int64),
+        branch_prob=np.asarray(probs, float),
+        live=np.stack([mdp.free[mdp.vcls[m]] for m in keep]),
+        outcomes=None,
+        opt_ptr=None,
+    )
+    compute_live(sub)
+    return sub
+
+
+class Rules:
+    """The action rules of :data:`PENDING_POLICIES` on one solved strategy.
+
+    ``single`` is the solved Section V strategy of :func:`single_request_model` (the
+    baselines' navigation); it is solved here when not given. Build once per strategy and
+    reuse it across runs (the experiment runs many seeds).
+    """
+
+    def __init__(self, strategy: Strategy, single: Strategy | None = None) -> None:
+        from cellplan.strategies.solve.solver import solve
+
+        self.strategy = strategy
+        mdp = strategy.mdp
+        if single is None:
+            sub = single_request_model(mdp)
+            single = Strategy.from_solution(sub, solve(sub, "auto", 1e-6))
+        self.single = single
+        self.R = len(mdp.request_prob)
+        self.names = [f"{m.part},{m.source},{m.destination}" for m in single.modes[1 : 1 + self.R]]
+        self.index = mode_keys(mdp)
+
+    def mode_of(self, waiting: list[int], carried: int) -> int:
+        """The model's mode of these waiting request types and the carried one (-1)."""
+        names = tuple(self.names[r] for r in sorted(waiting))
+        if carried < 0:
+            return self.index[(names, "", "", "")]
+        p, s, d = _triple(self.names[carried])
+        return self.index[(names, p, s, d)]
+
+    def optimal(self, executor: Executor, q: np.ndarray, m: int) -> int:
+        """The best action of (9) at ``q`` in mode ``m`` by the run's ``executor`` (a move,
+        stay or an FMP code, the options confirmed by its exact test, with its
+        correction step); stay where none is available."""
+        try:
+            return executor.action(q, m)
+        except ValueError:
+            return STAY
+
+    def serve(self, q: np.ndarray, target: int, carrying: bool, forbid_fmp: bool = False) -> int:
+        """The Section V strategy's action for request ``target`` alone (FMP, stay, move);
+        stay where none is available (the run's verdict then names the request waiting)."""
+        layer = 1 + target + (self.R if carrying else 0)
+        allowed = False if forbid_fmp else None  # None: where the grid cell allows it
+        return _or_stay(self.single.action_values(q, layer, fmp_allowed=allowed))
+
+    def idle(self, q: np.ndarray) -> int:
+        """Where the Section V strategy goes while no request is open."""
+        return _or_stay(self.single.action_values(q, 0))
+
+    def finish_time(self, q: np.ndarray, r: int) -> float:
+        """The Section V value of request ``r`` waiting, at ``q`` (time to serve it alone)."""
+        vals = self.single.action_values(q, 1 + r)
+        return float(np.nanmin(vals)) if not np.all(np.isnan(vals)) else np.inf
+
+
+def simulate_pending(
+    strategy: Strategy,
+    stages: int,
+    seed: int,
+    *,
+    policy: str = "optimal",
+    start: np.ndarray | None = None,
+    rules: Rules | None = None,
+    cell: Any = None,
+    regions: str = "contact",
+    progress: Callable[[float, float, str], Any] | None = None,
+) -> PendingSimulation:
+    """Run ``policy`` for ``stages`` stages from NR at ``start`` (module docstring).
+
+    With a workcell (``cell``), every FMP is confirmed by its exact region test
+    (:meth:`~cellplan.workcell.Workcell.in_region`, ``regions`` as in the scenario): the
+    source of the request a pick serves, the destination of the carried one; a refused
+    FMP falls back to the best motion (an ``fmp_refused`` event). Without one, FMP follows
+    the grid cell.
+
+    Every request's waiting time counts each stage (and each FMP's fine-motion time) from
+    its arrival until its delivery; the loss of a stage is that of the model (the weighted
+    number of open requests times the stage's time).
+    """
+    if policy not in PENDING_POLICIES:
+        raise ValueError(f"policy must be one of {PENDING_POLICIES}, not {policy!r}")
+    mdp = strategy.mdp
+    rules = rules if rules is not None else Rules(strategy)
+    R = rules.R
+    k_max = max(len(m.waiting) + bool(m.part) for m in mdp.modes)
+    stream = np.random.default_rng(seed)
+    arrive = stream.random(stages) < mdp.arrival
+    kinds = stream.choice(R, size=stages, p=mdp.request_prob / mdp.request_prob.sum())
+    q = np.asarray(start if start is not None else _start(strategy), float).copy()
+    dim = len(q)
+    qs = np.empty((stages + 1, dim))
+    ms = np.empty(stages + 1, np.int64)
+    acts = np.empty(stages, np.int64)
+    losses = np.empty(stages)
+    counts = np.empty(stages, np.int64)
+    durations = np.empty(stages)
+    waiting: list[Request] = []  # in order of arrival
+    waiting_type: list[int] = []
+    carried: Request | None = None
+    carried_type = -1
+    target = -1  # the baselines' committed request type
+    requests: list[Request] = []
+    events: list[tuple[int, str, str]] = []
+    turned = 0
+    refused = 0
+    m = 0
+    qs[0], ms[0] = q, m
+    opt = mdp.options
+    every = max(1, stages // 200)
+    test = _CountingTest(region_test(strategy, cell, regions)) if cell is not None else None
+    executor = Executor(strategy, option_test=test)
+    for k in range(stages):
+        if progress is not None and k % every == 0:
+            progress(float(k), float(stages), f"stage {k:,} of {stages:,}")
+        c = strategy.cell_of(q)
+        forbid = False
+        while True:
+            if policy == "optimal":
+                before = test.refused if test is not None else 0
+                u = rules.optimal(executor, q, m)
+                if test is not None and test.refused > before:
+                    refused += test.refused - before
+                    events.append((k, "fmp_refused", mdp.modes[m].label))
+                j = -1 if u >= STAY else (0 if u == FMP else -3 - u)
+                break  # the executor confirmed its FMP options by the exact test
+            elif carried is not None:
+                u = rules.serve(q, carried_type, True, forbid)
+                u = fmp_code(0) if u == FMP else u
+            elif waiting:
+                if target not in waiting_type:
+                    target = _choose(policy, q, waiting_type, rules)
+                u = rules.serve(q, target, False, forbid)
+                if u == FMP:
+                    u = fmp_code(sorted(set(waiting_type)).index(target))
+            else:
+                u = STAY if policy == "reactive" else rules.idle(q)
+            j = -1 if u >= STAY else (0 if u == FMP else -3 - u)
+            if j < 0 or cell is None or forbid:
+                break
+            if carried is not None:
+                where, part = carried.destination, carried.part
+            else:
+                where, part = _triple(rules.names[sorted(set(waiting_type))[j]])[1], None
+            if cell.in_region(q[None, :], where, regions, None, part)[0]:
+                break
+            forbid = True  # the grid cell allows it, the exact test does not
+            refused += 1
+            events.append((k, "fmp_refused", mdp.modes[m].label))
+        if j >= 0 and not np.isfinite(mdp.tf[opt[m] + j, c]):
+            j, u = -1, STAY  # a baseline's FMP the grid cell does not allow
+        open_now = len(waiting) + (carried is not None)
+        counts[k] = open_now
+        if j >= 0:
+            loss = float(mdp.tf[opt[m] + j, c])
+            duration = loss * mdp.stage_time / mdp.cost[m]
+        else:
+            loss = float(mdp.cost[m])
+            duration = mdp.stage_time
+        durations[k] = duration
+        for r in waiting:
+            r.waiting += duration
+        if carried is not None:
+            carried.waiting += duration
+        if j >= 0:
+            if carried is not None:
+                carried.delivery = k + 1
+                events.append((k + 1, "place", f"{carried.part} at {carried.destination}"))
+                carried, carried_type = None, -1
+            else:
+                r_type = sorted(set(waiting_type))[j]
+                i = waiting_type.index(r_type)  # the oldest request of that type
+                carried, carried_type = waiting.pop(i), waiting_type.pop(i)
+                carried.pickup = k + 1
+                events.append((k + 1, "pick", f"{carried.part} at {carried.source}"))
+                target = -1
+        else:
+            if u != STAY:
+                q = strategy.next_configuration(q, m, u)
+            if arrive[k]:
+                r_type = int(kinds[k])
+                p, s, d = _triple(rules.names[r_type])
+                if open_now >= k_max:
+                    turned += 1
+                    events.append((k + 1, "turned_away", f"<{p},{s},{d}>"))
+                else:
+                    req = Request(p, s, d, k + 1)
+                    requests.append(req)
+                    waiting.append(req)
+                    waiting_type.append(r_type)
+                    events.append((k + 1, "request", f"<{p},{s},{d}>"))
+        losses[k] = loss
+        acts[k] = u
+        m = rules.mode_of(waiting_type, carried_type)
+        qs[k + 1], ms[k + 1] = q, m
+    return PendingSimulation(
+        q=qs,
+        modes=ms,
+        actions=acts,
+        losses=losses,
+        requests=requests,
+        policy=policy,
+        events=events,
+        open_counts=counts,
+        durations=durations,
+        turned_away=turned,
+        fmp_refused=refused,
+        corrections=executor.corrections,
+        raised=executor.raised,
+        arrivals=int(arrive.sum()),
+    )
+
+
+class _CountingTest:
+    """An option's exact region test (:meth:`~.simulate.RegionTest.option`) that counts
+    its refusals, for the run's ``fmp_refused``."""
+
+    def __init__(self, test: Any) -> None:
+        self.test = test
+        self.refused = 0
+
+    def __call__(self, points: np.ndarray, m: int, j: int) -> np.ndarray:
+        ok = np.asarray(self.test.option(points, m, j), dtype=bool)
+        self.refused += int((~ok).sum())
+        return ok
+
+
+def _choose(policy: str, q: np.ndarray, waiting_type: list[int], rules: Rules) -> int:
+    """The baselines' next request: the oldest, or the soonest finished (``nearest``)."""
+    if policy == "nearest":
+        times = [rules.finish_time(q, r) for r in waiting_type]
+        return waiting_type[int(np.argmin(times))]
+    return waiting_type[0]
+
+
+def _or_stay(values: np.ndarray) -> int:
+    """:func:`~cellplan.strategies.policy.strategy.best_action`,
+    or stay where every action is NaN."""
+    return STAY if np.all(np.isnan(values)) else best_action(values)
+
+
+def _triple(name: str) -> tuple[str, str, str]:
+    """``(part, source, destination)`` of a request's name ``"part,source,destination"``."""
+    p, s, d = name.split(",")
+    return p, s, d
+
+
+def _start(strategy: Strategy) -> np.ndarray:
+    from cellplan.strategies.sim.simulate import default_start
+
+    recorded = strategy.meta.get("start")
+    if recorded is not None:
+        q = np.asarray(recorded, float)
+        if strategy.mdp.live[0, strategy.cell_of(q)]:
+            return q
+    return default_start(strategy)
