@@ -394,6 +394,39 @@ def decide_interval(
     return None
 
 
+def mean_interval(values: Sequence[float] | np.ndarray, level: float = 0.95) -> tuple[float, float]:
+    """Mean and Student-t half-width of ``values`` (the one interval every report uses).
+
+    Non-finite values are dropped first (a run that measured nothing). With fewer than two
+    values left the half-width is NaN, so :func:`decide_interval` leaves the claim
+    undecided.
+
+    Parameters
+    ----------
+    values : array_like of float
+        One measurement per independent run (seed).
+    level : float, optional
+        Two-sided confidence level, by default 0.95.
+
+    Returns
+    -------
+    mean, half : float
+        The sample mean and the half-width ``t_{(1+level)/2, n-1} s / sqrt(n)``.
+    """
+    v = np.asarray(values, dtype=float).ravel()
+    v = v[np.isfinite(v)]
+    n = len(v)
+    if n == 0:
+        return float("nan"), float("nan")
+    if n < 2:
+        return float(v[0]), float("nan")
+    # scipy.stats costs about a second to import: only reports need it, not the CLI's start.
+    from scipy.stats import t as student_t
+
+    half = float(student_t.ppf((1.0 + level) / 2.0, n - 1)) * float(v.std(ddof=1)) / math.sqrt(n)
+    return float(v.mean()), half
+
+
 @dataclass
 class ReportPiece:
     """What an experiment contributes to the report.
