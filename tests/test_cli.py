@@ -116,6 +116,23 @@ def test_version_and_short_help(cellplan):
     assert r.returncode == 0 and "--json" in r.stdout
 
 
+def test_command_list_is_whole_at_80_columns(cellplan, monkeypatch):
+    """Each command's line in ``cellplan --help`` is its own sentence, never cut with "..."."""
+    from cellplan.cliutil import SHORT_HELP_WIDTH
+
+    monkeypatch.setenv("COLUMNS", "80")
+    r = cellplan("--help")
+    assert r.returncode == 0
+    listed = r.stdout.split("Commands:")[1].strip().splitlines()
+    names = [line.split()[0] for line in listed]
+    assert {"solve", "adapt", "assemble", "reproduce", "export"} <= set(names)
+    assert [line for line in listed if "..." in line or "``" in line] == []
+    width = max(map(len, names))
+    assert [
+        n for n, line in zip(names, listed, strict=True) if len(line) > width + 4 + SHORT_HELP_WIDTH
+    ] == []
+
+
 def test_validate_json_is_one_object_on_stdout(cellplan):
     r = cellplan("validate", "discs_seven", "--json")
     assert r.returncode == 0, r.stderr

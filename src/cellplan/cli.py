@@ -34,6 +34,7 @@ from cellplan.cliutil import (
     check_output,
     print_json,
     scenario_file,
+    short_help,
 )
 from cellplan.errors import ArgumentError, CellplanError, Interrupted, printable
 
@@ -406,7 +407,7 @@ def export(
 
 @app.command()
 def demo(output: OutputOpt = Path("cellplan-out"), as_json: JsonOpt = False) -> None:
-    """Run quick versions of every experiment and write OUTPUT/index.html (about 2 minutes)."""
+    """Run every experiment quickly and write OUTPUT/index.html (about 2 minutes)."""
     from cellplan.demo import run_demo
 
     index = run_demo(output, console=console)
@@ -448,6 +449,10 @@ def _register_package_commands() -> None:
         if pkg.commands is not None:
             importlib.import_module(pkg.commands).register(app)
     reproduce_cli.register(app)
+    for info in app.registered_commands:
+        text = info.help or (info.callback.__doc__ if info.callback else None)
+        if info.short_help is None and text:
+            info.short_help = short_help(text)
 
 
 _register_package_commands()

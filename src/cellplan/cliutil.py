@@ -217,6 +217,27 @@ def folder_files(option: str, folder: Path, names: Iterable[str]) -> list[tuple[
 
 #: The note printed when a kernel compiles during a command (once per process); the
 #: cache it names is described in :mod:`cellplan.warmup`.
+SHORT_HELP_WIDTH = 60
+"""Most characters of a command's line in ``cellplan --help``: click cuts a longer one with
+"..." in an 80-column terminal (its width less the indent and the longest command name)."""
+
+
+def short_help(text: str) -> str:
+    """A command's line for ``cellplan --help``: its help's first sentence, without the
+    parenthesis or colon that details it, and without reST markup.
+
+    A line still longer than :data:`SHORT_HELP_WIDTH` is returned whole: the test of the
+    command list then names the command, whose docstring should begin shorter.
+    """
+    first = " ".join(text.strip().split("\n\n")[0].split())
+    first = first.split(". ")[0].rstrip(".")
+    for stop in (" (", ": ", "; "):
+        head = first.split(stop)[0]
+        if len(first) > SHORT_HELP_WIDTH and head:
+            first = head
+    return first.replace("``", "")
+
+
 COMPILE_NOTE = (
     "compiling numba kernels for this code path (first use after an install or an update; "
     "cached afterwards: `make install` compiles them ahead, `make clean-kernels` clears "

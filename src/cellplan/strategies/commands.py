@@ -333,7 +333,7 @@ def plot_command(
     ),
     as_json: JsonOpt = False,
 ) -> None:
-    """Draw the cost-to-go contours and the optimal actions of one mode (Fig. 8), at one
+    """Draw one mode's cost-to-go contours and optimal actions (Fig. 8), at one
     phase of a time-varying strategy."""
     from cellplan.strategies.experiments import plots
 
