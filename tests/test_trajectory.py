@@ -56,7 +56,7 @@ def test_every_format_round_trips_exactly(tmp_path_factory, traj, suffix):
     traj.save(path)
     back = Trajectory.load(path)
     assert back == traj
-    assert back.mode_names() == traj.mode_names()
+    assert back.mode_names == traj.mode_names
 
 
 def _line():
@@ -549,3 +549,16 @@ def test_bad_robot_speeds_are_refused_in_one_line(line, message):
         loads_scenario(ROTATING_TINY.replace("  speed: [5, 5, 180]", line))
     assert len(err.value.problems) == 1
     assert message in str(err.value)
+
+
+def test_mode_names_is_an_attribute_that_slices():
+    traj = Trajectory(
+        t=np.array([0.0, 1.0, 2.0]),
+        q=np.zeros((3, 1)),
+        mode=np.array([0, 1, 1]),
+        modes=("NR", "W"),
+        columns=("x",),
+        units=("workcell",),
+    )
+    assert traj.mode_names[:2] == ["NR", "W"]
+    assert traj.mode_names == ["NR", "W", "W"]

@@ -813,16 +813,9 @@ def _tags(tp: Any, node: Any) -> list[str]:
     while get_origin(tp) is Annotated:
         tp = get_args(tp)[0]
     if get_origin(tp) in (Union, types.UnionType):
-        tagged = {
-            m.tag: a
-            for a in get_args(tp)
-            if get_origin(a) is Annotated
-            for m in get_args(a)[1:]
-            if isinstance(m, Tag)
-        }
-        choose = UNION_CHOOSERS.get(frozenset(tagged))
-        if choose is not None:
-            return _tags(tagged[choose(node)], node)
+        chosen = _chosen_member(tp, node)
+        if chosen is not None:
+            return _tags(chosen, node)
         found = [t for a in get_args(tp) for t in _tags(a, node)]
         return list(dict.fromkeys(found))
     if isinstance(tp, type) and issubclass(tp, BaseModel) and "type" in tp.model_fields:
@@ -870,16 +863,31 @@ def _annotation_at(loc: tuple[Any, ...], data: Any, root: type[BaseModel]) -> An
 def _member_tagged(tp: Any, tag: str) -> Any:
     """The member of a union of ``Tag``-annotated members whose tag is ``tag`` (``tp``
     itself when it has none)."""
-    inner = tp
-    while get_origin(inner) is Annotated:
-        inner = get_args(inner)[0]
-    if get_origin(inner) in (Union, types.UnionType):
-        for a in get_args(inner):
-            if get_origin(a) is Annotated and any(
-                isinstance(m, Tag) and m.tag == tag for m in get_args(a)[1:]
-            ):
-                return a
-    return tp
+    return _tagged_members(tp).get(tag, tp)
+
+
+def _tagged_members(tp: Any) -> dict[str, Any]:
+    """``{tag: member}`` of a union whose members carry a pydantic ``Tag`` (the 2-D/3-D
+    unions; ``Annotated`` unwrapped first); empty for anything else."""
+    while get_origin(tp) is Annotated:
+        tp = get_args(tp)[0]
+    if get_origin(tp) not in (Union, types.UnionType):
+        return {}
+    return {
+        m.tag: a
+        for a in get_args(tp)
+        if get_origin(a) is Annotated
+        for m in get_args(a)[1:]
+        if isinstance(m, Tag)
+    }
+
+
+def _chosen_member(tp: Any, node: Any) -> Any:
+    """The member of a tagged union that its chooser (:data:`UNION_CHOOSERS`, 2-D or 3-D)
+    picks for ``node``; None where ``tp`` has no chooser."""
+    tagged = _tagged_members(tp)
+    choose = UNION_CHOOSERS.get(frozenset(tagged)) if tagged else None
+    return None if choose is None else tagged[choose(node)]
 
 
 def _resolve(tp: Any, node: Any) -> Any:
@@ -887,17 +895,9 @@ def _resolve(tp: Any, node: Any) -> Any:
     or by a callable discriminator (2-D or 3-D) when the union has one."""
     while get_origin(tp) is Annotated:
         tp = get_args(tp)[0]
-    if get_origin(tp) in (Union, types.UnionType):
-        tags = {
-            m.tag: a
-            for a in get_args(tp)
-            if get_origin(a) is Annotated
-            for m in get_args(a)[1:]
-            if isinstance(m, Tag)
-        }
-        choose = UNION_CHOOSERS.get(frozenset(tags))
-        if choose is not None:
-            return _resolve(tags[choose(node)], node)
+    chosen = _chosen_member(tp, node)
+    if chosen is not None:
+        return _resolve(chosen, node)
     if get_origin(tp) in (Union, types.UnionType):
         members = [a for a in get_args(tp) if a is not type(None)]
         members = [_resolve(a, node) for a in members]

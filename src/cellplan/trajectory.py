@@ -344,8 +344,9 @@ class Trajectory:
         fig.savefig(buffer, format="png", dpi=100)
         return buffer.getvalue()
 
+    @property
     def mode_names(self) -> list[str]:
-        """The mode name of every sample."""
+        """The mode name of every sample (an attribute, like :attr:`modes` and :attr:`events`)."""
         return [self.modes[i] for i in self.mode]
 
     def events_of(self, kind: str) -> list[Event]:
@@ -801,20 +802,11 @@ def _from_dict(data: Mapping[str, Any]) -> Trajectory:
     if q.size == 0:
         q = q.reshape(0, len(columns))
     events = tuple(_event(e, version) for e in data["events"])
-    if version == 1:
-        return Trajectory(
-            np.asarray(data["t"], dtype=float),
-            q,
-            np.asarray(data["mode"], dtype=np.int64),
-            tuple(data["modes"]),
-            columns,
-            tuple(data["units"]),
-            str(data["time_unit"]),
-            events,
-            dict(data.get("meta", {})),
-        )
-    derivatives = bool(data["derivatives"])
-    duration = data["stage_duration"]
+    # version 1 has none of the fields below: seconds from the default speeds, no periodic
+    # columns, the default limits, no derivatives (the module docstring)
+    v2 = version > 1
+    derivatives = v2 and bool(data["derivatives"])
+    duration = data["stage_duration"] if v2 else None
     return Trajectory(
         np.asarray(data["t"], dtype=float),
         q,
@@ -825,11 +817,11 @@ def _from_dict(data: Mapping[str, Any]) -> Trajectory:
         str(data["time_unit"]),
         events,
         dict(data.get("meta", {})),
-        seconds=np.asarray(data["seconds"], dtype=float),
-        periodic=tuple(bool(p) for p in data["periodic"]),
+        seconds=np.asarray(data["seconds"], dtype=float) if v2 else None,
+        periodic=tuple(bool(p) for p in data["periodic"]) if v2 else (),
         stage_duration=None if duration is None else float(duration),
-        velocity_limits=tuple(float(v) for v in data["velocity_limits"]),
-        acceleration_limits=tuple(float(v) for v in data["acceleration_limits"]),
+        velocity_limits=tuple(float(v) for v in data["velocity_limits"]) if v2 else (),
+        acceleration_limits=tuple(float(v) for v in data["acceleration_limits"]) if v2 else (),
         qd=np.asarray(data["qd"], dtype=float).reshape(q.shape) if derivatives else None,
         qdd=np.asarray(data["qdd"], dtype=float).reshape(q.shape) if derivatives else None,
     )

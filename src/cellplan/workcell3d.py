@@ -211,7 +211,7 @@ class Workcell3D:
         where = folder if folder is not None else Path.cwd()
         spec = sc.robot
         obstacles = {
-            name: _solid(o, where, f"workcell.obstacles.{name}")
+            name: scenario_solid(o, where, f"workcell.obstacles.{name}")
             for name, o in sc.workcell.obstacles.items()
         }
         arm = _load_arm(spec, where)
@@ -220,14 +220,14 @@ class Workcell3D:
         problems = _start_problems(spec.start, robot)
         parts = {}
         for name, p in sc.parts.items():
-            solid = _solid(p.shape, where, f"parts.{name}.shape")
+            solid = scenario_solid(p.shape, where, f"parts.{name}.shape")
             vertices, faces = solid.triangles()
             centers, radii = arms.cover_mesh(vertices, faces, PART_SPHERE_RADIUS)
             parts[name] = _Part(solid, centers, radii)
 
         def region(name: str, role: str, spec: Any) -> Region3D:
             comps = tuple(
-                _solid(c, where, f"{role}s.{name}.components[{i}]")
+                scenario_solid(c, where, f"{role}s.{name}.components[{i}]")
                 for i, c in enumerate(spec.components)
             )
             return Region3D(name, role, comps, solids.SolidSet.build(comps))
@@ -709,8 +709,9 @@ def _pose(pose: Pose) -> FloatArray:
     return solids.pose_matrix(xyz, rpy)
 
 
-def _solid(spec: Any, folder: Path, field: str) -> solids.Solid:
-    """A scenario solid as a :class:`cellplan.solids.Solid` (meshes loaded from ``folder``)."""
+def scenario_solid(spec: Any, folder: Path | None, field: str) -> solids.Solid:
+    """A scenario solid as a :class:`cellplan.solids.Solid` (meshes loaded from ``folder``;
+    without one, a mesh is refused)."""
     pose = _pose(spec.pose)
     if spec.type == "box":
         return solids.box(spec.size, pose)
@@ -720,6 +721,8 @@ def _solid(spec: Any, folder: Path, field: str) -> solids.Solid:
         return solids.sphere(spec.radius, pose)
     if spec.type == "capsule":
         return solids.capsule(spec.radius, spec.length, pose)
+    if folder is None:
+        raise ArgumentError(f"a {spec.type} needs the scenario's folder to load from", field)
     vertices, faces = solids.load_mesh(folder / spec.path, spec.scale, field=f"{field}.path")
     return solids.mesh(vertices, faces, pose)
 

@@ -64,7 +64,7 @@ def test_adaptive_planner_returns_the_executed_paths(tmp_path: Path) -> None:
     # the change after task 4 is marked at the start of task 5
     (change,) = traj.events_of("change")
     assert change.detail == "add_object C" and change.index == starts[4].index
-    names = traj.mode_names()
+    names = traj.mode_names
     for start, arrive in zip(starts, arrivals, strict=True):
         assert set(names[start.index : arrive.index + 1]) == {start.detail}
         assert np.allclose(traj.q[arrive.index], ep.goals[start.detail])

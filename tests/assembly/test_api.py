@@ -27,6 +27,8 @@ from cellplan.core import Result, Status
 from cellplan.errors import ArgumentError
 from cellplan.trajectory import Trajectory
 
+from .assembly_scenarios import JAM
+
 runner = CliRunner()
 COLUMNS = ("disc1.x", "disc1.y", "disc2.x", "disc2.y", "disc3.x", "disc3.y")
 SECTION_K = DiscsSection.model_fields["k"].default
@@ -90,7 +92,7 @@ def test_sequential_moves_one_disc_at_a_time_with_grasp_events(
     changes = sum(a.disc != b.disc for a, b in zip(run.grasps, run.grasps[1:], strict=False))
     assert len(switches) == changes
     # between two rows only the disc named by the later row's mode moves
-    names = traj.mode_names()
+    names = traj.mode_names
     moved = np.abs(np.diff(traj.q, axis=0)).reshape(len(traj) - 1, 3, 2).max(axis=2) > 0
     for row, step in enumerate(moved):
         assert set(np.flatnonzero(step)) <= {int(names[row + 1].split()[1]) - 1}
@@ -243,32 +245,6 @@ def test_showcase_plans_through_the_api_and_prints_nothing(
     assert "spheres" in items[2].title
     assert all(Path(f).stat().st_size > 0 for item in items for f in item.figures)
     assert all("cellplan.plan(" in item.code and "solved" in item.caption for item in items)
-
-
-# Seven unit discs whose paper-rule T map at k=48 jams (two discs hand the turn back and
-# forth; the same problem as PING_PONG in test_sequential.py), written as a scenario file.
-JAM = """cellplan: 1
-name: jam
-workcell:
-  bounds: {xmin: -12, ymin: -12, xmax: 12, ymax: 12}
-discs:
-  boundary: {type: disc, center: [0, 0], radius: 11.832159566199232}
-  k: 48
-  discs:
-    - {radius: 1, start: [-1.5869574702043012, -7.548733073037667], goal: [0.0, 0.0]}
-    - {radius: 1, start: [-8.750518505339972, 3.293009396759315],
-       goal: [-1.0036711316621478, -1.738409394128992]}
-    - {radius: 1, start: [5.781808107370352, 3.8062636853552334],
-       goal: [1.0036711316621478, -1.738409394128992]}
-    - {radius: 1, start: [-3.2764170041026963, 3.236272247279302],
-       goal: [2.0073422633242957, 0.0]}
-    - {radius: 1, start: [-0.817040215745796, 8.891677773140197],
-       goal: [1.0036711316621478, 1.738409394128992]}
-    - {radius: 1, start: [-4.5921874139775145, 0.22416827260256159],
-       goal: [-1.0036711316621478, 1.738409394128992]}
-    - {radius: 1, start: [-7.527354726059178, -3.9485190004263058],
-       goal: [-2.0073422633242957, 0.0]}
-"""
 
 
 def test_sequential_budget_exhausted_exits_1(tmp_path: Path) -> None:

@@ -89,9 +89,16 @@ def test_claim_intervals_and_their_combination():
     from scipy.stats import t
 
     from cellplan.assembly.experiments import _all, _difference, _interval, _ratio_interval
+    from cellplan.core import mean_interval
 
     vals = np.array([1.1, 1.2, 1.3, 1.2, 1.2])
-    group = {"mean": vals.mean(), "std": vals.std(), "solved": 5.0, "runs": 5.0}
+    group = {
+        "mean": vals.mean(),
+        "std": vals.std(),
+        "half": mean_interval(vals)[1],  # as _group keeps it
+        "solved": 5.0,
+        "runs": 5.0,
+    }
     lo, hi, n = _interval(group)
     half = t.ppf(0.975, 4) * vals.std(ddof=1) / np.sqrt(5)
     assert n == 5 and np.isclose(lo, vals.mean() - half) and np.isclose(hi, vals.mean() + half)

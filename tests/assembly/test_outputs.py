@@ -26,6 +26,8 @@ from cellplan.cli import app
 from cellplan.core import Fact
 from cellplan.trajectory import EVENT_KINDS
 
+from .assembly_scenarios import JAM
+
 runner = CliRunner()
 
 COUNTS = ("escapes", "placed", "steps", "evaluations", "switches")
@@ -249,31 +251,6 @@ def test_events_columns_and_actions_number_discs_from_1(tmp_path: Path) -> None:
     assert np.allclose(first["at"], metrics["start"][first["disc"] - 1])
 
 
-# The jam of test_api.py (the same problem as PING_PONG in test_sequential.py).
-JAM = """cellplan: 1
-name: jam
-workcell:
-  bounds: {xmin: -12, ymin: -12, xmax: 12, ymax: 12}
-discs:
-  boundary: {type: disc, center: [0, 0], radius: 11.832159566199232}
-  k: 48
-  discs:
-    - {radius: 1, start: [-1.5869574702043012, -7.548733073037667], goal: [0.0, 0.0]}
-    - {radius: 1, start: [-8.750518505339972, 3.293009396759315],
-       goal: [-1.0036711316621478, -1.738409394128992]}
-    - {radius: 1, start: [5.781808107370352, 3.8062636853552334],
-       goal: [1.0036711316621478, -1.738409394128992]}
-    - {radius: 1, start: [-3.2764170041026963, 3.236272247279302],
-       goal: [2.0073422633242957, 0.0]}
-    - {radius: 1, start: [-0.817040215745796, 8.891677773140197],
-       goal: [1.0036711316621478, 1.738409394128992]}
-    - {radius: 1, start: [-4.5921874139775145, 0.22416827260256159],
-       goal: [-1.0036711316621478, 1.738409394128992]}
-    - {radius: 1, start: [-7.527354726059178, -3.9485190004263058],
-       goal: [-2.0073422633242957, 0.0]}
-"""
-
-
 # --- typed outputs ---------------------------------------------------------------------------
 
 
@@ -348,3 +325,27 @@ def test_sphere_gif_frames_carry_the_counter(tmp_path: Path, frame_counters) -> 
     plots.save_animation(run.problem, run.path, tmp_path / "s.gif", 3, trajectory=result.trajectory)
     assert len(frame_counters) == 3
     assert all(c.startswith("stage 1 / ") and "path length" in c for c in frame_counters)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_run_trajectory_is_one_builder_for_discs_and_spheres(dim: int) -> None:
+    """Discs and spheres share one trajectory builder: a column per coordinate of each
+    disc, events sorted by sample, and a controller's run (time unit s) keeps its own clock
+    as seconds where a path-parametrised run is timed by the default speeds."""
+    from cellplan import timing
+    from cellplan.assembly.planners import _trajectory
+    from cellplan.trajectory import Event
+
+    rng = np.random.default_rng(dim)
+    path = rng.normal(size=(5, 3, dim))
+    t = np.array([0.5, 1.0, 1.5, 2.5, 4.0])
+    mode = np.zeros(5, dtype=np.int64)
+    events = (Event(3, "escape", "k=8"), Event(1, "escape", "k=16"))
+    ran = _trajectory(path, t, "s", mode, ("all discs",), events, {})
+    assert ran.columns == tuple(f"disc{i}.{a}" for i in range(1, 4) for a in "xyz"[:dim])
+    assert np.array_equal(ran.q, path.reshape(5, 3 * dim))
+    assert [e.index for e in ran.events] == [1, 3]
+    assert np.allclose(ran.seconds, t - t[0])
+    walked = _trajectory(path, t, "path", mode, ("all discs",), (), {})
+    expected = timing.path_seconds(walked.q, np.asarray(walked.velocity_limits))
+    assert np.allclose(walked.seconds, expected)

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from cellplan.adaptive.experiments3d import EXPERIMENT as FIG5_UR5
+from cellplan.adaptive.experiments3d import scenario
 from cellplan.core import (
     MIN_RUNS,
     Claim,
@@ -26,6 +27,7 @@ from cellplan.core import (
     RunSpec,
     Scalar,
     decide_interval,
+    mean_interval,
 )
 
 STRATEGIES = ("A0", "A1", "A2", "A3")
@@ -33,19 +35,6 @@ PEERS = ("prm",)
 FULL = {"tasks": 80, "change_after": 40}
 QUICK = {"tasks": 16, "change_after": 8}
 PAPER = {1: 2.5, 16: 1.0, 40: 0.67}
-
-
-def _scenario(tasks: int, change_after: int, seed: int) -> Any:
-    from cellplan.adaptive.section import RandomTasks
-    from cellplan.registry import scenario_path
-    from cellplan.scenario import load_scenario
-
-    sc = load_scenario(scenario_path("adaptive_fig4"))
-    sec = sc.adaptive
-    assert sec is not None
-    changes = [c.model_copy(update={"after_task": change_after}) for c in sec.changes]
-    sec = sec.model_copy(update={"tasks": RandomTasks(count=tasks, seed=seed), "changes": changes})
-    return sc.model_copy(update={"adaptive": sec})
 
 
 def make_runs(runs: int, quick: bool) -> list[RunSpec]:
@@ -70,7 +59,7 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
 
     tasks, change_after = int(spec.params["tasks"]), int(spec.params["change_after"])
     planner = str(spec.params["planner"])
-    setup = Setup(_scenario(tasks, change_after, spec.seed), "adaptive_fig4")
+    setup = Setup(scenario(tasks, change_after, spec.seed, "adaptive_fig4"), "adaptive_fig4")
     row: dict[str, Scalar] = {"planner": planner, "seed": spec.seed}
     if planner in STRATEGIES:
         result = plan(setup, "adaptive", repair=planner, seed=spec.seed)
@@ -123,14 +112,9 @@ def seed_ratios(rows: list[dict[str, Scalar]], planner: str, tasks: int) -> np.n
 
 
 def _interval(values: np.ndarray) -> tuple[float, float]:
-    """95% interval (Student t) of the mean of ``values``."""
-    from scipy.stats import t
-
-    n = len(values)
-    if n < 2:
-        return float("nan"), float("nan")
-    half = float(t.ppf(0.975, n - 1)) * float(np.std(values, ddof=1)) / np.sqrt(n)
-    return float(np.mean(values) - half), float(np.mean(values) + half)
+    """The 95% interval of the mean of ``values`` (:func:`cellplan.core.mean_interval`)."""
+    mean, half = mean_interval(values)
+    return mean - half, mean + half
 
 
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:

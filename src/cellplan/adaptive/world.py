@@ -18,25 +18,15 @@ from typing import Any
 
 import numpy as np
 import shapely
-from pydantic import TypeAdapter, ValidationError
 from shapely.geometry.base import BaseGeometry
 
 from cellplan import units
-from cellplan.adaptive.section import (
-    AdaptiveSection,
-    AddGoal,
-    AddObject,
-    Change,
-    GoalSpec,
-    MoveObject,
-    RemoveGoal,
-    RemoveObject,
-    RotateObject,
-)
+from cellplan.adaptive.section import AdaptiveSection, GoalSpec, MoveObject, RotateObject
 from cellplan.adaptive.space import FloatArray
 from cellplan.adaptive.store import shape_from_json, shape_to_json
 from cellplan.adaptive.tags import Tag
 from cellplan.adaptive.world3d import World3D
+from cellplan.adaptive.worldbase import ChangingWorld, checked_pose, validated_spec
 from cellplan.errors import ArgumentError, Problem, ScenarioError
 from cellplan.geometry import ShapeSet
 from cellplan.robots import PlanarArm, Robot
@@ -130,17 +120,15 @@ def check_resolution(robot: Robot, resolution: float, field: str = "adaptive.res
     budget.require(segment_memory(robot, steps), where, "per straight segment", ScenarioError)
 
 
-class World:
+class World(ChangingWorld[ObjectState, ShapeSet]):
     """Objects, goals and robot of one adaptive problem, changing over the tasks.
 
     With ``resolution`` (the Reach step, radians or units), configurations are
     tested with the :func:`certified_margin` clearance. A scenario without an
     ``adaptive:`` section (or a bare workcell, :meth:`from_workcell`) gives a world
-    with no named goals whose subgoals attach to the nearest object.
+    with no named goals whose subgoals attach to the nearest object. The bookkeeping
+    of objects, goals and generations is :class:`~.worldbase.ChangingWorld`'s.
     """
-
-    attach_radius: float | None
-    """Subgoals attach to the nearest object within this distance (``None``: always)."""
 
     def __init__(self, scenario: Scenario, resolution: float | None = None) -> None:
         self.scenario: Scenario | None = scenario
@@ -202,20 +190,9 @@ class World:
         """Validity of configurations in the current environment (with the clearance margin)."""
         return ~self.workcell().collides(Q, avoid_sources="none", margin=self.margin)
 
-    def hits(self, q: FloatArray, margin: float = 0.0) -> list[str]:
-        """Names of the objects one configuration meets (within ``margin``), sorted."""
-        q = np.asarray(q, float)[None, :]
-        return [
-            n
-            for n in sorted(self.objects)
-            if self.base_cell.with_obstacles({n: self.world_shape(n)}).collides(
-                q, avoid_sources="none", margin=margin
-            )[0]
-        ]
-
-    def is_free_exact(self, Q: FloatArray) -> np.ndarray:
-        """Validity without the clearance margin: no contact (re-checks of executed paths)."""
-        return ~self.workcell().collides(Q, avoid_sources="none")
+    def alone(self, name: str) -> Workcell:
+        """The workcell with object ``name`` where it is now and no other object."""
+        return self.base_cell.with_obstacles({name: self.world_shape(name)})
 
     # --- tags and inverse kinematics ------------------------------------------------------
 
@@ -312,14 +289,7 @@ class World:
     def check_free(self, q: FloatArray, name: str) -> None:
         """One clear line when ``q`` is outside the limits, the bounds, or in collision
         (naming the object), or within Reach's certified clearance of something."""
-        robot = self.robot
-        shown = "(" + ", ".join(f"{v:.4g}" for v in q) + ")"
-        if not robot.within_limits(q[None, :])[0]:
-            lim = ", ".join(
-                f"{a} [{lo:.4g}, {hi:.4g}]"
-                for a, lo, hi in zip(robot.axis_names, robot.lower, robot.upper, strict=True)
-            )
-            raise ArgumentError(f"configuration {shown} is outside the joint limits: {lim}", name)
+        shown = self.shown_within_limits(q, name)
         empty = self.base_cell.with_obstacles({})
         if empty.collides(q[None, :], avoid_sources="none")[0]:
             raise ArgumentError(f"configuration {shown} leaves the workcell bounds", name)
@@ -353,27 +323,11 @@ class World:
         shape (``{"type": "box", "min": ..., "max": ...}``, a polygon or a disc)."""
         if isinstance(shape, ShapeSet):
             return shape
-        try:
-            spec = TypeAdapter(Shape).validate_python(shape)
-        except ValidationError as exc:
-            first = exc.errors(include_url=False)[0]
-            where = ".".join(str(p) for p in first["loc"])
-            raise ArgumentError(
-                f"{where}: {first['msg']}" if where else first["msg"], "shape"
-            ) from None
-        return ShapeSet.from_spec(spec)
+        return self.shape_from_spec(validated_spec(Shape, shape))
 
     def pose_of(self, pose: Any) -> Pose:
         """A pose argument checked: three finite numbers ``(x, y, theta)``."""
-        try:
-            values = [float(v) for v in pose]
-        except (TypeError, ValueError):
-            raise ArgumentError("expected (x, y, theta) numbers", "pose") from None
-        if len(values) != 3 or not all(np.isfinite(values)):
-            raise ArgumentError(
-                f"expected three finite numbers (x, y, theta), got {pose!r}", "pose"
-            )
-        return (values[0], values[1], values[2])
+        return checked_pose(pose, "x, y, theta")
 
     def objects_json(self) -> dict[str, Any]:
         """The objects as JSON values (shape and pose)."""
@@ -399,53 +353,28 @@ class World:
 
     # --- changes --------------------------------------------------------------------------
 
-    def apply(self, change: Change) -> set[str]:
-        """Apply one scheduled change; the names of objects whose pose changed (tags move)."""
-        if isinstance(change, AddObject):
-            self.add_object(change.object, ShapeSet.from_spec(change.shape))
-        elif isinstance(change, RemoveObject):
-            self.remove_object(change.object)
-        elif isinstance(change, MoveObject):
-            st = self.objects[change.object]
-            return self.set_pose(
-                change.object, (st.pose[0] + change.by[0], st.pose[1] + change.by[1], st.pose[2])
-            )
-        elif isinstance(change, RotateObject):
-            st = self.objects[change.object]
-            if change.about is None:
-                c = self.geometries()[change.object].centroid
-                cx, cy = float(c.x), float(c.y)
-            else:
-                cx, cy = change.about
-            turn: Pose = (0.0, 0.0, units.radians(change.degrees))
-            return self.set_pose(
-                change.object,
-                compose((cx, cy, 0.0), compose(turn, compose((-cx, -cy, 0.0), st.pose))),
-            )
-        elif isinstance(change, AddGoal):
-            self.goals[change.goal] = self._goal_tag(change.spec())
-        elif isinstance(change, RemoveGoal):
-            del self.goals[change.goal]
-        return set()
+    def shape_from_spec(self, spec: Any) -> ShapeSet:
+        """The shape of an ``add_object`` change (a polygon, box or disc)."""
+        return ShapeSet.from_spec(spec)
 
-    # The three primitives every environment change goes through (scheduled changes and
-    # ExperiencePlanner.add / remove / move alike); each starts a new generation.
+    def moved(self, change: MoveObject | RotateObject) -> Pose:
+        """The pose a scheduled move (a shift) or turn (about a point, else the object's
+        centroid) puts its object at."""
+        st = self.objects[change.object]
+        if isinstance(change, MoveObject):
+            return (st.pose[0] + change.by[0], st.pose[1] + change.by[1], st.pose[2])
+        if change.about is None:
+            c = self.geometries()[change.object].centroid
+            cx, cy = float(c.x), float(c.y)
+        else:
+            cx, cy = change.about
+        turn: Pose = (0.0, 0.0, units.radians(change.degrees))
+        return compose((cx, cy, 0.0), compose(turn, compose((-cx, -cy, 0.0), st.pose)))
 
     def add_object(self, name: str, shape: ShapeSet, pose: Pose = (0.0, 0.0, 0.0)) -> None:
         """Add an object: ``shape`` in its own coordinates, placed at ``pose``."""
         self.objects[name] = ObjectState(shape, pose)
         self._changed()
-
-    def remove_object(self, name: str) -> None:
-        """Remove an object (subgoals attached to it stay where they are)."""
-        del self.objects[name]
-        self._changed()
-
-    def set_pose(self, name: str, pose: Pose) -> set[str]:
-        """Place an object at ``pose``; returns ``{name}`` (its attached tags move with it)."""
-        self.objects[name].pose = (float(pose[0]), float(pose[1]), float(pose[2]))
-        self._changed()
-        return {name}
 
     def restore(
         self, objects: Mapping[str, tuple[ShapeSet, Pose]], goals: Mapping[str, Tag], gen: int
@@ -454,11 +383,9 @@ class World:
         self.objects = {n: ObjectState(shape, pose) for n, (shape, pose) in objects.items()}
         self.goals = dict(goals)
         self.gen = gen
-        self._cell = None
-        self._geoms = None
+        self._forget()
 
-    def _changed(self) -> None:
-        self.gen += 1
+    def _forget(self) -> None:
         self._cell = None
         self._geoms = None
 

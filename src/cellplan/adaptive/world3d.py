@@ -31,26 +31,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from pydantic import TypeAdapter, ValidationError
 
 from cellplan import arm as arms
 from cellplan import solids, units
-from cellplan.adaptive.section import (
-    AdaptiveSection,
-    AddGoal,
-    AddObject,
-    Change,
-    GoalSpec,
-    MoveObject,
-    RemoveGoal,
-    RemoveObject,
-)
+from cellplan.adaptive.section import AdaptiveSection, GoalSpec, MoveObject, RotateObject
 from cellplan.adaptive.space import FloatArray
 from cellplan.adaptive.tags import Tag
+from cellplan.adaptive.worldbase import ChangingWorld, checked_pose, validated_spec
 from cellplan.errors import ArgumentError, Problem
 from cellplan.scenario import Scenario
-from cellplan.scenario3d import Solid
-from cellplan.workcell3d import UrdfRobot, Workcell3D
+from cellplan.scenario3d import MeshSolid, Solid
+from cellplan.workcell3d import UrdfRobot, Workcell3D, scenario_solid
 
 Offset = tuple[float, float, float]
 
@@ -78,18 +69,12 @@ class Object3D:
 
 
 def solid_from_spec(spec: Any, field: str) -> solids.Solid:
-    """A primitive solid of a scenario (box, cylinder, sphere, capsule) in code units."""
-    xyz, rpy = units.pose_from_file(spec.pose.xyz, spec.pose.rpy)
-    pose = solids.pose_matrix(xyz, rpy)
-    if spec.type == "box":
-        return solids.box(spec.size, pose)
-    if spec.type == "cylinder":
-        return solids.cylinder(spec.radius, spec.length, pose)
-    if spec.type == "sphere":
-        return solids.sphere(spec.radius, pose)
-    if spec.type == "capsule":
-        return solids.capsule(spec.radius, spec.length, pose)
-    raise ArgumentError(f"a {spec.type} cannot be added to a changing cell here", field)
+    """A primitive solid of a scenario (box, cylinder, sphere, capsule) in code units, as
+    :func:`cellplan.workcell3d.scenario_solid` builds it; a mesh is refused (no folder to
+    load it from)."""
+    if isinstance(spec, MeshSolid):
+        raise ArgumentError(f"a {spec.type} cannot be added to a changing cell here", field)
+    return scenario_solid(spec, None, field)
 
 
 def _rotation(rpy_degrees: Sequence[float] | None) -> tuple[float, ...]:
@@ -99,9 +84,10 @@ def _rotation(rpy_degrees: Sequence[float] | None) -> tuple[float, ...]:
     return tuple(float(v) for v in solids.pose_matrix(np.zeros(3), rpy)[:3, :3].ravel())
 
 
-class World3D:
+class World3D(ChangingWorld[Object3D, solids.Solid]):
     """Objects, goals and arm of one adaptive problem in a 3-D cell (see the module
-    docstring); the same methods as :class:`~.world.World`."""
+    docstring); the same methods as :class:`~.world.World` (the bookkeeping shared in
+    :class:`~.worldbase.ChangingWorld`)."""
 
     def __init__(
         self, scenario: Scenario, cell: Workcell3D, resolution: float | None = None
@@ -139,34 +125,16 @@ class World3D:
         """Certified validity: the joint-space ball of radius ``resolution / 2`` is free."""
         return ~self.workcell().collides_within(Q, self.radius, avoid_sources="none")
 
-    def is_free_exact(self, Q: FloatArray) -> np.ndarray:
-        """No contact (re-checks of executed paths)."""
-        return ~self.workcell().collides(Q, avoid_sources="none")
-
-    def hits(self, q: FloatArray, margin: float = 0.0) -> list[str]:
-        """Names of the objects one configuration meets (within ``margin``), sorted."""
-        q = np.asarray(q, float)[None, :]
-        return [
-            n
-            for n in sorted(self.objects)
-            if self.base_cell.with_obstacles({n: self.objects[n].placed()}).collides(
-                q, avoid_sources="none", margin=margin
-            )[0]
-        ]
+    def alone(self, name: str) -> Workcell3D:
+        """The cell with object ``name`` where it is now and no other object."""
+        return self.base_cell.with_obstacles({name: self.objects[name].placed()})
 
     def check_free(self, q: FloatArray, name: str) -> None:
         """One line when ``q`` leaves the limits or the bounds, touches an object (named),
         collides with the arm itself, or lies closer to something than Reach certifies."""
         if self.is_free(q[None, :])[0]:
             return  # the common case, one check; the reasons below only when it fails
-        robot = self.robot
-        shown = "(" + ", ".join(f"{v:.4g}" for v in q) + ")"
-        if not robot.within_limits(q[None, :])[0]:
-            lim = ", ".join(
-                f"{a} [{lo:.4g}, {hi:.4g}]"
-                for a, lo, hi in zip(robot.axis_names, robot.lower, robot.upper, strict=True)
-            )
-            raise ArgumentError(f"configuration {shown} is outside the joint limits: {lim}", name)
+        shown = self.shown_within_limits(q, name)
         if self.base_cell.collides(q[None, :], avoid_sources="none")[0]:
             raise ArgumentError(
                 f"configuration {shown} leaves the workcell bounds or collides with the arm itself",
@@ -310,50 +278,30 @@ class World3D:
 
     # --- changes --------------------------------------------------------------------------
 
-    def apply(self, change: Change) -> set[str]:
-        """Apply one scheduled change; the names of objects whose pose changed."""
-        if isinstance(change, AddObject):
-            self.add_object(change.object, solid_from_spec(change.shape, "shape"))
-        elif isinstance(change, RemoveObject):
-            self.remove_object(change.object)
-        elif isinstance(change, MoveObject):
-            p = self.objects[change.object].pose
-            by = [float(v) for v in change.by]
-            return self.set_pose(change.object, (p[0] + by[0], p[1] + by[1], p[2] + by[2]))
-        elif isinstance(change, AddGoal):
-            self.goals[change.goal] = self._goal_tag(change.spec())
-        elif isinstance(change, RemoveGoal):
-            del self.goals[change.goal]
-        return set()
+    def shape_from_spec(self, spec: Any) -> solids.Solid:
+        """The solid of an ``add_object`` change (a primitive; no mesh)."""
+        return solid_from_spec(spec, "shape")
+
+    def moved(self, change: MoveObject | RotateObject) -> Offset:
+        """The offset a scheduled move shifts its object to (the section refuses turns in
+        a 3-D cell: objects translate only)."""
+        if isinstance(change, RotateObject):
+            raise ArgumentError("a 3-D cell moves objects by translation only", "type")
+        p = self.objects[change.object].pose
+        by = [float(v) for v in change.by]
+        return (p[0] + by[0], p[1] + by[1], p[2] + by[2])
 
     def add_object(self, name: str, shape: solids.Solid, pose: Sequence[float] = (0, 0, 0)) -> None:
         """Add a solid, shifted by ``pose = (x, y, z)``."""
         self.objects[name] = Object3D(shape, _offset(pose))
         self._changed()
 
-    def remove_object(self, name: str) -> None:
-        """Remove an object (subgoals attached to it stay where they are)."""
-        del self.objects[name]
-        self._changed()
-
-    def set_pose(self, name: str, pose: Sequence[float]) -> set[str]:
-        """Shift an object to ``pose = (x, y, z)`` from where the scenario put it."""
-        self.objects[name].pose = _offset(pose)
-        self._changed()
-        return {name}
-
     def shape(self, shape: Any) -> solids.Solid:
         """A solid given to ``ExperiencePlanner.add``: a :class:`cellplan.solids.Solid`
         or a scenario solid (``{"type": "box", "size": [...], "pose": {...}}``)."""
         if isinstance(shape, solids.Solid):
             return shape
-        try:
-            spec = TypeAdapter(Solid).validate_python(shape)
-        except ValidationError as exc:
-            first = exc.errors(include_url=False)[0]
-            where = ".".join(str(p) for p in first["loc"])
-            raise ArgumentError(f"{where}: {first['msg']}", "shape") from None
-        return solid_from_spec(spec, "shape")
+        return self.shape_from_spec(validated_spec(Solid, shape))
 
     def pose_of(self, pose: Sequence[float]) -> Offset:
         """A pose argument checked: three finite numbers (metres)."""
@@ -406,20 +354,9 @@ class World3D:
         self._cell = None
         self._goal_cache = {}
 
-    def _changed(self) -> None:
-        self.gen += 1
+    def _forget(self) -> None:
         self._cell = None
 
 
 def _offset(pose: Sequence[float]) -> Offset:
-    try:
-        values = [float(v) for v in pose]
-    except (TypeError, ValueError):
-        raise ArgumentError("expected (x, y, z) numbers (metres)", "pose") from None
-    if len(values) != 3 or not all(np.isfinite(values)):
-        raise ArgumentError(
-            f"expected three finite numbers (x, y, z) in metres (3-D objects translate "
-            f"only), got {pose!r}",
-            "pose",
-        )
-    return (values[0], values[1], values[2])
+    return checked_pose(pose, "x, y, z", " in metres (3-D objects translate only)")

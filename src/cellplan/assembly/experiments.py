@@ -43,6 +43,7 @@ from cellplan.core import (
     RunSpec,
     Scalar,
     decide_interval,
+    mean_interval,
 )
 
 PAPER = "assembly"
@@ -225,16 +226,14 @@ def _runs_line(rows: list[dict[str, Scalar]]) -> str:
 
 
 def _interval(
-    s: dict[str, float], mean: str = "mean", std: str = "std", solved: str = "solved"
+    s: dict[str, float], mean: str = "mean", half: str = "half", solved: str = "solved"
 ) -> tuple[float, float, int]:
-    """95% interval (Student t) of a group's mean, and the runs behind it."""
-    from scipy.stats import t
-
+    """95% interval of a group's mean (its ``half`` width from :func:`_group`, Student t by
+    :func:`cellplan.core.mean_interval`), and the runs behind it."""
     n = int(s.get(solved, 0.0))
     if n < 2 or not np.isfinite(s[mean]):
         return float("nan"), float("nan"), n
-    half = float(t.ppf(0.975, n - 1)) * s[std] * np.sqrt(n / (n - 1)) / np.sqrt(n)
-    return s[mean] - half, s[mean] + half, n
+    return s[mean] - s[half], s[mean] + s[half], n
 
 
 def _difference(a: dict[str, float], b: dict[str, float]) -> tuple[float, float, int]:
@@ -268,10 +267,12 @@ def _all(verdicts: Any) -> bool | None:
 def _group(
     rows: list[dict[str, Scalar]], keys: tuple[str, ...], value: str
 ) -> dict[tuple[Any, ...], dict[str, float]]:
-    """Mean, std, successes, runs of ``value`` (solved runs only) per key tuple.
+    """Mean, std, 95% half-width (``half``), successes, runs of ``value`` (solved runs
+    only) per key tuple.
 
     Gradient rows also carry ``solved_at_k`` (the flow at the stated k alone reached the
-    goal): ``solved_k``, ``mean_k`` and ``std_k`` are the same figures over those runs.
+    goal): ``solved_k``, ``mean_k``, ``std_k`` and ``half_k`` are the same figures over
+    those runs.
     """
     out: dict[tuple[Any, ...], dict[str, float]] = {}
     groups: dict[tuple[Any, ...], list[dict[str, Scalar]]] = {}
@@ -286,6 +287,7 @@ def _group(
         out[key] = {
             "mean": float(vals.mean()) if len(vals) else float("nan"),
             "std": float(vals.std()) if len(vals) else float("nan"),
+            "half": mean_interval(vals)[1],
             "solved": float(len(ok)),
             "runs": float(len(rs)),
             "min_clearance": float(clear.min()) if len(clear) else float("nan"),
@@ -298,6 +300,7 @@ def _group(
                     "solved_k": float(len(at_k)),
                     "mean_k": float(at_k.mean()) if len(at_k) else float("nan"),
                     "std_k": float(at_k.std()) if len(at_k) else float("nan"),
+                    "half_k": mean_interval(at_k)[1],
                 }
             )
     return out
@@ -377,7 +380,7 @@ def _report_ratio_vs_k(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
         ):
             full = [(k, s) for k, s in pts if s.get(solved_key, -1.0) == s["runs"]]
             best = min(full, key=lambda ks_: ks_[1][mean_key]) if full else None
-            std_key = "std_k" if mean_key == "mean_k" else "std"
+            std_key, half_key = ("std_k", "half_k") if mean_key == "mean_k" else ("std", "half")
             ours = (
                 f"best k={best[0]:g}: {best[1][mean_key]:.3f} ± {best[1][std_key]:.3f}, "
                 f"{int(best[1][solved_key])}/{int(best[1]['runs'])} solved"
@@ -385,7 +388,7 @@ def _report_ratio_vs_k(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiec
                 else "no k with every run solved"
             )
             if best is not None:
-                lo, hi, runs = _interval(best[1], mean_key, std_key, solved_key)
+                lo, hi, runs = _interval(best[1], mean_key, half_key, solved_key)
                 verdict = decide_interval(lo, hi, runs, below=target)
             else:
                 runs, verdict = int(max((s["runs"] for _, s in pts), default=0)), False

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, ReportPiece, RunSpec, Scalar, decide_interval
+from cellplan.core import Claim, ReportPiece, RunSpec, Scalar, decide_interval, mean_interval
 
 #: k of the spheres' ratio-vs-k series (7 spheres; the default rule gives about 150 there)
 K_SPHERES = (16.0, 64.0, 256.0)
@@ -138,19 +138,6 @@ def wilson(successes: int, n: int) -> tuple[float, float]:
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
     return centre - half, centre + half
-
-
-def _mean_interval(vals: np.ndarray) -> tuple[float, float, float, int]:
-    """Mean and its 95% (Student t) interval."""
-    from scipy.stats import t
-
-    n = len(vals)
-    if n < 2:
-        m = float(vals.mean()) if n else math.nan
-        return m, math.nan, math.nan, n
-    half = float(t.ppf(0.975, n - 1)) * float(vals.std(ddof=1)) / math.sqrt(n)
-    m = float(vals.mean())
-    return m, m - half, m + half, n
 
 
 def _report_spheres(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
@@ -344,7 +331,8 @@ def _report_finish(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     )
     sw = np.array([float(r["switches_per_disc_paper"]) for r in rows if r.get("solved_paper")])
     if len(sw):
-        m, low, high, n = _mean_interval(sw)
+        m, half = mean_interval(sw)
+        low, high, n = m - half, m + half, int(np.isfinite(sw).sum())
         piece.claims.append(
             Claim(
                 claim="about three switches per disc (paper rule, its solved runs)",

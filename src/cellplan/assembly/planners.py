@@ -498,38 +498,10 @@ def _trajectory(
     events: Sequence[Event],
     meta: dict[str, Any],
 ) -> Trajectory:
-    if path.shape[2] != 2:
-        return _sphere_trajectory(path, t, time_unit, mode, modes, events, meta)
-    n = path.shape[1]
-    # typed fields (part: the disc) from the text the event lines write
-    typed = [Event.from_text(e.index, e.kind, e.detail) for e in events]
-    return Trajectory(
-        t=t,
-        q=path.reshape(len(path), 2 * n),
-        mode=mode,
-        modes=modes,
-        columns=disc_columns(n),
-        units=("workcell",) * (2 * n),
-        time_unit=time_unit,
-        events=tuple(sorted(typed, key=lambda e: e.index)),
-        meta=meta,
-        # a controller's run is timed in seconds already; else the default disc speeds
-        seconds=np.asarray(t, float) - float(t[0]) if time_unit == "s" and len(t) else None,
-    )
-
-
-def _sphere_trajectory(
-    path: Array,
-    t: Array,
-    time_unit: str,
-    mode: NDArray[np.int64],
-    modes: tuple[str, ...],
-    events: Sequence[Event],
-    meta: dict[str, Any],
-) -> Trajectory:
-    """:func:`_trajectory` for spheres: columns ``disc1.x, disc1.y, disc1.z, ...``
-    (events typed from their text as there)."""
+    """The trajectory of a run on ``path`` ``(m, n, d)``: columns ``disc1.x, disc1.y, ...``
+    (spheres, d = 3: ``disc1.x, disc1.y, disc1.z, ...``), one per coordinate of each disc."""
     n, dim = path.shape[1], path.shape[2]
+    # typed fields (part: the disc) from the text the event lines write
     typed = [Event.from_text(e.index, e.kind, e.detail) for e in events]
     return Trajectory(
         t=t,
@@ -541,6 +513,8 @@ def _sphere_trajectory(
         time_unit=time_unit,
         events=tuple(sorted(typed, key=lambda e: e.index)),
         meta=meta,
+        # a controller's run is timed in seconds already; else the default disc speeds
+        seconds=np.asarray(t, float) - float(t[0]) if time_unit == "s" and len(t) else None,
     )
 
 

@@ -396,7 +396,7 @@ def held_parts(trajectory: Trajectory) -> list[str | None]:
     """The part held at each sample (``None``: empty), from the modes ``carrying <part>``;
     what :func:`cellplan.scene3d.cell_scene` takes as ``carrying`` to draw it on the tool."""
     prefix = "carrying "
-    return [m[len(prefix) :] if m.startswith(prefix) else None for m in trajectory.mode_names()]
+    return [m[len(prefix) :] if m.startswith(prefix) else None for m in trajectory.mode_names]
 
 
 def _straight(template: Trajectory | None, q0: Array, q1: Array) -> Trajectory:

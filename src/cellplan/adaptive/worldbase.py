@@ -1,0 +1,187 @@
+"""What the planar and the 3-D changing workcells share: the bookkeeping of a world.
+
+:class:`~.world.World` (planar shapes with poses ``(x, y, theta)``) and
+:class:`~.world3d.World3D` (solids translated by offsets ``(x, y, z)``) keep objects,
+named goals and the environment generation the same way: every change goes through
+:meth:`ChangingWorld.apply` and the primitives :meth:`~ChangingWorld.add_object`,
+:meth:`~ChangingWorld.remove_object` and :meth:`~ChangingWorld.set_pose`, and each starts
+a new generation (edge verification is stamped with it). What differs (the shapes, how
+a pose composes, goals as tags, IK) is each subclass's.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any, Generic, Protocol, TypeVar
+
+import numpy as np
+from pydantic import TypeAdapter, ValidationError
+
+from cellplan.adaptive.section import (
+    AdaptiveSection,
+    AddGoal,
+    AddObject,
+    Change,
+    GoalSpec,
+    MoveObject,
+    RemoveGoal,
+    RemoveObject,
+    RotateObject,
+)
+from cellplan.adaptive.space import FloatArray
+from cellplan.adaptive.tags import Tag
+from cellplan.errors import ArgumentError
+from cellplan.scenario import Scenario
+from cellplan.validity import RobotModel, ValiditySpace
+
+Pose = tuple[float, float, float]
+"""``(x, y, theta)`` of a planar object, ``(x, y, z)`` offset of a 3-D one."""
+
+
+def validated_spec(model: Any, given: Any) -> Any:
+    """``given`` (a shape handed to ``ExperiencePlanner.add``) validated as the scenario
+    model ``model`` would read it; one line (field ``shape``) naming the first mistake."""
+    try:
+        return TypeAdapter(model).validate_python(given)
+    except ValidationError as exc:
+        first = exc.errors(include_url=False)[0]
+        where = ".".join(str(p) for p in first["loc"])
+        message = f"{where}: {first['msg']}" if where else str(first["msg"])
+        raise ArgumentError(message, "shape") from None
+
+
+def checked_pose(pose: Any, axes: str, note: str = "") -> Pose:
+    """``pose`` as three finite numbers, else one line (field ``pose``) that names the
+    ``axes`` (``"x, y, theta"``) and adds ``note`` (units, what a pose may do)."""
+    try:
+        values = [float(v) for v in pose]
+    except (TypeError, ValueError):
+        raise ArgumentError(f"expected ({axes}) numbers{note}", "pose") from None
+    if len(values) != 3 or not all(np.isfinite(values)):
+        raise ArgumentError(f"expected three finite numbers ({axes}){note}, got {pose!r}", "pose")
+    return (values[0], values[1], values[2])
+
+
+class PlacedObject(Protocol):
+    """An object's state: its pose (the shape is the subclass's own)."""
+
+    pose: Pose
+
+
+ObjectT = TypeVar("ObjectT", bound=PlacedObject)
+ShapeT = TypeVar("ShapeT")
+
+
+class ChangingWorld(ABC, Generic[ObjectT, ShapeT]):
+    """Objects, goals and generation of one adaptive problem (see the module docstring).
+
+    Subclasses set the attributes below and give the geometry: :meth:`workcell`,
+    :meth:`alone`, :meth:`shape_from_spec`, :meth:`moved`, :meth:`add_object`,
+    :meth:`pose_of`, :meth:`_goal_tag` and :meth:`_forget`.
+    """
+
+    scenario: Scenario | None
+    section: AdaptiveSection | None
+    robot: RobotModel
+    objects: dict[str, ObjectT]
+    goals: dict[str, Tag]
+    attach_radius: float | None
+    """Subgoals attach to the nearest object within this distance (``None``: always)."""
+    gen: int
+    """The environment generation: one more after every change."""
+
+    # --- geometry (the subclass's) --------------------------------------------------------
+
+    @abstractmethod
+    def workcell(self) -> ValiditySpace:
+        """The cell with the objects where they are now."""
+
+    @abstractmethod
+    def alone(self, name: str) -> ValiditySpace:
+        """The cell with object ``name`` where it is now and no other object."""
+
+    @abstractmethod
+    def shape_from_spec(self, spec: Any) -> ShapeT:
+        """The shape of a scenario's ``add_object`` change (a validated spec)."""
+
+    @abstractmethod
+    def moved(self, change: MoveObject | RotateObject) -> Pose:
+        """The pose a scheduled move (or turn) puts its object at."""
+
+    @abstractmethod
+    def add_object(self, name: str, shape: ShapeT, pose: Pose = (0.0, 0.0, 0.0)) -> None:
+        """Add an object placed at ``pose`` (a new generation)."""
+
+    @abstractmethod
+    def pose_of(self, pose: Any) -> Pose:
+        """A pose argument checked: three finite numbers."""
+
+    @abstractmethod
+    def _goal_tag(self, goal: GoalSpec) -> Tag:
+        """The tag of a named goal (attached to its object, if it names one)."""
+
+    @abstractmethod
+    def _forget(self) -> None:
+        """Drop what is cached of the objects' geometry (they changed)."""
+
+    # --- shared ---------------------------------------------------------------------------
+
+    def is_free_exact(self, Q: FloatArray) -> np.ndarray:
+        """No contact (re-checks of executed paths): validity without a clearance."""
+        return ~self.workcell().collides(Q, avoid_sources="none")
+
+    def hits(self, q: FloatArray, margin: float = 0.0) -> list[str]:
+        """Names of the objects one configuration meets (within ``margin``), sorted."""
+        q = np.asarray(q, float)[None, :]
+        return [
+            n
+            for n in sorted(self.objects)
+            if self.alone(n).collides(q, avoid_sources="none", margin=margin)[0]
+        ]
+
+    def shown_within_limits(self, q: FloatArray, name: str) -> str:
+        """``q`` as messages show it, after refusing (one line, field ``name``) a
+        configuration outside the joint limits, which it names."""
+        robot = self.robot
+        shown = "(" + ", ".join(f"{v:.4g}" for v in q) + ")"
+        if not robot.within_limits(q[None, :])[0]:
+            lim = ", ".join(
+                f"{a} [{lo:.4g}, {hi:.4g}]"
+                for a, lo, hi in zip(robot.axis_names, robot.lower, robot.upper, strict=True)
+            )
+            raise ArgumentError(f"configuration {shown} is outside the joint limits: {lim}", name)
+        return shown
+
+    def apply(self, change: Change) -> set[str]:
+        """Apply one scheduled change; the names of objects whose pose changed (the tags
+        attached to them move)."""
+        if isinstance(change, AddObject):
+            self.add_object(change.object, self.shape_from_spec(change.shape))
+        elif isinstance(change, RemoveObject):
+            self.remove_object(change.object)
+        elif isinstance(change, MoveObject | RotateObject):
+            return self.set_pose(change.object, self.moved(change))
+        elif isinstance(change, AddGoal):
+            self.goals[change.goal] = self._goal_tag(change.spec())
+        elif isinstance(change, RemoveGoal):
+            del self.goals[change.goal]
+        return set()
+
+    # The primitives every environment change goes through (scheduled changes and
+    # ExperiencePlanner.add / remove / move alike); each starts a new generation.
+
+    def remove_object(self, name: str) -> None:
+        """Remove an object (subgoals attached to it stay where they are)."""
+        del self.objects[name]
+        self._changed()
+
+    def set_pose(self, name: str, pose: Any) -> set[str]:
+        """Place an object at ``pose`` (checked by :meth:`pose_of`); returns ``{name}``
+        (its attached tags move with it)."""
+        self.objects[name].pose = self.pose_of(pose)
+        self._changed()
+        return {name}
+
+    def _changed(self) -> None:
+        self.gen += 1
+        self._forget()
