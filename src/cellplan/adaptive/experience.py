@@ -21,6 +21,11 @@ change (one transaction each), so a later session continues with the same graph.
 
 The scenario task list (:func:`~.runner.run_adaptive`) drives the same object: each
 task is a query from where the robot stands to a named goal.
+
+A query may hold a part (``plan(..., carrying=name)``): the world's validity attaches it
+to the tool for every check of the query (:meth:`~.worldbase.ChangingWorld.hold`; Chen
+is silent on held parts: a different part is treated as an environment change, a new
+generation, so G is verified again before it is used with the new shape).
 """
 
 from __future__ import annotations
@@ -250,6 +255,7 @@ class ExperiencePlanner:
         start: ArrayLike | None,
         goal: ArrayLike | str,
         time_limit: float | None = None,
+        carrying: str | None = None,
     ) -> Result:
         """A path from ``start`` to ``goal`` through the experience graph.
 
@@ -269,6 +275,14 @@ class ExperiencePlanner:
             (Solve within the call) and the query returns ``timeout``, G keeping what it
             verified. A limited query depends on the machine's speed: use the check
             budget (``max_solve_checks``) for results that repeat.
+        carrying
+            The part the robot holds during this query (a part of the scenario's
+            ``parts:``, its shape in the tool frame), or ``None``. Every check of the
+            query is made with it attached: the start and goal checks, the goal's IK,
+            Reach's segments, Solve, the repair and the exact re-check of the executed
+            path. A query holding another part than the last one is an environment change
+            (Section 2.5: a new generation, G's edges verified again before use). A 3-D
+            cell only: the planar world refuses it in one line.
 
         Returns
         -------
@@ -284,8 +298,11 @@ class ExperiencePlanner:
         ------
         ArgumentError
             A malformed configuration, an angle in degrees, a configuration outside
-            the joint limits or in collision (naming the obstacle), an unknown goal.
+            the joint limits or in collision (naming the obstacle), an unknown goal,
+            an unknown part (or one the world cannot hold).
         """
+        if carrying is not None and not isinstance(carrying, str):
+            raise ArgumentError(f"must be a part's name or None, got {carrying!r}", "carrying")
         if time_limit is not None and not (
             isinstance(time_limit, int | float)
             and not isinstance(time_limit, bool)
@@ -295,6 +312,8 @@ class ExperiencePlanner:
             raise ArgumentError(
                 f"must be a positive number of seconds, got {time_limit!r}", "time_limit"
             )
+        # Held before the goal and the start are checked: both must be free with the part.
+        self.world.hold(carrying)
         w, key, label = self._goal(goal)
         # The robot's own position is checked too: a change may have put an object on it.
         u = self._configuration(self.position if start is None else start, "start")

@@ -122,8 +122,10 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
         return self._cell
 
     def is_free(self, Q: FloatArray) -> np.ndarray:
-        """Certified validity: the joint-space ball of radius ``resolution / 2`` is free."""
-        return ~self.workcell().collides_within(Q, self.radius, avoid_sources="none")
+        """Certified validity: the joint-space ball of radius ``resolution / 2`` is free,
+        the held part (:meth:`~.worldbase.ChangingWorld.hold`) attached to the tool (its
+        cover's spheres checked with their own lever bounds)."""
+        return ~self.workcell().collides_within(Q, self.radius, self.carrying, avoid_sources="none")
 
     def alone(self, name: str) -> Workcell3D:
         """The cell with object ``name`` where it is now and no other object."""
@@ -135,9 +137,11 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
         if self.is_free(q[None, :])[0]:
             return  # the common case, one check; the reasons below only when it fails
         shown = self.shown_within_limits(q, name)
-        if self.base_cell.collides(q[None, :], avoid_sources="none")[0]:
+        if self.base_cell.collides(q[None, :], self.carrying, avoid_sources="none")[0]:
+            held = "" if self.carrying is None else f" (holding part {self.carrying!r})"
             raise ArgumentError(
-                f"configuration {shown} leaves the workcell bounds or collides with the arm itself",
+                f"configuration {shown} leaves the workcell bounds or collides with the arm "
+                f"itself{held}",
                 name,
             )
         hits = self.hits(q)
@@ -356,6 +360,10 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
 
     def _forget(self) -> None:
         self._cell = None
+
+    def _check_part(self, part: str) -> None:
+        """An unknown part is refused in one line naming the known ones."""
+        self.base_cell.part(part)
 
 
 def _offset(pose: Sequence[float]) -> Offset:

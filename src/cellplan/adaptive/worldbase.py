@@ -89,6 +89,9 @@ class ChangingWorld(ABC, Generic[ObjectT, ShapeT]):
     """Subgoals attach to the nearest object within this distance (``None``: always)."""
     gen: int
     """The environment generation: one more after every change."""
+    carrying: str | None = None
+    """The part the robot holds (a part of the workcell, attached to its tool): every
+    validity test of the world is made with it (:meth:`hold`)."""
 
     # --- geometry (the subclass's) --------------------------------------------------------
 
@@ -124,19 +127,45 @@ class ChangingWorld(ABC, Generic[ObjectT, ShapeT]):
     def _forget(self) -> None:
         """Drop what is cached of the objects' geometry (they changed)."""
 
+    def _check_part(self, part: str) -> None:
+        """Refuse (one line, field ``carrying``) a part this world cannot hold: by default
+        every part (the planar world's certified clearance covers the bare robot only, so
+        it has no carrying rule); a world that can hold parts overrides this."""
+        raise ArgumentError(
+            f"cannot hold part {part!r}: this workcell's experience planner checks the bare "
+            "robot (carrying is for 3-D cells)",
+            "carrying",
+        )
+
     # --- shared ---------------------------------------------------------------------------
 
+    def hold(self, part: str | None) -> None:
+        """Let the robot hold ``part`` (``None``: nothing) from now on.
+
+        A different part changes the robot's shape, so it is an environment change: a
+        new generation, and G's edges and vertices are verified again (by the repair
+        strategy, T) before they are used with it. The same part again changes nothing.
+        """
+        if part == self.carrying:
+            return
+        if part is not None:
+            self._check_part(part)
+        self.carrying = part
+        self._changed()
+
     def is_free_exact(self, Q: FloatArray) -> np.ndarray:
-        """No contact (re-checks of executed paths): validity without a clearance."""
-        return ~self.workcell().collides(Q, avoid_sources="none")
+        """No contact (re-checks of executed paths): validity without a clearance, the
+        held part attached."""
+        return ~self.workcell().collides(Q, self.carrying, avoid_sources="none")
 
     def hits(self, q: FloatArray, margin: float = 0.0) -> list[str]:
-        """Names of the objects one configuration meets (within ``margin``), sorted."""
+        """Names of the objects one configuration meets (within ``margin``, the held part
+        attached), sorted."""
         q = np.asarray(q, float)[None, :]
         return [
             n
             for n in sorted(self.objects)
-            if self.alone(n).collides(q, avoid_sources="none", margin=margin)[0]
+            if self.alone(n).collides(q, self.carrying, avoid_sources="none", margin=margin)[0]
         ]
 
     def shown_within_limits(self, q: FloatArray, name: str) -> str:

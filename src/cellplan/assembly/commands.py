@@ -9,6 +9,12 @@ the planners' option models and the scenario section. The run writes a Fig. 1-2 
 sequence, an animated GIF, ``trajectory.csv`` and ``metrics.json``; the exit status is
 0 when the discs are assembled, 1 when the run stopped short (stuck, budget spent), 2
 for bad input.
+
+``--algorithm robot`` runs planner ``assembly.robot`` (the sequential assembly executed
+by the scenario's URDF arm, as in ``ur5_assembly``; a scenario FILE, not ``--random``)
+and writes ``trajectory.csv`` (the arm's path), ``viewer.html`` (the 3-D viewer, the
+held part on the tool) and ``metrics.json``; an option of another algorithm is refused
+in one line.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from pydantic import BaseModel
 
 from cellplan.assembly.layout import DEFAULT_FILL
 from cellplan.assembly.options import STEP_MAX_RULE, GradientOptions, SequentialOptions
+from cellplan.assembly.robot_options import RobotAssemblyOptions
 from cellplan.assembly.run import DEFAULT_FRAMES, MAX_FRAMES
 from cellplan.assembly.section import GeneratorSpec
 from cellplan.cliutil import (
@@ -32,13 +39,22 @@ from cellplan.cliutil import (
     folder_files,
     scenario_file,
 )
+from cellplan.core import Result
 from cellplan.errors import ArgumentError, Problem
-from cellplan.fileio import staged_folder
+from cellplan.fileio import staged_folder, write_json
+from cellplan.setup import Setup
+from cellplan.workcell3d import Workcell3D
 
-ALGORITHMS = ("gradient", "sequential", "control")
+ALGORITHMS = ("gradient", "sequential", "control", "robot")
 
 #: Every file ``assemble`` writes into its output folder.
-OUTPUT_FILES = ("sequence.png", "assembly.gif", "trajectory.csv", "metrics.json")
+OUTPUT_FILES = (
+    "sequence.png",
+    "assembly.gif",
+    "trajectory.csv",
+    "metrics.json",
+    "viewer.html",
+)
 
 
 def _default(model: type[BaseModel], field: str) -> Any:
@@ -65,6 +81,18 @@ _RULE_HELP = f"sequential rule: paper | place (default: {_default(SequentialOpti
 _FINISH_HELP = (
     "sequential: place (the place rule finishes a run that stopped short) or none "
     f"(default {_default(SequentialOptions, 'finish')})"
+)
+_HOVER_HELP = (
+    "robot: tool height above a disc's centre, m (default "
+    f"{_default(RobotAssemblyOptions, 'hover')})"
+)
+_LIFT_HELP = (
+    f"robot: how far the tool rises over a pick and a place, m (default "
+    f"{_default(RobotAssemblyOptions, 'lift')})"
+)
+_REPAIR_HELP = (
+    f"robot: repair strategy of the experience graph, A0-A3 (default "
+    f"{_default(RobotAssemblyOptions, 'repair')})"
 )
 _SEED_HELP = f"--random: seed (default {_default(GeneratorSpec, 'seed')})"
 _RADIUS_HELP = f"--random: disc radius (default {_default(GeneratorSpec, 'radius'):g})"
@@ -93,7 +121,9 @@ def register(app: typer.Typer) -> None:
                 help="scenario file with a discs: section, or a bundled scenario's name"
             ),
         ] = None,
-        algorithm: Annotated[str, typer.Option(help="gradient|sequential|control")] = "gradient",
+        algorithm: Annotated[
+            str, typer.Option(help="gradient|sequential|control|robot")
+        ] = "gradient",
         k: Annotated[
             float | None, typer.Option("--k", help="exponent k (default: the scenario's discs.k)")
         ] = None,
@@ -126,6 +156,9 @@ def register(app: typer.Typer) -> None:
             typer.Option(help="--random: goals hex (default; close-packed in 3-D) or stack (3-D)"),
         ] = None,
         finish_rule: Annotated[str | None, typer.Option("--finish", help=_FINISH_HELP)] = None,
+        hover: Annotated[float | None, typer.Option(help=_HOVER_HELP)] = None,
+        lift: Annotated[float | None, typer.Option(help=_LIFT_HELP)] = None,
+        repair: Annotated[str | None, typer.Option(help=_REPAIR_HELP)] = None,
         frames: Annotated[
             int, typer.Option(help=f"GIF frames, 2 to {MAX_FRAMES}")
         ] = DEFAULT_FRAMES,
@@ -165,6 +198,10 @@ def register(app: typer.Typer) -> None:
             problems.append(
                 Problem("--algorithm", f"unknown {algorithm!r}; use {', '.join(ALGORITHMS)}")
             )
+        if algorithm == "robot" and random_n is not None:
+            problems.append(
+                Problem("--random", "--algorithm robot needs a scenario FILE with a URDF arm")
+            )
         if not 2 <= frames <= MAX_FRAMES:
             problems.append(Problem("--frames", f"must be in [2, {MAX_FRAMES}], got {frames}"))
         width = GIF_SIZE
@@ -191,6 +228,9 @@ def register(app: typer.Typer) -> None:
                 ("integrator", integrator),
                 ("step_max", step_max),
                 ("finish", finish_rule),
+                ("hover", hover),
+                ("lift", lift),
+                ("repair", repair),
             )
             if value is not None
         }
@@ -230,7 +270,38 @@ def register(app: typer.Typer) -> None:
             keep = {"FILE": file} if (file := scenario_file(scenario)) else None
             # The pictures check the GIF's memory again, now that the plan holds its own.
             with as_flags({"size": "--gif-size"}), staged_folder(output, keep=keep) as stage:
-                staged = write_outputs(result, stage, frames, width)
+                staged = (
+                    _write_robot(result, setup, stage)
+                    if algorithm == "robot"
+                    else write_outputs(result, stage, frames, width)
+                )
         files = {key: output / path.relative_to(stage) for key, path in staged.items()}
         summary = f"{result.message}; wrote {output}" if result.success else f"wrote {output}"
         finish(result, as_json, summary, outputs=files, extra={"scenario": setup.name})
+
+
+def _write_robot(result: Result, setup: Setup, output: Path) -> dict[str, Path]:
+    """``assembly.robot``'s files: the arm's trajectory, the 3-D viewer page (the held part
+    drawn on the tool) and the metrics; a run that stopped before any arm motion writes
+    the metrics alone."""
+    from cellplan.assembly.robot import held_parts
+    from cellplan.scene3d import cell_scene
+    from cellplan.view3d import write_viewer
+
+    files: dict[str, Path] = {}
+    traj = result.trajectory
+    cell = setup.workcell
+    if traj is not None and isinstance(cell, Workcell3D):
+        files["trajectory"] = traj.save(output / "trajectory.csv")
+        scene = cell_scene(cell, traj.q, traj.t, carrying=held_parts(traj))
+        write_viewer(scene, output / "viewer.html")
+        files["viewer"] = output / "viewer.html"
+    metrics = {
+        "status": result.status.value,
+        "message": result.message,
+        "algorithm": "robot",
+        **result.options,
+        **result.stats,
+    }
+    files["metrics"] = write_json(output / "metrics.json", metrics)
+    return files

@@ -22,9 +22,10 @@ robot's table and the arm carries them:
    (Section 2.3: subgoals attached to them follow);
 4. every segment of the arm path is certified collision-free by
    :meth:`~cellplan.workcell3d.Workcell3D.motion_collides`, the carried part attached
-   to the tool frame between pick and place. The experience planner checks the bare
-   arm (the adaptive package has no carried part in its validity yet), so a carrying
-   segment that fails this certification makes the run fail, named in the message.
+   to the tool frame between pick and place, at a step finer than the planner's. The
+   experience planner's transfer query holds the part too (``carrying``: Reach, Solve,
+   the repair and its re-check are made with the part attached), so this is a second,
+   independent check; a segment that fails it makes the run fail, named in the message.
 
 Where the papers are silent (docs/assembly.md, "Sequential assembly executed by the
 arm"): the tool points down (:data:`~cellplan.adaptive.world3d.DOWN`) at ``hover``
@@ -288,8 +289,12 @@ def plan_robot(setup: Setup, options: RobotAssemblyOptions, progress: Progress |
             pose = tool_pose(xy, z, options.hover + up)
             if leg in ("lift", "lower"):
                 # Straight up or down: the joint-space line to the nearby IK solution,
-                # certified with the part attached (Reach with the part; the experience
-                # planner checks the bare arm, so it does not plan these).
+                # certified with the part attached at CERTIFY_STEP. Not a query: through
+                # the graph's vertex a line between two low poses would swing the part
+                # about. The IK is the bare arm's: the planner's certified clearance with
+                # the part (its lever-bound balls, 5 cm above the table) refuses the low
+                # poses that the exact certification accepts.
+                planner.world.hold(None)
                 try:
                     q_to = planner.world.pose_goal(pose, q_now)
                 except ArgumentError as exc:
@@ -301,7 +306,7 @@ def plan_robot(setup: Setup, options: RobotAssemblyOptions, progress: Progress |
                 )
             else:
                 try:
-                    res = planner.plan(q_now, pose)
+                    res = planner.plan(q_now, pose, carrying=part if carrying else None)
                 except ArgumentError as exc:
                     # a lifted pose or an intermediate place (a parking spot, the end of
                     # a flow) that no free IK solution reaches: the run stops there
