@@ -28,7 +28,7 @@ from typing import Any
 
 import cellplan
 from cellplan.strategies.model.mdp import build_model
-from cellplan.strategies.model.section import FailureSpec
+from cellplan.strategies.section import FailureSpec
 from cellplan.strategies.solve.policy_iteration import solve_policy_iteration
 from cellplan.strategies.solve.solver import SolveResult, solve_general, solve_structured
 

@@ -52,9 +52,9 @@ from numba import njit
 
 from cellplan.errors import CellplanError
 from cellplan.strategies.model.mdp import LayeredMDP, build_model
-from cellplan.strategies.model.section import SolverSpec
 from cellplan.strategies.model.stencils import decode, table_stencil
 from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.section import SolverSpec
 from cellplan.strategies.solve import sweeps
 from cellplan.strategies.solve.evaluation import evaluate, layer_system, live_cells
 from cellplan.strategies.solve.solver import SolveResult, solve, solve_structured
@@ -126,10 +126,7 @@ def _choices(model, index):  # pragma: no cover - numba
                 if a >= 0:
                     if ((moves.valid[k, c] >> a) & 1) == 0:
                         continue
-                    ncorner = table_stencil(
-                        k, a, mi, moves.offs, moves.fr, moves.heading_axis, grid.shape,
-                        grid.periodic, idx, w,
-                    )  # fmt: skip
+                    ncorner = table_stencil(moves, grid, k, a, mi, idx, w)
                 else:
                     ncorner = 1
                     idx[0] = c
@@ -497,12 +494,13 @@ def _layer_kernels(mdp: LayeredMDP, m: int, h: np.ndarray, pol: np.ndarray, g: f
         model = sweeps.with_dense(model)
     D = np.zeros_like(h)
     nchg = np.zeros(1, np.int64)
-    t_sweep = _best_ms(lambda: sweep_policy(m, 1, h, D, g, False, True, pol, 1, nchg, 1e-9, model))
+    spec = sweeps.sweep_spec(1, pol, nchg, 1e-9)
+    t_sweep = _best_ms(lambda: sweep_policy(m, h, D, g, spec, model))
     cells, local = live_cells(mdp.live[m])
 
     def one_evaluation() -> None:
         system = layer_system(m, h, D, g, pol, cells, local, model)
-        evaluate(h[m], D[m], cells, *system)
+        evaluate(h[m], D[m], cells, system)
 
     t_eval = _best_ms(one_evaluation)
     return f"layer {m} ({cells.size:,} live): sweep {t_sweep:.2f} ms, evaluation {t_eval:.2f} ms"

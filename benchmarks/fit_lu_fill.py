@@ -4,9 +4,9 @@ Run: ``.venv/bin/python benchmarks/fit_lu_fill.py`` (``--set fit`` or ``--set he
 for one half; the whole run takes about five minutes on two cores).
 
 Policy iteration factorises its recurrent class with SuperLU, whose memory tracemalloc
-cannot see, so :func:`cellplan.strategies.model.mdp.estimate_memory` bounds the factors by a
-rule: :data:`~cellplan.strategies.model.mdp.STATIONARY_FILL` entries per place of the
-policy's matrix on a stationary model, and :data:`~cellplan.strategies.model.mdp.PERIODIC_FILL`
+cannot see, so :func:`cellplan.strategies.model.memory.estimate_memory` bounds the factors by a
+rule: :data:`~cellplan.strategies.model.memory.STATIONARY_FILL` entries per place of the
+policy's matrix on a stationary model, and :data:`~cellplan.strategies.model.memory.PERIODIC_FILL`
 times ``(layers x cells)^(4/3)`` on a time-varying one (Section VI-1). This script solves
 each model of the fit set and of the held-out set, records the largest factorisation
 (SuperLU's own count of its entries, ``SuperLU.nnz``), and prints the ratio the rule
@@ -22,12 +22,8 @@ from typing import Any
 import cellplan
 from cellplan.registry import scenario_path
 from cellplan.scenario import loads_scenario
-from cellplan.strategies.model.mdp import (
-    PERIODIC_FILL,
-    STATIONARY_FILL,
-    build_model,
-    estimate_memory,
-)
+from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.model.memory import PERIODIC_FILL, STATIONARY_FILL, estimate_memory
 from cellplan.strategies.solve import policy_iteration
 from cellplan.strategies.solve.solver import solve
 from cellplan.workcell import Workcell

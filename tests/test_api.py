@@ -48,7 +48,7 @@ def test_unknown_planner_suggests_the_close_name():
 
 def test_option_typo_is_named_with_a_suggestion():
     with pytest.raises(ArgumentError) as err:
-        cellplan.make("assembly.gradient", "discs_swap", kk=3)
+        cellplan.make("discs_swap", "assembly.gradient", kk=3)
     (problem,) = err.value.problems
     assert problem.field == "kk"
     assert "did you mean 'k'" in problem.message
@@ -56,14 +56,14 @@ def test_option_typo_is_named_with_a_suggestion():
 
 def test_out_of_range_option_is_one_line():
     with pytest.raises(ArgumentError) as err:
-        cellplan.make("assembly.gradient", "discs_swap", k=-1)
+        cellplan.make("discs_swap", "assembly.gradient", k=-1)
     (problem,) = err.value.problems
     assert problem.field == "k"
 
 
 def test_planner_needs_its_section():
     with pytest.raises(ScenarioError) as err:
-        cellplan.make("assembly.gradient", "strategies_tiny")
+        cellplan.make("strategies_tiny", "assembly.gradient")
     assert err.value.problems[0].field == "discs"
 
 
@@ -127,7 +127,7 @@ def test_the_package_lists_what_it_offers():
 
 
 def test_a_planner_repr_is_short():
-    planner = cellplan.make("strategies", "strategies_tiny", seed=3)
+    planner = cellplan.make("strategies_tiny", "strategies", seed=3)
     text = repr(planner)
     assert text == "Planner('strategies', setup='strategies-tiny', options={'seed': 3})"
 

@@ -1,10 +1,12 @@
 """Every registered planner obeys the contract (the Gymnasium-style conformance check).
 
-For each planner, its smoke problem is planned through the public API twice with the
-same options. The result must be a :class:`Result` with a :class:`Status`, a one-line
-message, finite statistics and a non-empty :class:`Trajectory` that round-trips through
-CSV and JSON; the smoke problem must be *solved* (a planner that always reports stuck
-fails here); and the run must be deterministic (timing statistics aside).
+The check ships as :func:`cellplan.testing.check_planner`, so a plug-in from another
+distribution runs the same one. For each planner, its smoke problem is planned through
+the public API twice with the same options. The result must be a :class:`Result` with a
+:class:`Status`, a one-line message, finite statistics and a non-empty
+:class:`Trajectory` that round-trips through CSV and JSON; the smoke problem must be
+*solved* (a planner that always reports stuck fails here); and the run must be
+deterministic (timing statistics aside).
 """
 
 from __future__ import annotations
@@ -17,9 +19,10 @@ import numpy as np
 import pytest
 
 import cellplan
-from cellplan.core import Options, Result, Status, check_stats
+from cellplan.core import Options, Result, Status
 from cellplan.registry import packages as registry_packages
 from cellplan.registry import scenario_names
+from cellplan.testing import ConformanceError, check_planner
 from cellplan.trajectory import Trajectory
 
 PLANNERS = cellplan.planners()
@@ -50,34 +53,20 @@ def test_registry_entries_are_well_formed():
 
 @functools.cache
 def _two_runs(name):
-    """Two runs of the planner's smoke problem, shared by the tests below."""
-    scenario, options = PLANNERS[name].smoke
-    setup = cellplan.load(scenario)
-    first = cellplan.plan(setup, name, **options)
-    second = cellplan.plan(setup, name, **options)
+    """Two runs of the planner's smoke problem, checked by the shipped conformance check
+    (:func:`cellplan.testing.check_planner`), shared by the tests below."""
+    runs = check_planner(name)
     gc.collect()
-    return first, second
+    return runs
 
 
 @pytest.mark.parametrize("name", sorted(PLANNERS))
-def test_planner_conformance(name, tmp_path):
+def test_planner_conformance(name):
+    # Raises ConformanceError, listing every rule broken, for a planner that breaks one.
     first, second = _two_runs(name)
     for result in (first, second):
-        assert isinstance(result, Result)
-        assert isinstance(result.status, Status)
-        assert result.planner == name
-        assert result.message and "\n" not in result.message
-        assert check_stats(result.stats) == []
-        assert isinstance(result.trajectory, Trajectory)
-        assert len(result.trajectory) >= 2
-        assert result.solution is not None
-    assert first.status is Status.SOLVED, f"{name} did not solve its smoke problem: {first.message}"
-    assert first.success
-    assert second.status is Status.SOLVED, f"{name}, second run: {second.message}"
-    traj = first.trajectory
-    for suffix in (".csv", ".json", ".npz"):
-        path = traj.save(tmp_path / f"traj{suffix}")
-        assert Trajectory.load(path) == traj
+        assert isinstance(result, Result) and result.planner == name
+        assert result.status is Status.SOLVED and result.success
 
 
 @pytest.mark.parametrize("name", sorted(PLANNERS))
@@ -109,7 +98,7 @@ def test_unknown_option_is_one_line_naming_it(name):
     spec = PLANNERS[name]
     scenario, _ = spec.smoke
     with pytest.raises(cellplan.ArgumentError) as err:
-        cellplan.make(name, scenario, no_such_option=1)
+        cellplan.make(scenario, name, no_such_option=1)
     assert [p.field for p in err.value.problems] == ["no_such_option"]
 
 
@@ -159,3 +148,87 @@ def test_a_package_for_3d_cells_has_a_bundled_3d_scenario(package):
         s.name for s in bundled if is_3d(s.scenario) and pkg.section in s.scenario.section_names()
     ]
     assert ours, f"no bundled 3-D scenario has a '{pkg.section}:' section"
+
+
+def _toy_line(setup, samples: int):
+    """A straight line from the robot's start, 1 unit along its first axis."""
+    from cellplan.units import axis_units
+
+    start = setup.workcell.robot.start
+    s = np.linspace(0.0, 1.0, samples)
+    q = start + s[:, None] * np.eye(len(start))[0]
+    names = setup.workcell.robot.axis_names
+    modes = np.zeros(samples, np.int64)
+    return Trajectory(s, q, modes, ("moving",), names, axis_units(names), "path")
+
+
+def _toy_spec(name, run):
+    from cellplan.core import PlannerSpec
+    from toy_package import StraightOptions
+
+    return PlannerSpec(name, "toy", "a toy planner of the conformance tests", StraightOptions, run)
+
+
+def test_check_planner_passes_a_plugin_planner_that_keeps_the_contract():
+    # A planner registered nowhere (a plug-in under development) is checked from its spec.
+    def run(setup, options, progress):
+        traj = _toy_line(setup, options.samples)
+        stats = {"length": 1.0}
+        return Result(Status.SOLVED, "a line", stats=stats, solution=traj.q, trajectory=traj)
+
+    first, second = check_planner(_toy_spec("toy.line", run), "strategies_tiny")
+    assert first.planner == "toy.line" and first.status is Status.SOLVED
+    assert np.array_equal(first.trajectory.q, second.trajectory.q)
+
+
+def test_check_planner_catches_a_broken_toy_planner():
+    calls = []
+
+    def run(setup, options, progress):
+        calls.append(1)
+        traj = _toy_line(setup, options.samples + len(calls))  # differs from run to run
+        return Result(
+            Status.STUCK,
+            "stuck\nat the start",
+            stats={"length": float("nan"), "count": np.int64(3)},
+            solution=traj.q,
+            trajectory=traj,
+        )
+
+    with pytest.raises(ConformanceError) as err:
+        check_planner(_toy_spec("toy.broken", run), "strategies_tiny")
+    failures = err.value.failures
+    text = "\n".join(failures)
+    assert "message is not one line" in text
+    assert "stats:" in text and "did not solve" in text
+    assert all(f.startswith(("run 1:", "run 2:")) for f in failures)
+    assert str(err.value).startswith("planner toy.broken breaks")
+
+
+def test_check_planner_catches_a_bad_registry_entry():
+    def run(setup, options, progress):
+        raise AssertionError("not reached: the entry is checked first")
+
+    with pytest.raises(ConformanceError) as err:
+        check_planner(_toy_spec("other.name", run), "strategies_tiny")
+    assert err.value.failures == ["its name is not 'toy' or 'toy.<variant>'"]
+
+
+def test_check_planner_catches_a_nondeterministic_planner():
+    calls = []
+
+    def run(setup, options, progress):
+        calls.append(1)
+        traj = _toy_line(setup, options.samples)
+        traj = Trajectory(
+            traj.t, traj.q * len(calls), traj.mode, traj.modes, traj.columns, traj.units, "path"
+        )
+        stats = {"runs": len(calls)}
+        return Result(Status.SOLVED, "a line", stats=stats, solution=traj.q, trajectory=traj)
+
+    with pytest.raises(ConformanceError) as err:
+        check_planner(_toy_spec("toy.random", run), "strategies_tiny")
+    assert err.value.failures == [
+        "declared deterministic, but two runs differ in stats ['runs']",
+        "declared deterministic, but two runs give different trajectories",
+    ]

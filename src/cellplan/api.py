@@ -92,8 +92,10 @@ class Planner:
         )
 
 
-def make(name: str, setup: Setup | Scenario | str | Path, /, **options: Any) -> Planner:
+def make(setup: Setup | Scenario | str | Path, name: str, /, **options: Any) -> Planner:
     """Build planner ``name`` for a problem, validating every option.
+
+    The arguments come in the order of :func:`plan`: the problem, then the planner.
 
     Raises
     ------
@@ -133,4 +135,4 @@ def plan(
     naming it. A planner that runs but does not solve returns a result whose ``status``
     and ``message`` say why; it does not raise.
     """
-    return make(name, setup, **options).solve(progress)
+    return make(setup, name, **options).solve(progress)

@@ -134,7 +134,7 @@ def test_bad_options_are_one_line_each(
     swap: cellplan.Setup, planner: str, options: dict[str, object], field: str, text: str
 ) -> None:
     with pytest.raises(ArgumentError) as err:
-        cellplan.make(planner, swap, **options)
+        cellplan.make(swap, planner, **options)
     (problem,) = err.value.problems
     assert problem.field == field and text in problem.message
     assert "\n" not in str(problem)

@@ -44,7 +44,8 @@ def test_solution_answers_queries_at_real_states(result, setup):
     waiting = strategy.mode_index("1,1,1,W")
     for mode in (0, waiting):
         u = strategy.action(start, mode)
-        assert u in (FMP, STAY) or 0 <= u < strategy.mdp.disp.shape[1]
+        assert u.kind in ("pick", "drop", "stay", "move")
+        assert u.code in (FMP, STAY) or 0 <= u.move == u.code < strategy.mdp.disp.shape[1]
     # The axis names travel with the strategy (and its file).
     assert strategy.meta["axes"] == ["x", "y"]
 
@@ -99,6 +100,10 @@ def test_general_method_agrees_with_structured(setup, result):
         ({"cells": [12, 12, 12]}, "cells: needs 2 values"),
         ({"sample_stages": 0}, "sample_stages"),
         ({"seed": -1}, "seed"),
+        ({"tolerance": 0}, "tolerance"),
+        ({"tolerance": float("nan")}, "tolerance"),
+        ({"max_sweeps": 0}, "max_sweeps"),
+        ({"damping": 1.5}, "damping"),
     ],
 )
 def test_bad_options_are_one_line_naming_them(setup, options, named):
@@ -116,6 +121,23 @@ def test_unconverged_solve_is_reported_not_raised():
     assert result.status is Status.NOT_CONVERGED and not result.success
     assert result.message.startswith("did not converge within 2 sweeps")
     assert len(result.trajectory) == 11 and check_stats(result.stats) == []
+
+
+def test_solver_settings_are_options_defaulting_to_the_scenario(setup, result):
+    # Each solver setting is an option of the planner; None reads strategy.solver.
+    tight = cellplan.plan(setup, "strategies", tolerance=1e-8, sample_stages=5)
+    assert tight.success
+    assert tight.stats["gain_upper"] - tight.stats["gain_lower"] < 1e-8
+    assert abs(tight.stats["gain"] - result.stats["gain"]) < 1e-6
+    setup_2 = cellplan.loads(TINY.replace("CELLS", "12") + "  solver: {method: general}\n")
+    stopped = cellplan.plan(setup_2, "strategies", max_sweeps=2, sample_stages=10)
+    assert stopped.status is Status.NOT_CONVERGED
+    assert stopped.message.startswith("did not converge within 2 sweeps")
+    # The option wins over the scenario's value, which stays the default.
+    setup_3 = cellplan.loads(
+        TINY.replace("CELLS", "12") + "  solver: {method: general, max_sweeps: 2}\n"
+    )
+    assert cellplan.plan(setup_3, "strategies", max_sweeps=100_000, sample_stages=10).success
 
 
 # --- simulate_result ---------------------------------------------------------------------------
@@ -219,8 +241,11 @@ def test_an_attached_workcell_vetoes_fmp_the_exact_test_refuses():
     # A configuration where the grid offers FMP: inside source S1.
     q = np.array([4.0, 3.5])
     strategy.__dict__.pop("_fmp_test", None)
-    assert strategy.action(q, mode) == FMP
+    assert strategy.action(q, mode).kind == "pick" == strategy.action(q[None], mode).kind[0]
+    assert strategy.action_code(q, mode) == FMP
     strategy.attach(setup.workcell)
-    assert strategy.action(q, mode) == FMP  # the exact test agrees here
+    assert strategy.action(q, mode).kind == "pick"  # the exact test agrees here
+    assert strategy.action(q, mode).region == "S1"
     strategy.__dict__["_fmp_test"] = lambda points, m: np.zeros(len(points), bool)
-    assert strategy.action(q, mode) != FMP  # refused: the best motion instead
+    assert strategy.action_code(q, mode) != FMP  # refused: the best motion instead
+    assert strategy.action(q, mode).kind == "move"

@@ -19,7 +19,7 @@ from strategies_helpers import lu_entries, tiny
 import cellplan
 from cellplan import api, budget
 from cellplan.errors import ArgumentError
-from cellplan.strategies.model.mdp import estimate_memory
+from cellplan.strategies.model.memory import estimate_memory
 from cellplan.strategies.policy.strategy import solve_scenario
 from cellplan.strategies.sim.simulate import simulate_result
 

@@ -11,11 +11,11 @@ from strategies_helpers import tiny
 from cellplan.core import Status
 from cellplan.strategies.model.mdp import build_model
 from cellplan.strategies.solve import solver
+from cellplan.strategies.solve.layers import Layers
 from cellplan.strategies.solve.solver import (
     _certificate_due,
     _Drift,
     _inner_accuracy,
-    _Layers,
     _moved_along_newton,
     _normalise_nr,
 )
@@ -107,7 +107,7 @@ def tiny_run():
     sc, cell = tiny(cells=12)
     mdp = build_model(sc, cell)
     with Workers(1) as workers:
-        yield _Layers(mdp, 100, workers)
+        yield Layers(mdp, 100, workers)
 
 
 @given(st.integers(0, 2**32 - 1), st.floats(-0.1, 0.1))

@@ -116,11 +116,11 @@ def test_stability_check_on_near_ties_equals_a_full_second_sweep():
     noise = np.random.default_rng(0).normal(scale=0.05, size=h.shape)
     # The solved values (span ~1e-7, few near ties) and perturbed ones (many actions change).
     for values in (h, h + noise):
-        cert = solver._certify(mdp, values)
+        cert = solver.certify(mdp, values)
         _, _, th, policy, _ = cert
         _, full, _ = solver.bellman(mdp, th - result.gain)
         expected = int(np.count_nonzero((full != policy) & mdp.live))
-        assert solver._stability(mdp, cert, result.gain) == expected
+        assert solver.stability(mdp, cert, result.gain) == expected
     assert expected > 0  # the perturbed case exercises the second sweep
 
 

@@ -131,6 +131,33 @@ def test_reject_modes_and_outcomes_follow_the_scenario():
     assert out.prob[out.ptr[5] : out.ptr[6]].tolist() == [0.5, 0.5]
 
 
+def test_the_variant_names_the_events_the_simulator_records():
+    # The simulation hook of the failures variant (variants/failures.py: fmp_event) gives
+    # the events of sim/simulate.py: a failed delivery, a rejected part dropped.
+    from cellplan.strategies.variants.failures import FAILURES
+
+    sc, cell = tiny_failures(0.3, "reject")
+    mdp = build_model(sc, cell)
+    assert [v.name for v in mdp.variants] == ["failures"] and FAILURES.in_model(mdp)
+    out = mdp.fmp_outcomes()
+    assert FAILURES.fmp_event(mdp, 1, out.ptr[1]) is None  # a pick
+    assert FAILURES.fmp_event(mdp, 3, out.ptr[3]) is None  # a delivery
+    failed = FAILURES.fmp_event(mdp, 3, out.ptr[3] + 1)
+    assert failed is not None and (failed.kind, failed.detail) == (
+        "fmp_failed",
+        "P1 at D1, reject to R1",
+    )
+    dropped = FAILURES.fmp_event(mdp, 5, out.ptr[5])
+    assert dropped is not None and (dropped.kind, dropped.detail) == ("reject", "P1 at R1")
+    sc, cell = tiny_failures(0.25, "retry")
+    mdp = build_model(sc, cell)
+    out = mdp.fmp_outcomes()
+    c = [m.label for m in mdp.modes].index("<P1,S1,D1,C>")
+    assert out.layer[out.ptr[c] + 1] == c  # the retry: the same mode again
+    retry = FAILURES.fmp_event(mdp, c, out.ptr[c] + 1)
+    assert retry is not None and (retry.kind, retry.detail) == ("fmp_failed", "P1 at D1, retry")
+
+
 def test_retry_in_place_is_an_outcome_into_the_same_mode_at_the_rework_cost():
     sc, cell = tiny_failures(0.25, "retry")
     mdp = build_model(sc, cell)

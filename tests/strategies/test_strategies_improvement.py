@@ -13,13 +13,16 @@ from hypothesis import strategies as st
 from test_strategies_kernels import landing, models, random_actions, ref_transition
 
 from cellplan.strategies.model.actions import ActionSet
-from cellplan.strategies.model.mdp import Geometry, LayeredMDP, assemble
+from cellplan.strategies.model.mdp import Geometry, LayeredMDP, assemble, grid_box
+from cellplan.strategies.model.spec import Motions, Process
 from cellplan.strategies.solve.bellman import bellman_dense, bellman_rows
 from cellplan.strategies.solve.improvement import RUN, improvable, improve_layer
 from cellplan.strategies.solve.sweeps import (
     dense_cells,
     layer_iteration,
+    layer_solve,
     sweep_policy,
+    sweep_spec,
     with_dense,
 )
 
@@ -74,16 +77,11 @@ def big_model(seed: int, nx: int = 70, ny: int = 60) -> LayeredMDP:
     )
     acts = random_actions(rng, 8)
     return assemble(
-        shape=(nx, ny),
-        lower=(0.0, 0.0),
-        upper=(float(nx), float(ny)),
-        periodic=(False, False),
-        requests=[("P", "S", "D", 1.0)],
-        geometry=geometry,
-        actions_empty=acts,
-        actions_carrying={"P": acts},
-        stage_time=1.0,
-        arrival=0.2,
+        grid_box((nx, ny), (0.0, 0.0), (float(nx), float(ny)), (False, False)),
+        [("P", "S", "D", 1.0)],
+        geometry,
+        Motions(acts, {"P": acts}),
+        Process(1.0, 0.2),
     )
 
 
@@ -178,14 +176,14 @@ def test_a_state_left_below_its_value_by_staying_is_not_taken_for_solved():
     D = np.zeros_like(h)
     pol = np.full(h.shape, -3, np.int16)
     h[m][mdp.live[m]] = np.inf
-    layer_iteration(m, h, D, g, 1e-11, 10**6, 10**6, pol, False, True, False, model)
+    layer_iteration(m, h, D, g, pol, layer_solve(1e-11, 10**6, 10**6, False, True, False), model)
     solved = h[m].copy()
     # A state on a move, upstream of others, set below its value and to stay.
     moving = np.flatnonzero(mdp.live[m] & (pol[m] >= 0))
     c = int(moving[len(moving) // 2])
     h[m, c] -= 0.5
     pol[m, c] = -1
-    layer_iteration(m, h, D, g, 1e-11, 10**6, 10**6, pol, True, True, False, model)
+    layer_iteration(m, h, D, g, pol, layer_solve(1e-11, 10**6, 10**6, True, True, False), model)
     assert pol[m, c] != -1
     np.testing.assert_allclose(h[m][mdp.live[m]], solved[mdp.live[m]], rtol=0, atol=1e-9)
 
@@ -205,7 +203,7 @@ def test_sweeps_reading_dense_cells_untested_equal_the_tested_loop(mdp, seed, g,
             hh, DD = h.copy(), D.copy()
             pol = np.full(h.shape, -3, np.int16)
             nchg = np.zeros(1, np.int64)
-            change = sweep_policy(m, flips, hh, DD, g, False, True, pol, 1, nchg, 1e-9, model)
+            change = sweep_policy(m, hh, DD, g, sweep_spec(flips, pol, nchg, 1e-9), model)
             runs.append((change, hh, DD, pol, nchg))
         for a, b in zip(*runs, strict=True):
             np.testing.assert_array_equal(a, b)
@@ -223,7 +221,7 @@ def test_a_capped_cold_solve_leaves_no_live_state_unreached(mdp, g, dense):
     pol = np.full(h.shape, -3, np.int16)
     for m in (mdp.c_layer(0), mdp.w_layer(0)):
         h[m][mdp.live[m]] = np.inf
-        layer_iteration(m, h, D, g, 1e-2, 1, 100_000, pol, False, True, False, model)
+        layer_iteration(m, h, D, g, pol, layer_solve(1e-2, 1, 100_000, False, True, False), model)
         assert np.all(np.isfinite(h[m][mdp.live[m]]))
 
 
@@ -244,12 +242,9 @@ def test_a_capped_cold_solve_of_a_long_corridor_goes_past_the_cap():
         np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), -1, ("e", "w", "n", "s")
     )
     mdp = assemble(
-        shape=(nx, ny),
-        lower=(0.0, 0.0),
-        upper=(float(nx), float(ny)),
-        periodic=(False, False),
-        requests=[("P", "S", "D", 1.0)],
-        geometry=Geometry(
+        grid_box((nx, ny), (0.0, 0.0), (float(nx), float(ny)), (False, False)),
+        [("P", "S", "D", 1.0)],
+        Geometry(
             free_nr=free,
             free_w={"S": free},
             free_c={("P", "S"): free},
@@ -258,10 +253,8 @@ def test_a_capped_cold_solve_of_a_long_corridor_goes_past_the_cap():
             tf_pick={("P", "S"): np.ones(nx * ny)},
             tf_drop={("P", "D"): np.ones(nx * ny)},
         ),
-        actions_empty=acts,
-        actions_carrying={"P": acts},
-        stage_time=1.0,
-        arrival=0.2,
+        Motions(acts, {"P": acts}),
+        Process(1.0, 0.2),
     )
     model = with_dense(mdp.kernel_args())
     m = mdp.c_layer(0)
@@ -269,7 +262,8 @@ def test_a_capped_cold_solve_of_a_long_corridor_goes_past_the_cap():
     h[m][mdp.live[m]] = np.inf
     D = np.zeros_like(h)
     pol = np.full(h.shape, -3, np.int16)
-    full, _ = layer_iteration(m, h, D, 0.5, 1e-2, 1, 100_000, pol, False, True, False, model)
+    opts = layer_solve(1e-2, 1, 100_000, False, True, False)
+    full, _ = layer_iteration(m, h, D, 0.5, pol, opts, model)
     assert full > 1  # one sweep did not reach the far end
     # Every cell of the corridor: (steps to the drop cell + 1) x (1 - g), the FMP there
     # costing t_f - g = 1 - g with NR at zero; steps by breadth-first search.

@@ -15,11 +15,13 @@ from hypothesis import strategies as st
 
 from cellplan.strategies.model.actions import ActionSet
 from cellplan.strategies.model.interpolation import interp
-from cellplan.strategies.model.mdp import Geometry, LayeredMDP, assemble
+from cellplan.strategies.model.mdp import Geometry, LayeredMDP, assemble, grid_box
+from cellplan.strategies.model.spec import Motions, Process
 from cellplan.strategies.model.stencils import MAX_DIM, stencil
 from cellplan.strategies.solve.bellman import bellman_all
 from cellplan.strategies.solve.evaluation import evaluate, layer_system, live_cells
-from cellplan.strategies.solve.sweeps import other_branches, sweep_layer, sweep_policy, sweep_self
+from cellplan.strategies.solve.nr import NRBranches, Slab, other_branches, sweep_self
+from cellplan.strategies.solve.sweeps import Sweep, sweep_layer, sweep_policy, sweep_spec
 
 # --- references ---------------------------------------------------------------------------
 
@@ -143,16 +145,11 @@ def models(draw) -> LayeredMDP:
     )
     acts = random_actions(rng, draw(st.integers(2, 5)))
     return assemble(
-        shape=(nx, ny),
-        lower=(0.0, 0.0),
-        upper=(float(nx), float(ny)),
-        periodic=periodic,
-        requests=[("P", "S", "D", 1.0)],
-        geometry=geometry,
-        actions_empty=acts,
-        actions_carrying={"P": acts},
-        stage_time=1.0,
-        arrival=float(rng.uniform(0.05, 0.5)),
+        grid_box((nx, ny), (0.0, 0.0), (float(nx), float(ny)), periodic),
+        [("P", "S", "D", 1.0)],
+        geometry,
+        Motions(acts, {"P": acts}),
+        Process(1.0, float(rng.uniform(0.05, 0.5))),
     )
 
 
@@ -290,7 +287,7 @@ def test_exact_evaluation_solves_the_policys_linear_system(mdp, seed, g):
     live_c, local = live_cells(mdp.live[m])
     ptr, succ_, wt, cst, dcst, fixed = layer_system(m, h, D, g, pol, live_c, local, model)
     assert not fixed.any()
-    evaluate(h[m], D[m], live_c, ptr, succ_, wt, cst, dcst, fixed)
+    evaluate(h[m], D[m], live_c, (ptr, succ_, wt, cst, dcst, fixed))
     np.testing.assert_allclose(h[m][cells], h_ref, rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(D[m][cells], d_ref, rtol=1e-8, atol=1e-8)
 
@@ -367,18 +364,11 @@ def multi_request_models(draw) -> LayeredMDP:
     )
     acts = random_actions(rng, draw(st.integers(2, 4)))
     return assemble(
-        shape=(nx, ny),
-        lower=(0.0, 0.0),
-        upper=(float(nx), float(ny)),
-        periodic=(False, draw(st.booleans())),
-        requests=[("P", s, d, 0.25) for s in "ST" for d in "DE"],
-        geometry=geometry,
-        actions_empty=acts,
-        actions_carrying={"P": acts},
-        stage_time=1.0,
-        arrival=0.2,
-        destination_change=draw(st.sampled_from([0.0, 0.1])),
-        source_change=draw(st.sampled_from([0.0, 0.1])),
+        grid_box((nx, ny), (0.0, 0.0), (float(nx), float(ny)), (False, draw(st.booleans()))),
+        [("P", s, d, 0.25) for s in "ST" for d in "DE"],
+        geometry,
+        Motions(acts, {"P": acts}),
+        Process(1.0, 0.2, draw(st.sampled_from([0.0, 0.1])), draw(st.sampled_from([0.0, 0.1]))),
     )
 
 
@@ -428,7 +418,7 @@ def test_single_branch_fast_paths_equal_the_general_loops(mdp, seed, g, flips):
             hh, DD = h.copy(), D.copy()
             pol = np.full(h.shape, -3, np.int16)
             nchg = np.zeros(1, np.int64)
-            change = sweep_policy(m, flips, hh, DD, g, False, True, pol, 1, nchg, 1e-9, mod)
+            change = sweep_policy(m, hh, DD, g, sweep_spec(flips, pol, nchg, 1e-9), mod)
             runs.append((change, hh, DD, pol, nchg))
         (c1, h1, d1, p1, n1), (c2, h2, d2, p2, n2) = runs
         assert c1 == c2
@@ -471,19 +461,17 @@ def _nr_inputs(mdp, seed):
 
 
 def _slab_sweep(h, D, E, ED, pself, model, g, flips, slabs):
-    """One NR sweep, its slabs in the given order, reading each other's old values."""
-    frozen_h, frozen_D = h[0].copy(), D[0].copy()
+    """One NR sweep, its slabs in the given order, reading each other's old values (each
+    slab works on its own copy of the layer from before the sweep)."""
+    work = [(h[0].copy(), D[0].copy()) for _ in slabs]
     pol = np.full(h.shape, -3, np.int16)
     changed = np.zeros(1, np.int64)
     change = 0.0
-    for rows in slabs:
-        change = max(
-            change,
-            sweep_self(
-                0, flips, h, D, g, E, ED, pself, pol, 1, changed, 1e-9, model, rows,
-                frozen_h, frozen_D,
-            ),
-        )  # fmt: skip
+    nr = NRBranches(E, ED, pself)
+    sw = Sweep(int(flips), True, True, pol, 1, changed, 1e-9)
+    for rows, (wh, wd) in zip(slabs, work, strict=True):
+        slab = Slab((int(rows[0]), int(rows[1])), wh, wd)
+        change = max(change, sweep_self(0, h, D, g, nr, sw, model, slab))
     return change, pol, int(changed[0])
 
 

@@ -104,6 +104,26 @@ def test_a_single_exact_landing_is_the_section_v_model():
     assert solve(mdp).gain == pytest.approx(solve(plain).gain, abs=1e-12)
 
 
+def test_the_variant_draws_a_landing_by_its_probabilities():
+    # The simulation hook of the noise variant (variants/noise.py: landing): the landing
+    # index drawn from one uniform number, as sim/simulate.py draws it.
+    from cellplan.strategies.variants.noise import NOISE as VARIANT
+
+    sc, cell = noisy(
+        "  noise:\n    outcomes:\n      - {offset: [0, 0], probability: 0.5}\n"
+        "      - {offset: [0, 0.5], probability: 0.25}\n"
+        "      - {offset: [0, -0.5], probability: 0.25}\n"
+    )
+    mdp = build_model(sc, cell)
+    assert [v.name for v in mdp.variants] == ["noise"] and VARIANT.in_model(mdp)
+    rng = np.random.default_rng(7)
+    drawn = [VARIANT.landing(mdp, rng) for _ in range(4000)]
+    counts = np.bincount(np.asarray(drawn), minlength=3) / len(drawn)
+    np.testing.assert_allclose(counts, [0.5, 0.25, 0.25], atol=0.03)
+    exact = build_model(*tiny(cells=16))
+    assert exact.variants == () and not VARIANT.in_model(exact)
+
+
 def test_noise_costs_time_and_the_simulator_draws_the_landings():
     from cellplan.strategies.policy.strategy import solve_scenario
     from cellplan.strategies.sim.simulate import simulate

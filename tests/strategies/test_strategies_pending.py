@@ -19,8 +19,8 @@ from test_strategies_solver import sparse_rvi
 
 from cellplan.api import load
 from cellplan.strategies.model.mdp import build_model
-from cellplan.strategies.model.section import mode_counts
 from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.section import mode_counts
 from cellplan.strategies.solve.solver import solve
 from cellplan.strategies.variants.pending import pending_modes
 from cellplan.strategies.variants.pending_sim import (
@@ -28,6 +28,7 @@ from cellplan.strategies.variants.pending_sim import (
     Rules,
     simulate_pending,
     single_request_model,
+    single_request_strategy,
 )
 
 
@@ -103,7 +104,7 @@ def _first_pick(strategy: Strategy, q: np.ndarray, waiting: list[int]) -> str:
     rules = Rules(strategy)
     m = rules.mode_of(waiting, -1)
     for _ in range(200):
-        u = strategy.action(q, m)
+        u = strategy.action_code(q, m)
         if u <= -2 and u != -3:
             j = 0 if u == -2 else -3 - u
             return rules.names[sorted(set(waiting))[j]]
@@ -135,7 +136,7 @@ def _with(sc, **update):
 
 def test_every_policy_of_a_seed_meets_the_same_requests():
     strategy = solved(*pending(2))
-    rules = Rules(strategy)
+    rules = Rules(strategy, single_request_strategy(strategy))
     runs = {p: simulate_pending(strategy, 3000, 5, policy=p, rules=rules) for p in PENDING_POLICIES}
     drawn = {p: r.arrivals for p, r in runs.items()}
     assert len(set(drawn.values())) == 1 and drawn["optimal"] > 50
@@ -258,7 +259,7 @@ def test_the_memory_estimate_counts_the_modes_and_options_of_simultaneous_reques
     import gc
     import tracemalloc
 
-    from cellplan.strategies.model.mdp import estimate_memory
+    from cellplan.strategies.model.memory import estimate_memory
     from cellplan.strategies.policy.strategy import solve_scenario
 
     sc, cell = pending(3, 40)

@@ -12,7 +12,7 @@ their labels; the pictures draw them; ``validate`` says how many modes each
 The scenario is the tiny cell with a second destination and three request types and
 ``max_pending: 2``, so that the options (``O = 24``) and the modes (``M = 22``) differ in
 number. The waiting requests of a mode are a multiset (two requests of one type may wait
-at once); the numbers below come from the model (:func:`~.section.mode_counts`,
+at once); the numbers below come from the model (:func:`~.request_sets.mode_counts`,
 :func:`~.pending.option_count`), and the modes are named by their labels, whose index in
 the file is that of :func:`~.pending.pending_modes`.
 """
@@ -41,9 +41,9 @@ from cellplan.strategies.experiments.plots import (
     wrap_title,
 )
 from cellplan.strategies.model.mdp import Mode
-from cellplan.strategies.model.section import mode_counts
 from cellplan.strategies.policy.fileformat import mode_of, read_strategy
 from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.section import mode_counts
 from cellplan.strategies.sim.simulate import Simulation
 from cellplan.strategies.variants.pending import option_count, pending_modes
 
@@ -473,6 +473,8 @@ def test_plot_mode_marks_every_fmp_option_as_fmp(pending_base, tmp_path, monkeyp
     FMP marks at every sampled live cell, whichever option it picks."""
     import matplotlib.axes
 
+    from cellplan.strategies.policy.decisions import Action, fmp_option_of
+
     setup, path, _, _ = pending_base
     strat = Strategy.load(path, setup.scenario)
     m = strat.mode_index("{P1,S1,D1; P1,S2,D1}")
@@ -484,7 +486,9 @@ def test_plot_mode_marks_every_fmp_option_as_fmp(pending_base, tmp_path, monkeyp
         return real(self, *args, **kwargs)
 
     monkeypatch.setattr(matplotlib.axes.Axes, "plot", record)
-    monkeypatch.setattr(Strategy, "action", lambda self, q, mode, forbid_fmp=False: code)
+    # A pick of that option (a typed action, as Strategy.action answers).
+    pick = Action("pick", code, step=(0.0, 0.0), region="S1", option=fmp_option_of(code))
+    monkeypatch.setattr(Strategy, "action", lambda self, q, mode: pick)
     plot_mode(strat, setup.workcell, m, tmp_path / "m.png", arrows=12)
     marks = [a[2] for a in drawn if len(a) == 3]
     assert marks and set(marks) == {"o"}

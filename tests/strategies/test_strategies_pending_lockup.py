@@ -15,10 +15,11 @@ import pytest
 from test_strategies_pending import pending, solved
 
 from cellplan.api import load
+from cellplan.core import Status
 from cellplan.strategies.model.stencils import fmp_option
 from cellplan.strategies.policy.execution import Executor
 from cellplan.strategies.policy.strategy import STAY, Strategy
-from cellplan.strategies.sim.simulate import region_test
+from cellplan.strategies.sim.simulate import region_test, simulate_result, wait_bound
 from cellplan.strategies.variants.pending import mode_keys
 from cellplan.strategies.variants.pending_sim import simulate_pending
 
@@ -49,7 +50,7 @@ class EdgeRefusingTest:
 def run_until_fmp(strategy: Strategy, executor, q, m, test, stages: int) -> int:
     """Stages until the executor takes an FMP in mode ``m`` (no arrivals); -1 if none."""
     for k in range(stages):
-        u = executor.action(q, m) if executor is not None else strategy.action(q, m)
+        u = executor.action(q, m) if executor is not None else strategy.action_code(q, m)
         j = int(fmp_option(u))
         if j >= 0:
             assert test.option(q[None, :], m, j)[0]  # every FMP taken passes the exact test
@@ -107,12 +108,66 @@ def test_the_plain_rule_takes_only_options_the_exact_test_confirms(strategy_and_
             q = mdp.lower + (idx + rng.uniform(0, 1, len(idx))) * mdp.spacing
             if not mdp.live[m, c]:
                 continue
-            u = attached.action(q, m)
-            j = int(fmp_option(u))
+            a = attached.action(q, m)
+            j = int(fmp_option(a.code))
             if j >= 0:
                 taken += 1
                 assert exact.option(q[None, :], m, j)[0]
+                assert a.option == j and a.kind == ("drop" if mdp.modes[m].part else "pick")
     assert taken > 0
+
+
+def test_a_refused_delivery_with_one_request_open_is_left(strategy_and_cell):
+    # Issue 35 part 1, at its cause: with one request open the loss per stage (1) is below
+    # the gain, so l - g < 0 and the correction never fired there; a delivery the exact
+    # test refuses at the edge held the robot until the next arrival. The cost of delay
+    # (the arrivals that lead to costlier modes) is positive there, and is the progress.
+    strategy, cell = strategy_and_cell
+    mdp = strategy.mdp
+    test = EdgeRefusingTest(strategy, cell, depth=0.6 * float(mdp.spacing.max()))
+    keys = mode_keys(mdp)
+    cheap = [m for key, m in keys.items() if len(key[0]) + bool(key[1]) == 1]
+    assert cheap and all(mdp.cost[m] < strategy.gain for m in cheap)
+    rng = np.random.default_rng(135)
+    tried = 0
+    for m in cheap:
+        live = np.flatnonzero(mdp.live[m])
+        for c in rng.choice(live, size=min(6, len(live)), replace=False):
+            idx = np.array(np.unravel_index(c, tuple(mdp.shape)))
+            q = mdp.lower + (idx + rng.uniform(0.05, 0.95, len(idx))) * mdp.spacing
+            executor = Executor(strategy, option_test=test)
+            k = run_until_fmp(strategy, executor, q, m, test, 400)
+            assert k >= 0, f"mode {mdp.modes[m].label} from {q}: no FMP in 400 stages"
+            tried += 1
+    assert tried >= 12 and test.refused > 0
+
+
+def test_no_seed_holds_a_request(strategy_and_cell):
+    # Many seeds, with the workcell's exact tests: every request but the last few open at
+    # the end is served, none over the wait bound, and the loss follows the gain.
+    strategy, cell = strategy_and_cell
+    bound = wait_bound(strategy)
+    losses = []
+    for seed in range(12):
+        sim = simulate_pending(strategy, 3000, seed, cell=cell, regions="contact")
+        assert sum(r.delivery < 0 for r in sim.requests) <= 3
+        assert max((r.waiting for r in sim.requests), default=0.0) <= bound, seed
+        losses.append(sim.metrics()["loss_per_stage"])
+    assert np.mean(losses) == pytest.approx(strategy.gain, rel=0.15)
+
+
+@pytest.mark.slow
+def test_issue_35_reproducer_runs_clean():
+    # The issue's command line: cellplan solve strategies_pending -o q.npz && cellplan
+    # simulate strategies_pending --strategy q.npz --stages 160000 --seed 1235 --no-gif
+    # --json -o sim (it exited 1 after a 147,413-stage wait).
+    setup = load("strategies_pending")
+    strategy = Strategy.from_solution(*_solve(setup), setup.scenario)
+    strategy.meta["regions"] = setup.scenario.strategy.regions
+    run = simulate_result(strategy, 160_000, 1235, cell=setup.workcell)
+    assert run.status is Status.SOLVED, run.message
+    assert run.stats["served"] >= run.stats["requests"] - 3
+    assert run.stats["loss_per_stage"] == pytest.approx(strategy.gain, rel=0.05)
 
 
 @pytest.mark.slow

@@ -241,7 +241,7 @@ def test_a_pocket_the_robot_can_never_leave_is_not_live():
     # A waiting robot in the pocket could stay there for ever, phase after phase: the
     # greatest fixed point of the stationary computation keeps those states (checked
     # below, so the test can tell the two apart); the least one over the phases does not.
-    from cellplan.strategies.model.mdp import _live_pass
+    from cellplan.strategies.model.live import _live_pass
     from cellplan.strategies.model.transitions import forbid_snapping
 
     middle = "    middle: {type: box, min: [12, 12], max: [18, 16]}\n"

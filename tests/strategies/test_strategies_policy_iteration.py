@@ -147,6 +147,12 @@ def test_solve_scenario_names_the_field_of_a_refused_method(monkeypatch):
         return with_outcomes(build(*a, **k), 0.2, 1.0)
 
     monkeypatch.setattr(model_mod, "build_model", failing)
+    # solve_scenario's module imports build_model by name (no deferred import): patch it
+    # there too.
+    import cellplan.strategies.policy.strategy as strategy_mod
+
+    if hasattr(strategy_mod, "build_model"):
+        monkeypatch.setattr(strategy_mod, "build_model", failing)
     with pytest.raises(ArgumentError) as err:
         solve_scenario(sc, cell, method="structured")
     assert err.value.problems[0].field == "method"
@@ -212,7 +218,7 @@ def test_memory_estimate_bounds_policy_iterations_allocations(monkeypatch):
     import gc
     import tracemalloc
 
-    from cellplan.strategies.model.mdp import estimate_memory
+    from cellplan.strategies.model.memory import estimate_memory
 
     sc, cell = tiny(cells=48)
     mdp = build_model(sc, cell)
@@ -253,6 +259,14 @@ def test_cli_solves_by_policy_iteration_and_refuses_structured_on_failures(
     monkeypatch.setattr(
         model_mod, "build_model", lambda *a, **k: with_outcomes(build(*a, **k), 0.2, 1.0)
     )
+    # The strategy module imports build_model by name (no deferred import): patch it there
+    # too.
+    import cellplan.strategies.policy.strategy as strategy_mod
+
+    if hasattr(strategy_mod, "build_model"):
+        monkeypatch.setattr(
+            strategy_mod, "build_model", lambda *a, **k: with_outcomes(build(*a, **k), 0.2, 1.0)
+        )
     out = tmp_path / "f.npz"
     r = cellplan("solve", str(path), "-o", str(out), "--method", "structured")
     assert r.returncode == 2

@@ -11,7 +11,7 @@ from strategies_helpers import TINY, tiny
 
 from cellplan.errors import ScenarioError
 from cellplan.scenario import loads_scenario
-from cellplan.strategies.model.section import Rate
+from cellplan.strategies.section import Rate
 
 
 @given(st.floats(1e-4, 50.0), st.floats(1e-3, 10.0))
@@ -103,3 +103,77 @@ def test_unreachable_region_is_named_before_solving():
     with pytest.raises(ScenarioError) as err:
         build_model(sc, Workcell.from_scenario(sc))
     assert any("D1" in str(p) for p in err.value.problems)
+
+
+# --- the compiled problem and the variant seam (issue 33) ----------------------------------
+
+
+@pytest.mark.parametrize(
+    ("name", "variants"),
+    [
+        ("strategies_tiny", ()),
+        ("strategies_p4", ()),
+        ("strategies_failures", ("failures",)),
+        ("strategies_noise", ("noise",)),
+        ("strategies_pending", ("simultaneous",)),
+        ("strategies_conveyor", ("time_varying",)),
+    ],
+)
+def test_compile_reads_the_section_once_with_its_active_variants(name, variants):
+    import dataclasses
+
+    from cellplan.scenario import load_scenario
+    from cellplan.strategies.model.spec import ProblemSpec
+
+    sc = load_scenario(name)
+    spec = sc.strategy.compile(sc)
+    assert isinstance(spec, ProblemSpec) and spec.variant_names() == variants
+    assert list(spec.requests) == sc.strategy.request_list(sc)
+    assert spec.arrival == sc.strategy.arrival.per_stage(sc.strategy.stage_time)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        spec.arrival = 0.5  # type: ignore[misc]
+
+
+def test_every_variant_is_registered_with_its_hooks_documented():
+    from cellplan.strategies.variants.base import Variant
+    from cellplan.strategies.variants.registry import CHECK_ORDER, VARIANTS
+
+    assert set(CHECK_ORDER) == set(VARIANTS)
+    hooks = [n for n, f in vars(Variant).items() if callable(f) and not n.startswith("_")]
+    assert len(hooks) >= 15
+    for name in hooks:  # each hook says who calls it
+        doc = getattr(Variant, name).__doc__ or ""
+        assert "alled by" in doc or name == "describe", name
+    for name, variant in VARIANTS.items():
+        assert variant.name == name and variant.paper.startswith("Section VI-")
+        assert name in variant.describe()
+
+
+def test_the_model_never_imports_a_variant():
+    import ast
+    from pathlib import Path
+
+    import cellplan.strategies.model as model
+
+    for path in Path(model.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                assert not node.module.startswith("cellplan.strategies.variants"), path.name
+                assert node.module != "cellplan.strategies.section", path.name
+
+
+def test_a_loaded_model_names_the_variants_it_was_built_with(tmp_path):
+    from strategies_helpers import tiny_failures
+
+    from cellplan.strategies.policy.strategy import Strategy, solve_scenario
+    from cellplan.strategies.variants.registry import model_variants
+
+    for then, names in (("reject", ["failures"]), ("retry", ["failures"])):
+        sc, cell = tiny_failures(0.3, then, cells=12)
+        strategy, _ = solve_scenario(sc, cell)
+        built = model_variants(strategy.mdp)
+        assert [v.name for v in built] == names
+        back = Strategy.load(strategy.save(tmp_path / f"{then}.npz"), sc)
+        assert back.mdp.variants == () and model_variants(back.mdp) == built
+    sc, cell = tiny(cells=12)
+    assert model_variants(solve_scenario(sc, cell)[0].mdp) == ()

@@ -11,8 +11,9 @@ from strategies_helpers import empty, tiny
 
 from cellplan.core import Status
 from cellplan.strategies.model.mdp import build_model
-from cellplan.strategies.solve.solver import _Layers, solve_general, solve_structured
-from cellplan.strategies.solve.sweeps import other_branches
+from cellplan.strategies.solve.layers import Layers
+from cellplan.strategies.solve.nr import other_branches
+from cellplan.strategies.solve.solver import solve_general, solve_structured
 from cellplan.strategies.solve.threads import Workers
 from cellplan.workcell import load_workcell
 
@@ -311,7 +312,7 @@ def test_merged_request_branches_give_the_same_expectations():
     # Problem 1 (coarse): its eight requests wait in W layers with one live set.
     sc, cell = load_workcell("strategies_p1")
     mdp = build_model(sc, cell, [34, 34])
-    run = _Layers(mdp, 100, Workers(1))
+    run = Layers(mdp, 100, Workers(1))
     assert run.merged is not None
     assert max(len(bs) for bs in run.nr_groups) > 1
     rng = np.random.default_rng(5)

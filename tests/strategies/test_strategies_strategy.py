@@ -13,7 +13,9 @@ from strategies_helpers import tiny
 import cellplan
 from cellplan.errors import ArgumentError, PersistenceError
 from cellplan.strategies.model.points import query
+from cellplan.strategies.policy.decisions import Action, Actions
 from cellplan.strategies.policy.strategy import FMP, STAY, Strategy, solve_scenario
+from cellplan.strategies.sim.simulate import simulate_result
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +35,7 @@ def test_query_at_cell_centres_matches_solver_policy(solved):
     for m, c in picks:
         q = mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
         vals = strategy.action_values(q, int(m))
-        u = strategy.action(q, int(m))
+        u = strategy.action_code(q, int(m))
         # The chosen action attains the minimum of (9); the solver's action does too.
         pol = int(result.policy[m, c])
         j = {FMP: 0, STAY: 1}.get(pol, pol + 2)
@@ -98,7 +100,7 @@ def test_policy_never_commands_a_colliding_motion(solved, x, y, mode):
         u = strategy.action(q, mode)
     except ValueError:
         return
-    if u < 0:
+    if u.kind != "move":
         return
     m = strategy.modes[mode]
     carrying = m.part if m.kind == "C" else None
@@ -116,7 +118,7 @@ def test_queries_refuse_bad_arguments_with_one_line_each(solved):
     cases = [
         (lambda: strategy.action(np.array([15.0, 8.0, 1.0]), 0), "q", "shape (2,), got (3,)"),
         (lambda: strategy.action(q[:1], 0), "q", "shape (2,), got (1,)"),
-        (lambda: strategy.action(q[None], 0), "q", "got (1, 2)"),
+        (lambda: strategy.action(np.zeros((1, 3)), 0), "q", "got (1, 3)"),
         (lambda: strategy.action(["a", "b"], 0), "q", "array of numbers"),
         (lambda: strategy.action(np.array([np.nan, 8.0]), 0), "q", "NaN or infinite"),
         (lambda: strategy.action(np.array([15.0, -np.inf]), 0), "q", "NaN or infinite"),
@@ -172,7 +174,7 @@ def test_queries_follow_replaced_values(solved):
     expect = query(
         q, 0, np.nan_to_num(copy.values, nan=0.0), copy.mdp.live, False, after.model, out
     )
-    assert copy.action(q, 0) == expect
+    assert copy.action_code(q, 0) == expect
 
 
 def test_strategy_pickles_after_queries_and_still_answers():
@@ -209,3 +211,84 @@ def test_the_repr_is_one_short_line(solved):
     assert "\n" not in text and len(text) < 160 and "array" not in text
     assert "16 x 16 cells" in text and f"{strategy.mdp.n_modes} modes" in text
     assert f"{strategy.gain:.6g}" in text
+
+
+def test_an_action_says_what_to_do(solved):
+    # Issue 33: a typed action, not a code to decode: the kind, the move and its step,
+    # the region of a pick or a drop; the code underneath is action_code's.
+    _, _, strategy, _ = solved
+    mdp = strategy.mdp
+    rng = np.random.default_rng(3)
+    kinds = set()
+    for m, c in np.argwhere(mdp.live)[rng.choice(int(mdp.live.sum()), 300, replace=False)]:
+        idx = np.array(np.unravel_index(c, tuple(mdp.shape)))
+        q = mdp.lower + (idx + rng.uniform(0.1, 0.9, len(idx))) * mdp.spacing
+        a = strategy.action(q, int(m))
+        assert isinstance(a, Action) and a.code == strategy.action_code(q, int(m))
+        kinds.add(a.kind)
+        mode = strategy.modes[int(m)]
+        if a.kind == "move":
+            assert a.move == a.code >= 0 and a.region == ""
+            np.testing.assert_allclose(a.step, strategy.move_vector(q, int(m), a.code), atol=1e-9)
+            np.testing.assert_allclose(
+                strategy.next_configuration(q, int(m), a), q + a.step, atol=1e-9
+            )
+        elif a.kind == "stay":
+            assert a.code == STAY and not any(a.step)
+        else:
+            assert a.code == FMP and a.option == 0 and a.is_fmp
+            assert (a.kind, a.region) == (
+                ("pick", mode.source) if mode.kind == "W" else ("drop", mode.destination)
+            )
+            np.testing.assert_array_equal(strategy.next_configuration(q, int(m), a), q)
+    assert {"move", "pick", "drop"} <= kinds
+
+
+def test_actions_are_batched_over_configurations(solved):
+    # (n, dim) in, a bundle of n actions out, each what the single query answers.
+    _, _, strategy, _ = solved
+    mdp = strategy.mdp
+    m = 1
+    cells = np.flatnonzero(mdp.live[m])[::7][:40]
+    qs = np.array(
+        [
+            mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.3) * mdp.spacing
+            for c in cells
+        ]
+    )
+    batch = strategy.action(qs, m)
+    assert isinstance(batch, Actions) and len(batch) == len(qs)
+    assert batch.step.shape == qs.shape and batch.kind.shape == (len(qs),)
+    for i, q in enumerate(qs):
+        assert batch[i] == strategy.action(q, m)
+    assert list(batch) == [batch[i] for i in range(len(qs))]
+    assert strategy.action(qs, strategy.modes[m].label)[0] == batch[0]  # a mode by name
+    with pytest.raises(ValueError, match="outside the strategy's domain"):
+        strategy.action(np.vstack([qs[:2], _dead_point(strategy, m)]), m)
+
+
+def _dead_point(strategy, m):
+    mdp = strategy.mdp
+    c = int(np.flatnonzero(~mdp.live[m])[0])
+    return mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
+
+
+def test_no_action_outside_the_domain_the_simulator_refuses(solved):
+    # Issue 35 part 5: one rule (Strategy.in_domain) for the strategy and the simulator's
+    # start: where simulate refuses a start, action has no action either, though live
+    # corners nearby would give values.
+    _, _, strategy, _ = solved
+    mdp = strategy.mdp
+    checked = 0
+    for m in range(mdp.n_modes):
+        dead = np.flatnonzero(~mdp.live[m] & np.roll(mdp.live[m], 1))[:5]
+        for c in dead:
+            q = mdp.lower + (np.array(np.unravel_index(c, tuple(mdp.shape))) + 0.5) * mdp.spacing
+            assert not strategy.in_domain(q, m)
+            with pytest.raises(ValueError, match="outside the strategy's domain"):
+                strategy.action(q, m)
+            if m == 0:
+                with pytest.raises(cellplan.ArgumentError, match="outside the strategy's domain"):
+                    simulate_result(strategy, 10, 0, start=q, start_mode=m)
+            checked += 1
+    assert checked > 0

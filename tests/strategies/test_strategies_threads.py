@@ -13,7 +13,8 @@ from strategies_helpers import TINY, tiny
 from cellplan.scenario import loads_scenario
 from cellplan.strategies.model.mdp import build_model
 from cellplan.strategies.solve import threads
-from cellplan.strategies.solve.solver import _Layers, solve
+from cellplan.strategies.solve.layers import Layers
+from cellplan.strategies.solve.solver import solve
 from cellplan.workcell import Workcell
 
 
@@ -90,7 +91,7 @@ def test_threaded_solve_with_shared_layers_gives_the_serial_answer(monkeypatch):
     text = TINY.replace("CELLS", "16").replace(d1_line, d1_line + d1_line.replace("D1", "D2"))
     sc = loads_scenario(text)
     mdp = build_model(sc, Workcell.from_scenario(sc))
-    run = _Layers(mdp, 100, threads.Workers(1))
+    run = Layers(mdp, 100, threads.Workers(1))
     assert len(run.c_reps) == len(run.c_layers) // 2
     assert len(run.w_reps) == len(run.w_layers) // 2
     serial = solve(mdp, threads=1)

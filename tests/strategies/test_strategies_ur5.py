@@ -174,7 +174,7 @@ def test_the_planner_solves_a_3d_cell_and_its_sample_run_is_collision_free():
     assert result.trajectory is not None and result.trajectory.q.shape[1] == 3
     # The simulator's own exact check (first_collision) ran on the 3-D cell; confirm it
     # independently: every stage's motion, with the part of its mode, sampled finely.
-    from cellplan.strategies.sim.simulate import carried_part
+    from cellplan.strategies.sim.records import carried_part
 
     strategy = result.solution
     q = result.trajectory.q

@@ -22,9 +22,9 @@ import cellplan.errors
 from cellplan.budget import format_bytes, resident_memory
 from cellplan.errors import PersistenceError, ScenarioError
 from cellplan.scenario import loads_scenario
-from cellplan.strategies.model.section import MAX_FMP_STAGES, MIN_ARRIVAL
 from cellplan.strategies.policy.fileformat import MAX_MAGNITUDE, read_strategy
 from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.section import MAX_FMP_STAGES, MIN_ARRIVAL
 from cellplan.strategies.sim.simulate import first_collision, simulate_result
 
 TINY = Path(__file__).parents[2] / "scenarios" / "strategies_tiny.yaml"

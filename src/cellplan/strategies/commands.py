@@ -178,7 +178,7 @@ def write_motion_viewer(strategy: Strategy, setup: Setup, sim: Any, path: Path) 
     (:func:`cellplan.view3d.write_viewer`): a frame per stage, the part drawn on the tool
     while a mode carries it."""
     from cellplan.scene3d import cell_scene
-    from cellplan.strategies.sim.simulate import carried_part
+    from cellplan.strategies.sim.records import carried_part
     from cellplan.view3d import write_viewer
 
     modes = strategy.mdp.modes
@@ -234,8 +234,6 @@ def simulate_command(
     """Simulate the assembly process under a strategy: trajectory.csv, frames, GIF, metrics
     (in a 3-D cell, viewer.html, where the arm's motion plays, instead of frames and GIF)."""
     from cellplan.plots import GIF_SIZE, check_gif_size
-    from cellplan.scenario3d import is_3d
-    from cellplan.strategies.experiments import plots
     from cellplan.strategies.sim.simulate import simulate_result
 
     if gif_size is not None and not gif:
@@ -274,26 +272,9 @@ def simulate_command(
             as_flags({"size": "--gif-size"}),
             staged_folder(output, keep=_existing(inputs)) as stage,
         ):
-            names = {"trajectory": result.trajectory.save(stage / "trajectory.csv").name}
-            if is_3d(setup.scenario):
-                # A 3-D cell has no planar frames: its motion plays in the viewer page.
-                names["viewer"] = write_motion_viewer(strat, setup, sim, stage / "viewer.html").name
-            else:
-                drawn = plots.plot_frames(strat, setup.workcell, sim, stage, each=frame_files)
-                names["frames"] = drawn[-1].name
-            if gif and not is_3d(setup.scenario):
-                names["gif"] = plots.save_animation(
-                    strat, setup.workcell, sim, stage / "simulation.gif", size=width
-                ).name
-            names["metrics"] = write_json(
-                stage / "metrics.json",
-                {
-                    "status": str(result.status),
-                    "message": result.message,
-                    "metrics": metrics,
-                    "requests": [vars(r) for r in sim.requests],
-                },
-            ).name
+            names = _write_simulation(
+                stage, (strat, setup, result, metrics), width if gif else None, frame_files
+            )
     outputs = {key: output / name for key, name in names.items()}
     m = metrics
     summary = (
@@ -308,6 +289,40 @@ def simulate_command(
         )
     summary += f"; wrote {output}"
     finish(result, as_json, summary, outputs)
+
+
+def _write_simulation(
+    stage: Path, run: tuple[Strategy, Setup, Any, dict[str, Any]], gif: int | None, each: bool
+) -> dict[str, str]:
+    """Write a simulated run's files into ``stage``: the trajectory, the frames (or, in a
+    3-D cell, the viewer page), the GIF (``gif``: its width; None: none) and the metrics;
+    ``run`` is the strategy, the setup, the simulation's result and its metrics."""
+    from cellplan.scenario3d import is_3d
+    from cellplan.strategies.experiments import plots
+
+    strat, setup, result, metrics = run
+    sim = result.solution
+    names = {"trajectory": result.trajectory.save(stage / "trajectory.csv").name}
+    if is_3d(setup.scenario):
+        # A 3-D cell has no planar frames: its motion plays in the viewer page.
+        names["viewer"] = write_motion_viewer(strat, setup, sim, stage / "viewer.html").name
+    else:
+        drawn = plots.plot_frames(strat, setup.workcell, sim, stage, each=each)
+        names["frames"] = drawn[-1].name
+        if gif is not None:
+            names["gif"] = plots.save_animation(
+                strat, setup.workcell, sim, stage / "simulation.gif", size=gif
+            ).name
+    names["metrics"] = write_json(
+        stage / "metrics.json",
+        {
+            "status": str(result.status),
+            "message": result.message,
+            "metrics": metrics,
+            "requests": [vars(r) for r in sim.requests],
+        },
+    ).name
+    return names
 
 
 def plot_command(

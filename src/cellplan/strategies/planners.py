@@ -23,7 +23,10 @@ from pydantic import Field
 from cellplan.core import Options, Progress, Result, Status
 from cellplan.errors import ArgumentError, Problem
 from cellplan.schema import Cells
-from cellplan.strategies.model.section import SolverMethod
+from cellplan.strategies.section import MAX_STAGES, SolverMethod, SolverSpec
+
+#: Re-exported: the longest run, a limit of the section.
+__all__ = ["MAX_STAGES", "StrategiesOptions", "run_strategies", "solver_settings"]
 
 if TYPE_CHECKING:
     from cellplan.setup import Setup
@@ -31,10 +34,9 @@ if TYPE_CHECKING:
 Method = SolverMethod
 
 #: ``cellplan simulate``'s run length and seed when not given (``cellplan.simulate`` takes
-#: both explicitly), and the longest run it accepts.
+#: both explicitly); the longest run it accepts is :data:`~.section.MAX_STAGES`.
 SIMULATE_STAGES = 400
 SIMULATE_SEED = 0
-MAX_STAGES = 1_000_000
 
 
 class StrategiesOptions(Options):
@@ -45,6 +47,21 @@ class StrategiesOptions(Options):
         description="solver: auto, structured (layered, Sec. IV; Section V models only), "
         "policy (policy iteration) or general (relative value iteration); None: the "
         "scenario's strategy.solver.method",
+    )
+    tolerance: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = Field(
+        None,
+        description="stop when the gain's certified bracket is narrower; None: the "
+        "scenario's strategy.solver.tolerance",
+    )
+    max_sweeps: Annotated[int, Field(ge=1, le=10_000_000)] | None = Field(
+        None,
+        description="give up (not converged) after this many sweeps; None: the scenario's "
+        "strategy.solver.max_sweeps",
+    )
+    damping: Annotated[float, Field(gt=0, le=1)] | None = Field(
+        None,
+        description="relaxation of the outer fixed point on the gain (1: none); None: the "
+        "scenario's strategy.solver.damping",
     )
     cells: tuple[Cells, ...] | None = Field(
         None,
@@ -60,6 +77,17 @@ class StrategiesOptions(Options):
         200, description="stages of the sample run from the robot's start (the trajectory)"
     )
     seed: Annotated[int, Field(ge=0)] = Field(0, description="seed of the sample run")
+
+
+def solver_settings(options: StrategiesOptions, scenario: SolverSpec) -> SolverSpec:
+    """The solver's settings of one run: each option given, else the scenario's
+    ``strategy.solver`` value (the one default of each)."""
+    return SolverSpec(
+        method=options.method if options.method is not None else scenario.method,
+        tolerance=options.tolerance if options.tolerance is not None else scenario.tolerance,
+        max_sweeps=options.max_sweeps if options.max_sweeps is not None else scenario.max_sweeps,
+        damping=options.damping if options.damping is not None else scenario.damping,
+    )
 
 
 def check_cells(cells: Sequence[int] | None, dim: int, field: str = "cells") -> None:
@@ -85,12 +113,13 @@ solve spend; the solve's sweeps come on top, with a progress bar). Measured with
 def check_memory(setup: Setup, cells: Sequence[int] | None, method: str | None = None) -> None:
     """Refuse a grid whose model and solve cannot fit in memory, before allocating it.
 
-    The estimate is :func:`~cellplan.strategies.model.mdp.estimate_memory` (the arrays the
+    The estimate is :func:`~cellplan.strategies.model.memory.estimate_memory` (the arrays the
     model and the solver allocate); the refusal names the cells and where they came from.
     """
     from cellplan import budget
     from cellplan.errors import ScenarioError
-    from cellplan.strategies.model.mdp import estimate_memory, grid_shape
+    from cellplan.strategies.model.mdp import grid_shape
+    from cellplan.strategies.model.memory import estimate_memory
 
     scenario, cell = setup.scenario, setup.workcell
     shape = grid_shape(scenario, cell, cells)
@@ -130,7 +159,8 @@ def run_strategies(
     section = setup.section("strategy")
     cell = setup.workcell
     check_cells(options.cells, cell.robot.dim)
-    check_memory(setup, options.cells, options.method)
+    settings = solver_settings(options, section.solver)
+    check_memory(setup, options.cells, settings.method)
 
     def report(sweep: int, residual: float, gain: float) -> None:
         assert progress is not None
@@ -141,6 +171,7 @@ def run_strategies(
         cell,
         cells=list(options.cells) if options.cells is not None else None,
         method=options.method,
+        solver=settings,
         progress=report if progress is not None else None,
         snap=options.snap,
         start=cell.robot.start,  # the sample run starts there
@@ -165,8 +196,8 @@ def run_strategies(
     if not solved.converged:
         status = Status.NOT_CONVERGED
         message = (
-            f"did not converge within {section.solver.max_sweeps} sweeps (span "
-            f"{solved.span:.3g} >= tolerance {section.solver.tolerance:g}; gain bracket "
+            f"did not converge within {settings.max_sweeps} sweeps (span "
+            f"{solved.span:.3g} >= tolerance {settings.tolerance:g}; gain bracket "
             f"{bracket})"
         )
     elif not sample.success:

@@ -11,8 +11,8 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from cellplan.core import Fact, Package, PlannerSpec
-from cellplan.strategies.model.section import StrategySection
 from cellplan.strategies.planners import StrategiesOptions, run_strategies
+from cellplan.strategies.section import StrategySection
 
 TITLE = "Optimal motion strategies under a stochastic assembly process"
 CITATION = (
@@ -36,7 +36,6 @@ if TYPE_CHECKING:
 
     from cellplan.core import ShowcaseItem
     from cellplan.setup import Setup
-    from cellplan.strategies.model.mdp import LayeredMDP
 
 
 def describe(setup: Setup) -> Sequence[Fact]:
@@ -64,39 +63,12 @@ def describe(setup: Setup) -> Sequence[Fact]:
     shape = " x ".join(str(int(n)) for n in mdp.shape)
     free_nr = float(np.mean(mdp.free[mdp.vcls[0]]))
     live_nr = float(np.mean(mdp.live[0]))
-    kinds = [m.kind for m in mdp.modes]
     modes = f"{mdp.n_modes} (Section III-A; {mdp.n_requests} requests)"
-    if "X" in kinds:
-        modes = (
-            f"{mdp.n_modes}: {1 + 2 * mdp.n_requests} of Section III-A ({mdp.n_requests} "
-            f"requests) + {kinds.count('X')} carrying a rejected part (Section VI-3)"
-        )
-    if "Q" in kinds:
-        modes = pending_line(len(mdp.request_prob), sc.strategy.max_pending, mdp)
-    if mdp.period > 1:
-        modes = periodic_line(mdp)
-    failing = int(sum(np.diff(mdp.fmp_outcomes().ptr) > 1))
-    facts = [Fact("assembly_modes", "assembly modes", int(mdp.n_modes), modes)]
-    if failing:
-        facts.append(
-            Fact(
-                "failure_modes",
-                "failure modes",
-                failing,
-                f"{failing} of the {mdp.n_modes - 1} fine motions can fail (Section VI-3); "
-                f"states: {int(mdp.live.sum()):,}",
-            )
-        )
-    if len(mdp.noise_prob) > 1:
-        facts.append(
-            Fact(
-                "noisy_motion",
-                "noisy motion",
-                len(mdp.noise_prob),
-                f"{len(mdp.noise_prob)} landings per move (Section VI-4), a move allowed "
-                f"where every landing is free; states: {int(mdp.live.sum()):,}",
-            )
-        )
+    facts: list[Fact] = []
+    for variant in mdp.variants:
+        modes = variant.modes_line(mdp, sc.strategy) or modes
+        facts.extend(Fact(*fact) for fact in variant.facts(mdp))
+    facts.insert(0, Fact("assembly_modes", "assembly modes", int(mdp.n_modes), modes))
     facts.append(
         Fact("strategy_grid", "strategy grid", [int(n) for n in mdp.shape], f"{shape} cells")
     )
@@ -110,30 +82,6 @@ def describe(setup: Setup) -> Sequence[Fact]:
         )
     )
     return facts
-
-
-def pending_line(R: int, k: int, mdp: LayeredMDP) -> str:
-    """The modes of simultaneous requests (Section VI-2): how they split, and how many each
-    ``max_pending`` up to ``k`` would give (they grow as ``C(R, k)``)."""
-    from cellplan.strategies.model.section import mode_counts
-
-    empty, carrying = mode_counts(R, k)
-    each = ", ".join(f"{i}: {sum(mode_counts(R, i)):,}" for i in range(1, k + 1))
-    return (
-        f"{mdp.n_modes:,} (Section VI-2: up to {k} open requests of {R} types: {empty:,} "
-        f"empty + {carrying:,} carrying; max_pending {each}); states: {int(mdp.live.sum()):,}"
-    )
-
-
-def periodic_line(mdp: LayeredMDP) -> str:
-    """The layers of a time-varying model (Section VI-1): the modes of one phase times the
-    phases of the period, and the regions on belts."""
-    belts = sorted(mdp.belts)
-    moving = f"belt{'s' if len(belts) > 1 else ''} {', '.join(belts)}" if belts else "no belts"
-    return (
-        f"{mdp.modes_per_phase:,} x {mdp.period} phases = {mdp.n_modes:,} layers (Section "
-        f"VI-1: period {mdp.period} stages, {moving})"
-    )
 
 
 def showcase(folder: Path) -> list[ShowcaseItem]:

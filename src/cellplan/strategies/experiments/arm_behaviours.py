@@ -34,8 +34,9 @@ from typing import Any
 import numpy as np
 
 from cellplan.strategies.experiments.behaviours import FOLLOW_LIMIT, live_starts
+from cellplan.strategies.policy.decisions import FMP, STAY
 from cellplan.strategies.policy.execution import Executor
-from cellplan.strategies.policy.strategy import FMP, STAY, Strategy
+from cellplan.strategies.policy.strategy import Strategy
 from cellplan.strategies.sim.simulate import region_test
 
 

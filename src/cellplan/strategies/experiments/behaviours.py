@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 from shapely.geometry import Point
 
-from cellplan.strategies.policy.strategy import FMP, STAY, Strategy
+from cellplan.strategies.policy.decisions import FMP, STAY, Action
+from cellplan.strategies.policy.strategy import Strategy
 
 FOLLOW_LIMIT = 400
 """Stages :func:`follow` takes at most before giving up (no policy here needs 200)."""
@@ -48,7 +49,7 @@ def follow(
     """
     path = [np.asarray(q, float)]
     for _ in range(limit):
-        u = strategy.action(path[-1], mode)
+        u = strategy.action_code(path[-1], mode)
         if u in (FMP, STAY):
             return np.array(path), u
         path.append(strategy.next_configuration(path[-1], mode, u))
@@ -210,9 +211,10 @@ def turns_to_changed_destination(
     hits = []
     for q in live_starts(strategy, modes, count, rng):
         actions = [strategy.action(q, m) for m in modes]
-        if any(u in (FMP, STAY) for u in actions):
+        moves = [a for a in actions if isinstance(a, Action) and a.kind == "move"]
+        if len(moves) < len(actions):
             continue
-        steps = [strategy.move_vector(q, m, u) for m, u in zip(modes, actions, strict=True)]
+        steps = [strategy.move_vector(q, m, a) for m, a in zip(modes, moves, strict=True)]
         here = _point(cell, q)
         for new, old in ((1, 0), (0, 1)):
             p = Point(*here)

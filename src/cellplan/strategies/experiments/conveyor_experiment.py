@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
+from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, mean_interval
+from cellplan.strategies.experiments.common import agreement_claim, ci_text, column, reduction_claim
 
 PROBLEM = "strategies_conveyor"
 CELLS = "40,40"
@@ -36,6 +37,7 @@ POLICY_NAMES = {
 @functools.lru_cache(maxsize=1)
 def _solved(cells: str) -> Any:
     """The bundled scenario's strategy and workcell (solved once per process)."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load, plan
 
     setup = load(PROBLEM)
@@ -57,6 +59,7 @@ def distance_at_arrival(strategy: Any, cell: Any, sim: Any) -> float:
     """Mean distance (workcell units) from the robot's gripper to the centre of the part
     to fetch when each request arrives: the source region where it is at that stage (a
     belt moves it, Section VI-1)."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.strategies.variants.periodic import region_offset
 
     mdp = strategy.mdp
@@ -75,6 +78,7 @@ def distance_at_arrival(strategy: Any, cell: Any, sim: Any) -> float:
 
 def run(spec: RunSpec) -> dict[str, Scalar]:
     """Loss, waiting and the distance to the part at each arrival, for every policy."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.strategies.sim.simulate import simulate
 
     cells, stages = str(spec.params["cells"]), int(spec.params["stages"])
@@ -99,7 +103,6 @@ def _paired_claim(
     rows: list[dict[str, Scalar]], key: str, claim: str, paper: str, what: str
 ) -> Claim:
     """The optimal value of ``key`` is below the reactive one's, paired by seed."""
-    from cellplan.strategies.experiments.paper import column, reduction_claim
 
     return reduction_claim(
         column(rows, f"optimal_{key}"),
@@ -115,9 +118,8 @@ def _paired_claim(
 
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     """Per-policy table with 95% intervals, a figure, three claims."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan import plots as base
-    from cellplan.strategies.experiments.failure_experiment import agreement_claim
-    from cellplan.strategies.experiments.paper import _ci, ci_text, column
 
     outdir = Path(outdir)
 
@@ -168,7 +170,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
         (axes[0, 1], "distance", "distance to the part at arrival (workcell units)"),
     ):
         for i, p in enumerate(POLICIES):
-            m, h = _ci(col(f"{p}_{key}"))
+            m, h = mean_interval(col(f"{p}_{key}"))
             ax.bar(i, m, yerr=0.0 if not np.isfinite(h) else h, capsize=4, label=POLICY_NAMES[p])
         ax.set_xticks(range(len(POLICIES)), list(POLICIES))
         ax.set_ylabel(label)

@@ -18,14 +18,21 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, decide_interval
+from cellplan.core import (
+    Claim,
+    Experiment,
+    ReportPiece,
+    RunSpec,
+    Scalar,
+    mean_interval,
+)
+from cellplan.strategies.experiments.common import agreement_claim, beats_reactive_claim
 
 PROBLEMS = {"strategies_failures": "100,100", "strategies_failures_arm": "64,64"}
 QUICK = {"strategies_failures_arm": "64,64"}
 SCALES = (0.0, 1.0, 2.0)
 """Factors on every failure probability of the scenario (each stays below 1)."""
 POLICIES = ("optimal", "reactive")
-AGREEMENT = 0.05
 """Largest relative gap between the simulated loss per stage and the solved gain that
 counts as agreement (the executor follows (9) off the grid, so the two differ slightly)."""
 EXPLANATION = "docs/strategies.md#failure-modes-section-vi-3"
@@ -33,6 +40,7 @@ EXPLANATION = "docs/strategies.md#failure-modes-section-vi-3"
 
 def scaled(problem: str, scale: float) -> Any:
     """The bundled scenario with every failure probability multiplied by ``scale``."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load
 
     scenario = load(problem).scenario
@@ -44,6 +52,7 @@ def scaled(problem: str, scale: float) -> Any:
 @functools.lru_cache(maxsize=8)
 def _solved(problem: str, cells: str, scale: float) -> Any:
     """The strategy of a scaled failure scenario (``cellplan.plan(..., "strategies")``)."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import plan
 
     grid = [int(v) for v in cells.split(",")]
@@ -68,6 +77,7 @@ def make_runs(runs: int, quick: bool) -> list[RunSpec]:
 
 def run(spec: RunSpec) -> dict[str, Scalar]:
     """Solved gain; loss per stage, mean waiting and failures of each policy."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.strategies.sim.simulate import simulate_result
 
     problem, cells = str(spec.params["problem"]), str(spec.params["cells"])
@@ -90,8 +100,8 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
 
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     """Table, chart of loss per stage against the failure scale, three claims per problem."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan import plots as base
-    from cellplan.strategies.experiments.paper import _ci
 
     outdir = Path(outdir)
     problems = sorted({str(r["problem"]) for r in rows})
@@ -116,15 +126,15 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
                 "gain": g,
             }
             for k in POLICIES:
-                m, h = _ci(loss[k])
+                m, h = mean_interval(loss[k])
                 entry[f"{k} loss/stage"] = f"{m:.3f} ± {h:.3f}"
-                mw, hw = _ci(wait[k])
+                mw, hw = mean_interval(wait[k])
                 entry[f"{k} wait"] = f"{mw:.1f} ± {hw:.1f}"
             failures = np.array([float(r["optimal_fmp_failures"]) for r in rs])
             entry["failed FMPs per run"] = f"{failures.mean():.1f}"
             table.append(entry)
             gains.append((s, g))
-            sims.append((s, _ci(loss["optimal"]), _ci(loss["reactive"])))
+            sims.append((s, mean_interval(loss["optimal"]), mean_interval(loss["reactive"])))
             if s == 1.0:
                 claims.extend(_claims(p, g, loss, wait, len(rs)))
         if gains:
@@ -198,46 +208,6 @@ def _claims(
             EXPLANATION,
         ),
     ]
-
-
-def agreement_claim(
-    name: str, paper: str, gain: float, loss: np.ndarray, explanation: str
-) -> Claim:
-    """The simulated loss per stage (one value per seed) agrees with the solved gain."""
-    from cellplan.strategies.experiments.paper import _ci
-
-    rel = 100.0 * (loss - gain) / gain
-    m, h = _ci(rel)
-    n = len(loss)
-    return Claim(
-        claim=f"{name}: the simulated loss per stage agrees with the solved gain",
-        paper=paper,
-        ours=f"simulated {np.mean(loss):.3f} against g = {gain:.3f} ({m:+.1f}% ± {h:.1f}%)",
-        reproduced=decide_interval(m - h, m + h, n, above=-100 * AGREEMENT, below=100 * AGREEMENT),
-        detail="relative difference per seed",
-        n=n,
-        rule=f"95% interval of the relative difference inside ±{100 * AGREEMENT:.0f}% "
-        "(at least 5 seeds)",
-        explanation=explanation,
-    )
-
-
-def beats_reactive_claim(
-    claim: str, paper: str, wait: dict[str, np.ndarray], explanation: str
-) -> Claim:
-    """The optimal strategy's mean waiting per request is below the reactive one's (paired)."""
-    from cellplan.strategies.experiments.paper import reduction_claim
-
-    return reduction_claim(
-        wait["optimal"],
-        wait["reactive"],
-        claim=claim,
-        paper=paper,
-        ours="less waiting per request than reactive",
-        detail="mean waiting per request (open ones at their age), paired by seed",
-        rule="95% interval of the mean reduction against reactive above 0 (at least 5 seeds)",
-        explanation=explanation,
-    )
 
 
 def _growth_claim(

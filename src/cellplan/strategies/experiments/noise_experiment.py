@@ -27,7 +27,9 @@ from cellplan.core import (
     RunSpec,
     Scalar,
     decide_interval,
+    mean_interval,
 )
+from cellplan.strategies.experiments.common import agreement_claim, beats_reactive_claim
 
 PROBLEM = "strategies_noise"
 CELLS = "100,100"
@@ -42,6 +44,7 @@ EXPLANATION = "docs/strategies.md#noisy-motion-section-vi-4"
 @functools.lru_cache(maxsize=4)
 def _solved(cells: str, noisy: bool) -> Any:
     """The noise scenario's strategy, with its noise model or without any."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load, plan
 
     scenario = load(PROBLEM).scenario
@@ -64,6 +67,7 @@ def make_runs(runs: int, quick: bool) -> list[RunSpec]:
 
 def run(spec: RunSpec) -> dict[str, Scalar]:
     """Gains, loss and waiting of each policy, and clearances in the passages."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load
     from cellplan.strategies.experiments.behaviours import move_clearances
     from cellplan.strategies.sim.simulate import simulate_result
@@ -95,12 +99,8 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
 
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     """Clearance with and without noise, optimal vs reactive under noise, three claims."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan import plots as base
-    from cellplan.strategies.experiments.failure_experiment import (
-        agreement_claim,
-        beats_reactive_claim,
-    )
-    from cellplan.strategies.experiments.paper import _ci
 
     outdir = Path(outdir)
 
@@ -110,7 +110,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     n = len(rows)
     noisy_c, exact_c = col("noisy_passage_clearance"), col("exact_passage_clearance")
     diff = noisy_c - exact_c
-    m, h = _ci(diff)
+    m, h = mean_interval(diff)
     clearance = Claim(
         claim="noise: the strategy keeps a larger clearance in the narrow passages",
         paper="Sec. VI-4: the uncertainty of motion can be included directly in the model",
@@ -148,7 +148,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     fig, axes = base.new_figure(ncols=2, size=4.2)
     ax = axes[0, 0]
     for i, (vals, label) in enumerate(((exact_c, "exact motion"), (noisy_c, "noisy motion"))):
-        mm, hh = _ci(vals)
+        mm, hh = mean_interval(vals)
         ax.bar(i, mm, yerr=0.0 if not np.isfinite(hh) else hh, capsize=4, label=label)
         ax.plot(np.full(n, i) + 0.15, vals, ".", color="#444444", ms=4)
     ax.set_xticks([0, 1], ["exact", "noisy"])
@@ -156,7 +156,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     ax.set_title("moves landing in the passages", fontsize=9)
     ax = axes[0, 1]
     for i, k in enumerate(("optimal", "reactive")):
-        mm, hh = _ci(wait[k])
+        mm, hh = mean_interval(wait[k])
         ax.bar(i, mm, yerr=0.0 if not np.isfinite(hh) else hh, capsize=4)
     ax.set_xticks([0, 1], ["optimal", "reactive"])
     ax.set_ylabel("mean waiting per request (stages)")

@@ -33,6 +33,14 @@ from cellplan.core import (
     RunSpec,
     Scalar,
     decide_interval,
+    mean_interval,
+)
+from cellplan.strategies.experiments import (
+    conveyor_experiment,
+    failure_experiment,
+    noise_experiment,
+    pending_experiment,
+    ur5_experiment,
 )
 
 PROBLEMS = {  # bundled scenario -> grid used here (coarser than the bundled one where slow)
@@ -52,6 +60,7 @@ POLICIES = ("optimal", "reactive", "home")
 @functools.lru_cache(maxsize=8)
 def _solved(problem: str, cells: str) -> Any:
     """The strategy of a bundled problem on a grid (``cellplan.plan(..., "strategies")``)."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load, plan
 
     grid = [int(v) for v in cells.split(",")]
@@ -71,6 +80,7 @@ def make_runs(runs: int, quick: bool) -> list[RunSpec]:
 
 def run(spec: RunSpec) -> dict[str, Scalar]:
     """Mean waiting time, loss per stage and requests served of each policy."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.strategies.sim.simulate import simulate_result
 
     strategy = _solved(str(spec.params["problem"]), str(spec.params["cells"]))
@@ -88,60 +98,9 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
     return row
 
 
-def _ci(values: np.ndarray) -> tuple[float, float]:
-    """Mean and 95% half-width (normal approximation; t for few samples)."""
-    from scipy import stats
-
-    values = values[np.isfinite(values)]
-    if len(values) < 2:
-        return float(values.mean()) if len(values) else float("nan"), float("nan")
-    half = stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / np.sqrt(len(values))
-    return float(values.mean()), float(half)
-
-
-def column(rows: list[dict[str, Scalar]], key: str) -> np.ndarray:
-    """One value per run (row) of the experiment."""
-    return np.array([float(r[key]) for r in rows])
-
-
-def ci_text(values: np.ndarray, fmt: str = ".3f") -> str:
-    """``mean ± half-width`` of the 95% interval (the mean alone below two values)."""
-    m, h = _ci(values)
-    return f"{m:{fmt}} ± {h:{fmt}}" if np.isfinite(h) else f"{m:{fmt}}"
-
-
-def reduction_claim(
-    optimal: np.ndarray,
-    baseline: np.ndarray,
-    *,
-    claim: str,
-    paper: str,
-    ours: str,
-    detail: str,
-    rule: str,
-    explanation: str,
-) -> Claim:
-    """A claim that the optimal strategy's measure is below a baseline's, paired by seed:
-    reproduced when the 95% interval of the mean reduction (in percent) lies above 0 (at
-    least 5 seeds). ``ours`` follows the reduction in the figure's text
-    (``"12.3% ± 1.0% " + ours``)."""
-    d = 100.0 * (baseline - optimal) / baseline
-    m, h = _ci(d)
-    n = len(d)
-    return Claim(
-        claim=claim,
-        paper=paper,
-        ours=f"{m:.1f}% ± {h:.1f}% {ours}",
-        reproduced=decide_interval(m - h, m + h, n, above=0.0),
-        detail=detail,
-        n=n,
-        rule=rule,
-        explanation=explanation,
-    )
-
-
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     """Table and bar chart of waiting times; one claim per problem."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan import plots as base
 
     outdir = Path(outdir)
@@ -157,16 +116,16 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
         wait = {pol: np.array([float(r[f"{pol}_mean_wait_all"]) for r in rs]) for pol in POLICIES}
         entry: dict[str, Scalar] = {"problem": p, "runs": len(rs), "gain": float(rs[0]["gain"])}
         for pol in POLICIES:
-            m, h = _ci(loss[pol])
+            m, h = mean_interval(loss[pol])
             entry[f"{pol} loss/stage"] = f"{m:.3f} ± {h:.3f}"
-            mw, hw = _ci(wait[pol])
+            mw, hw = mean_interval(wait[pol])
             entry[f"{pol} wait"] = f"{mw:.1f} ± {hw:.1f}"
         red = {}
         # Paired per seed. With arrivals only in NR, the loss per stage is W / (W + 1/P) for
         # mean waiting time W, so comparing W compares the minimised criterion, less noisily.
         for other in ("reactive", "home"):
             d = 100.0 * (wait[other] - wait["optimal"]) / wait[other]
-            m, h = _ci(d)
+            m, h = mean_interval(d)
             red[other] = (m, h)
             entry[f"reduction vs {other} (%)"] = f"{m:.1f} ± {h:.1f}"
         table.append(entry)
@@ -193,7 +152,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
         means, halves = [], []
         for p in problems:
             vals = np.array([float(r[f"{pol}_mean_wait_all"]) for r in rows if r["problem"] == p])
-            m, h = _ci(vals)
+            m, h = mean_interval(vals)
             means.append(m)
             halves.append(0.0 if not np.isfinite(h) else h)
         ax.bar(
@@ -355,6 +314,7 @@ def make_behaviour_runs(runs: int, quick: bool) -> list[RunSpec]:
 
 def run_behaviours(spec: RunSpec) -> dict[str, Scalar]:
     """Each behaviour of the run's problem, measured from the seed's random starts."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load
     from cellplan.strategies.experiments import behaviours
 
@@ -395,7 +355,7 @@ def behaviour_claims(rows: list[dict[str, Scalar]]) -> list[Claim]:
                 )
             )
             continue
-        m, h = _ci(values)
+        m, h = mean_interval(values)
         low, high = (m - h, m + h) if np.isfinite(h) else (m, m)
         claims.append(
             Claim(
@@ -414,6 +374,7 @@ def behaviour_claims(rows: list[dict[str, Scalar]]) -> list[Claim]:
 
 def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     """One claim per behaviour, a table per problem and seed, and a chart of the intervals."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan import plots as base
 
     outdir = Path(outdir)
@@ -427,7 +388,7 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
         values = values[np.isfinite(values)]
         ax.plot([b.above] * 2, [y - 0.4, y + 0.4], ls="--", color="grey", lw=1)
         if len(values):
-            m, h = _ci(values)
+            m, h = mean_interval(values)
             ax.plot(values, np.full(len(values), y + 0.15), ".", color="#8c959f", ms=4)
             ax.errorbar(
                 [m], [y], xerr=[[0.0 if not np.isfinite(h) else h]], fmt="o", color="#1f77b4"
@@ -437,6 +398,7 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
     ax.set_yticks(range(len(BEHAVIOURS)), [b.key for b in BEHAVIOURS])
     ax.invert_yaxis()
     ax.set_xlabel("measured fraction (P6: difference of fractions)")
+    # Deferred for start-up time: the experiment list loads without these.
     from matplotlib.lines import Line2D
 
     ax.legend(
@@ -484,24 +446,6 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
     )
 
 
-def _section_vi() -> list[Experiment]:
-    from cellplan.strategies.experiments import (
-        conveyor_experiment,
-        failure_experiment,
-        noise_experiment,
-        pending_experiment,
-        ur5_experiment,
-    )
-
-    return [
-        failure_experiment.EXPERIMENT,
-        noise_experiment.EXPERIMENT,
-        pending_experiment.EXPERIMENT,
-        conveyor_experiment.EXPERIMENT,
-        ur5_experiment.EXPERIMENT,  # not Section VI: the 3-D arm of issue 31
-    ]
-
-
 EXPERIMENTS: list[Experiment] = [
     Experiment(
         name="strategies.anticipation",
@@ -521,5 +465,9 @@ EXPERIMENTS: list[Experiment] = [
         report=report_behaviours,
         demo_runs=MIN_RUNS,
     ),
-    *_section_vi(),
+    failure_experiment.EXPERIMENT,
+    noise_experiment.EXPERIMENT,
+    pending_experiment.EXPERIMENT,
+    conveyor_experiment.EXPERIMENT,
+    ur5_experiment.EXPERIMENT,  # not Section VI: the 3-D arm of issue 31
 ]

@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
+from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, mean_interval
+from cellplan.strategies.experiments.common import agreement_claim, ci_text, column, reduction_claim
 
 PROBLEM = "strategies_pending"
 CELLS = "60,60"
@@ -36,16 +37,18 @@ POLICY_NAMES = {
 @functools.lru_cache(maxsize=2)
 def _solved(cells: str) -> Any:
     """The bundled scenario's strategy and the baselines' rules (built once per process)."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load, plan
-    from cellplan.strategies.variants.pending_sim import Rules
+    from cellplan.strategies.variants.pending_sim import Rules, single_request_strategy
 
     grid = [int(v) for v in cells.split(",")]
     strategy = plan(load(PROBLEM), "strategies", cells=grid, sample_stages=1).solution
-    return strategy, Rules(strategy)
+    return strategy, Rules(strategy, single_request_strategy(strategy))
 
 
 def _urgency() -> dict[str, float]:
     """The bundled scenario's urgency per part (the legend names it)."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load
 
     return dict(load(PROBLEM).scenario.strategy.urgency)
@@ -63,6 +66,7 @@ def make_runs(runs: int, quick: bool) -> list[RunSpec]:
 
 def run(spec: RunSpec) -> dict[str, Scalar]:
     """Loss, waiting per part, open requests and turned-away requests of every policy."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.strategies.variants.pending_sim import PENDING_POLICIES, simulate_pending
 
     cells, stages = str(spec.params["cells"]), int(spec.params["stages"])
@@ -87,7 +91,6 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
 
 def _beats_claim(rows: list[dict[str, Scalar]], baseline: str) -> Claim:
     """The optimal strategy's loss per stage is below ``baseline``'s, paired by seed."""
-    from cellplan.strategies.experiments.paper import column, reduction_claim
 
     return reduction_claim(
         column(rows, "optimal_loss_per_stage"),
@@ -104,9 +107,8 @@ def _beats_claim(rows: list[dict[str, Scalar]], baseline: str) -> Claim:
 
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     """Per-policy table with 95% intervals, a figure, three claims."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan import plots as base
-    from cellplan.strategies.experiments.failure_experiment import agreement_claim
-    from cellplan.strategies.experiments.paper import _ci, ci_text, column
     from cellplan.strategies.variants.pending_sim import PENDING_POLICIES
 
     outdir = Path(outdir)
@@ -147,7 +149,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     fig, axes = base.new_figure(ncols=2, size=4.2)
     ax = axes[0, 0]
     for i, policy in enumerate(PENDING_POLICIES):
-        m, h = _ci(col(f"{policy}_loss_per_stage"))
+        m, h = mean_interval(col(f"{policy}_loss_per_stage"))
         ax.bar(i, m, yerr=0.0 if not np.isfinite(h) else h, capsize=4)
     ax.axhline(gain, color="#444444", lw=1, ls="--", label=f"gain g = {gain:.3f}")
     ax.set_xticks(range(len(PENDING_POLICIES)), list(PENDING_POLICIES))
@@ -159,7 +161,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     for j, part in enumerate(parts):
         means, halves = [], []
         for policy in PENDING_POLICIES:
-            m, h = _ci(col(f"{policy}_wait_{part}"))
+            m, h = mean_interval(col(f"{policy}_wait_{part}"))
             means.append(m)
             halves.append(0.0 if not np.isfinite(h) else h)
         x = np.arange(len(PENDING_POLICIES)) + (j - (len(parts) - 1) / 2) * width

@@ -16,8 +16,8 @@ import numpy as np
 
 from cellplan import plots as base
 from cellplan import units
-from cellplan.strategies.model.stencils import fmp_option
-from cellplan.strategies.policy.strategy import FMP, STAY, Strategy
+from cellplan.strategies.policy.decisions import FMP, STAY, Action
+from cellplan.strategies.policy.strategy import Strategy
 from cellplan.strategies.sim.simulate import Simulation
 
 OTHER_AXIS = 99  # marker code: the optimal move changes only the axes not shown
@@ -89,35 +89,7 @@ def plot_mode(
     ax2 = axes[0, 1]
     ax2.set_facecolor(base.COLORS["blocked"])
     step = max(1, int(max(mdp.shape[0], mdp.shape[1]) // arrows))
-    pts, vec, marks = [], [], []
-    for i in range(0, mdp.shape[0], step):
-        for j in range(0, mdp.shape[1], step):
-            q = np.array(
-                [
-                    xs[i],
-                    ys[j],
-                    *[
-                        mdp.lower[k + 2] + (r + 0.5) * mdp.spacing[k + 2]
-                        for k, r in enumerate(rest)
-                    ],
-                ]
-            )
-            c = strategy.cell_of(q)
-            if not mdp.live[mode, c]:
-                continue
-            try:
-                u = strategy.action(q, mode)
-            except ValueError:
-                continue
-            if fmp_option(u) >= 0 or u == STAY:  # any FMP option (Section VI-2: a pick)
-                marks.append((q[0], q[1], FMP if u != STAY else STAY))
-                continue
-            dq = strategy.move_vector(q, mode, u)
-            if np.linalg.norm(dq[:2]) <= 1e-12:
-                marks.append((q[0], q[1], OTHER_AXIS))  # a turn or a move of joint 3
-                continue
-            pts.append(q[:2])
-            vec.append(dq[:2])
+    pts, vec, marks = _action_marks(strategy, mode, (xs[::step], ys[::step]), rest)
     ax2.imshow(
         np.isfinite(h2).T,
         origin="lower",
@@ -168,11 +140,43 @@ def plot_mode(
     ax2.set_xlabel(xl + (" (deg)" if angular else ""))
     ax2.set_ylabel(yl + (" (deg)" if angular else ""))
     ax2.set_aspect("equal" if not angular else "auto")
-    if mdp.period > 1 and tuple(cell.robot.axis_names[:2]) == ("x", "y"):
+    if mdp.belts and tuple(cell.robot.axis_names[:2]) == ("x", "y"):  # regions that move
         for panel in (ax, ax2):
             draw_belts(panel, strategy, cell, filled=False)
             draw_regions_at(panel, strategy, cell, mode)
     return base.save_figure(fig, path)
+
+
+def _action_marks(
+    strategy: Strategy, mode: int, axes: tuple[np.ndarray, np.ndarray], rest: tuple[int, ...]
+) -> tuple[list[np.ndarray], list[np.ndarray], list[tuple[float, float, int]]]:
+    """The optimal actions of ``mode`` at the live cell centres ``axes`` (x and y values),
+    the other axes at the cells ``rest``: the points and steps of the moves in the plane,
+    and a mark ``(x, y, kind)`` where the action is an FMP, a stay or a move along another
+    axis."""
+    mdp = strategy.mdp
+    others = [mdp.lower[k + 2] + (r + 0.5) * mdp.spacing[k + 2] for k, r in enumerate(rest)]
+    pts, vec, marks = [], [], []
+    for x in axes[0]:
+        for y in axes[1]:
+            q = np.array([x, y, *others])
+            if not strategy.in_domain(q, mode):
+                continue
+            try:
+                action = strategy.action(q, mode)
+            except ValueError:  # live, but no action has a value here
+                continue
+            assert isinstance(action, Action)  # one configuration, one action
+            if action.kind != "move":  # any pick or drop (Section VI-2: of any request)
+                marks.append((q[0], q[1], FMP if action.is_fmp else STAY))
+                continue
+            dq = np.asarray(action.step)
+            if np.linalg.norm(dq[:2]) <= 1e-12:
+                marks.append((q[0], q[1], OTHER_AXIS))  # a turn or a move of joint 3
+                continue
+            pts.append(q[:2])
+            vec.append(dq[:2])
+    return pts, vec, marks
 
 
 def layer_title(strategy: Strategy, layer: int) -> str:
@@ -210,9 +214,11 @@ def draw_belts(ax: Any, strategy: Strategy, cell: Any, filled: bool = True) -> N
     leaves it, with an arrow along the belt's motion; shaded under the workcell
     (``filled``), or outlined above a plot of values. Nothing in a stationary model.
     Each band's ``gid`` is ``belt:<region>``."""
+    # Deferred for start-up time: the experiment list loads without these.
     from shapely import affinity
     from shapely.ops import unary_union
 
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.strategies.variants.periodic import belt_offset
 
     mdp = strategy.mdp
@@ -242,6 +248,7 @@ def draw_belts(ax: Any, strategy: Strategy, cell: Any, filled: bool = True) -> N
 def draw_regions_at(ax: Any, strategy: Strategy, cell: Any, layer: int) -> None:
     """Outline every source and destination where it lies at ``layer``'s phase (a region
     on a conveyor belt moves, Section VI-1); each outline's ``gid`` is the region's name."""
+    # Deferred for start-up time: the experiment list loads without these.
     from shapely import affinity
 
     offsets = region_offsets(strategy, layer)
@@ -350,6 +357,7 @@ def _frame_legend(ax: Any, fig: Any = None) -> None:
     """What a frame draws: the tool's path, the robot at the segment's start (faded) and
     end, the carried part, and the regions (the request's shaded). With ``fig``, one
     legend under the whole grid of panels instead of on ``ax``."""
+    # Deferred for start-up time: the experiment list loads without these.
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -446,6 +454,7 @@ def save_animation(
 ) -> Path:
     """An animated GIF of the sample path (stages subsampled to at most ``max_frames``),
     ``size`` pixels wide, each frame with its stage counter and mode."""
+    # Deferred for start-up time: the experiment list loads without these.
     import matplotlib.pyplot as plt
 
     size = base.check_gif_size(size, "size")

@@ -50,7 +50,7 @@ UR5_SEED = 1
 
 UR5_CODE = """import cellplan
 from cellplan.scene3d import cell_scene
-from cellplan.strategies.sim.simulate import carried_part
+from cellplan.strategies.sim.records import carried_part
 from cellplan.view3d import write_viewer
 
 setup = cellplan.load("strategies_ur5")        # a UR5, wrist locked: a 48^3 grid of 3 joints
@@ -67,6 +67,7 @@ def showcase(folder: Path) -> list[ShowcaseItem]:
     Returns the two report items (figures under ``folder``, each with its caption and the
     lines of Python that make it).
     """
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load, plan
     from cellplan.strategies.experiments.plots import plot_frames, plot_mode, save_animation
     from cellplan.strategies.sim.simulate import simulate_result
@@ -121,9 +122,11 @@ def ur5_showcase(folder: Path) -> ShowcaseItem:
     """Solve ``strategies_ur5`` and run it for :data:`UR5_STAGES` stages: three pictures
     of the arm (its first pick, carrying, its first delivery) and the viewer page
     ``ur5_simulation.html`` where the whole run plays."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load, plan
     from cellplan.scene3d import cell_scene
-    from cellplan.strategies.sim.simulate import carried_part, simulate_result
+    from cellplan.strategies.sim.records import carried_part
+    from cellplan.strategies.sim.simulate import simulate_result
     from cellplan.view3d import draw_png, write_viewer
 
     folder = Path(folder)

@@ -28,7 +28,16 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, decide_interval
+from cellplan.core import (
+    Claim,
+    Experiment,
+    ReportPiece,
+    RunSpec,
+    Scalar,
+    decide_interval,
+    mean_interval,
+)
+from cellplan.strategies.experiments.common import ci_text, column
 
 PROBLEM = "strategies_ur5"
 CELLS = "48,48,48"
@@ -48,6 +57,7 @@ where the gate stands."""
 def _solved(cells: str) -> tuple[Any, Any, float]:
     """The bundled scenario's strategy, its workcell and the seconds its planner took
     (solved once per process)."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.api import load, plan
 
     setup = load(PROBLEM)
@@ -69,6 +79,7 @@ def make_runs(runs: int, quick: bool) -> list[RunSpec]:
 def run(spec: RunSpec) -> dict[str, Scalar]:
     """The three behaviours from the seed's random starts, and the stages of the empty
     and loaded ways across the gate."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan.strategies.experiments import arm_behaviours as b
 
     strategy, cell, seconds = _solved(str(spec.params["cells"]))
@@ -125,7 +136,6 @@ THRESHOLD = 0.5
 def claims(rows: list[dict[str, Scalar]]) -> list[Claim]:
     """One claim per behaviour: reproduced when the 95% interval of the mean over seeds
     lies above :data:`THRESHOLD` (at least 5 seeds)."""
-    from cellplan.strategies.experiments.paper import _ci
 
     out = []
     for key, claim, paper, quantity, null in BEHAVIOURS:
@@ -138,7 +148,7 @@ def claims(rows: list[dict[str, Scalar]]) -> list[Claim]:
                 Claim(claim, paper, "no start measured", None, "not run", 0, rule, EXPLANATION)
             )
             continue
-        m, h = _ci(values)
+        m, h = mean_interval(values)
         low, high = (m - h, m + h) if np.isfinite(h) else (m, m)
         out.append(
             Claim(
@@ -158,8 +168,8 @@ def claims(rows: list[dict[str, Scalar]]) -> list[Claim]:
 
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     """The three claims, a table per seed and a chart of the intervals."""
+    # Deferred for start-up time: the experiment list loads without these.
     from cellplan import plots as base
-    from cellplan.strategies.experiments.paper import _ci, ci_text, column
 
     outdir = Path(outdir)
     found = claims(rows)
@@ -171,7 +181,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
         values = values[np.isfinite(values)]
         ax.plot([THRESHOLD] * 2, [y - 0.4, y + 0.4], ls="--", color="grey", lw=1)
         if len(values):
-            m, h = _ci(values)
+            m, h = mean_interval(values)
             ax.plot(values, np.full(len(values), y + 0.15), ".", color="#8c959f", ms=4)
             ax.errorbar([m], [y], xerr=[[0.0 if not np.isfinite(h) else h]], fmt="o")
     ax.set_yticks(range(len(BEHAVIOURS)), [key for key, *_ in BEHAVIOURS])

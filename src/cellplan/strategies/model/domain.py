@@ -12,9 +12,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cellplan.strategies.model.interpolation import supported
-from cellplan.strategies.model.stencils import cell_of_order, move_corners
-from cellplan.strategies.solve.noisy import noisy_supported
+from cellplan.strategies.model.stencils import cell_of_order
+from cellplan.strategies.solve.law import (
+    borrow,
+    borrowed,
+    keep,
+    lend,
+    move_supported,
+    scratch,
+    site_at,
+)
 
 
 @njit(cache=True)
@@ -31,17 +38,18 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
     :func:`cellplan.strategies.model.mdp.compute_live`, relies on both to skip work).
     ``model.layers.live`` is not read (``live`` replaces it).
     """
+    model = borrowed(model)  # the law is inlined per move: no reference counting
     moves = model.moves
     grid = model.grid
     lay = model.layers
     shape = grid.shape
     ncell = live.shape[1]
     d = shape.shape[0]
-    mi = np.empty(d, np.int64)
-    idx = np.empty(1 << d, np.int64)
-    w = np.empty(1 << d)
+    held = scratch(d)
+    s = lend(held)
+    mi = s.mi
+    lent = borrow(live)
     changed = False
-    noisy = moves.noise_prob.shape[0] > 1  # Section VI-4: every landing must be supported
     reach = np.zeros(ncell, np.bool_)
     nxt = lay.fmp_next[m]
     k = lay.vcls[m]
@@ -73,54 +81,26 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
                 continue
             if nxt >= 0 and target[c]:
                 continue
-            good = False
-            for a in range(-1, na):
-                if a >= 0 and noisy:
-                    if ((moves.valid[k, c] >> a) & 1) == 0:
-                        continue
-                    inner = moves.interior[k, c]
-                    if noisy_supported(m, c, a, mi, inner, target, live, model, idx, w):
+            # Staying finishes a request only through another layer (a time-varying
+            # model's next phase, Section VI-1): in a stationary layer its branch to
+            # itself reads ``target``, which does not hold ``c`` here.
+            good = True
+            for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+                L = lay.branch_layer[b]
+                if lay.branch_prob[b] > 0.0 and not (target[c] if L == m else live[L, c]):
+                    good = False
+                    break
+            if not good:
+                # Some move every landing of which is supported in every branch (the law
+                # of :func:`cellplan.strategies.solve.law.move_supported`).
+                site = site_at(model, m, c, False, s.mi)
+                vb = moves.valid[k, c]
+                for a in range(na):
+                    if (vb >> a) & 1 and move_supported(
+                        model, lent, borrow(target), site, a, s, True
+                    ):
                         good = True
                         break
-                    continue
-                if a >= 0:
-                    if ((moves.valid[k, c] >> a) & 1) == 0:
-                        continue
-                    n = move_corners(
-                        k,
-                        a,
-                        c,
-                        mi,
-                        moves.interior[k, c],
-                        moves.offs,
-                        moves.fr,
-                        moves.coff,
-                        moves.cw,
-                        moves.heading_axis,
-                        grid.shape,
-                        grid.periodic,
-                        idx,
-                        w,
-                    )
-                else:
-                    # Staying finishes a request only through another layer (a time-varying
-                    # model's next phase, Section VI-1): in a stationary layer its branch to
-                    # itself reads ``target``, which does not hold ``c`` here.
-                    n = 1
-                    idx[0] = c
-                    w[0] = 1.0
-                allsup = True
-                for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
-                    L = lay.branch_layer[b]
-                    if lay.branch_prob[b] <= 0.0:
-                        continue
-                    src = target if L == m else live[L]
-                    if not supported(src, idx, w, n):
-                        allsup = False
-                        break
-                if allsup:
-                    good = True
-                    break
             if nxt >= 0:
                 if good:
                     target[c] = True
@@ -135,4 +115,5 @@ def live_layer(live, fmp_ok, model, m):  # pragma: no cover - numba
         if live[m, c] != target[c]:
             changed = True
         live[m, c] = target[c]
+    keep(held)
     return changed

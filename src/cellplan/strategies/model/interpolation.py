@@ -3,7 +3,7 @@
 Section IV-B of the strategies paper represents the cost-to-go at cell centres and
 interpolates between them. With the ``2^d`` corners ``i_k`` of a point's multilinear
 stencil and their weights ``w_k`` (:func:`cellplan.strategies.model.stencils.stencil`,
-:func:`~cellplan.strategies.model.stencils.move_corners`), the value of layer ``L`` there is
+:func:`~cellplan.strategies.solve.law.move_stencil`), the value of layer ``L`` there is
 
     H_L(x) = sum_k w_k [live_L(i_k)] h_L(i_k) / sum_k w_k [live_L(i_k)],
 

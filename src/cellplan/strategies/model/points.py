@@ -28,7 +28,11 @@ from numba import njit
 from cellplan.strategies.model.interpolation import interp
 from cellplan.strategies.model.motion import motion_ok
 from cellplan.strategies.model.stencils import (
+    FMP_CODE,
     MAX_DIM,
+    NO_ACTION_CODE,
+    NOT_FINITE_CODE,
+    STAY_CODE,
     cell_containing,
     displacement,
     stencil,
@@ -84,7 +88,7 @@ def action_values_at(q, m, h, live, tf_here, fmp_allowed, model, out):  # pragma
     noisy = moves.noise_prob.shape[0] > 1
     for a in range(-1, na):
         if a >= 0 and noisy:  # Section VI-4: the expectation over the landings
-            v = noisy_value_at(q, m, a, h, live, model, idx, w, ibuf, fbuf, mbuf)
+            v = noisy_value_at(q, m, a, h, live, model, (idx, w, ibuf, fbuf, mbuf))
             if not np.isnan(v):
                 out[2 + a] = lay.cost[m] + v
             continue
@@ -135,29 +139,36 @@ def query(q, m, h, live, forbid_fmp, model, out):  # pragma: no cover - numba
     """The optimal action at a real state in one call (the online step of Section IV-B).
 
     FMP is offered where the grid cell containing ``q`` allows it (unless ``forbid_fmp``).
-    Returns -2 (FMP), -1 (stay), a move index, -9 when no action is available, or -10 when
+    Returns -2 (FMP), -1 (stay), a move index, -9 when no action is available (the cell of
+    ``q`` is not live in layer ``m``, or no action has a value), or -10 when
     ``q`` is not finite (nothing is read then); ``out`` receives the right-hand side of (9)
     per action as in :func:`action_values_at`. ``q`` must have the grid's dimension and
     ``m`` be a layer index: the caller checks both.
     """
     for j in range(q.shape[0]):
         if not np.isfinite(q[j]):
-            return -10
+            return NOT_FINITE_CODE
     grid = model.grid
     c = cell_containing(q, grid.shape, grid.lower, grid.spacing, grid.periodic)
+    if not live[m, c]:
+        # Outside the strategy's domain (issue 35: one rule, Strategy.in_domain, for the
+        # strategy and the simulator's start), even where live corners nearby give values.
+        for i in range(out.shape[0]):
+            out[i] = np.nan
+        return NO_ACTION_CODE
     tf_here = model.layers.tf[model.layers.opt_ptr[m], c]
     allowed = (not forbid_fmp) and tf_here < np.inf
     action_values_at(q, m, h, live, tf_here if allowed else 0.0, allowed, model, out)
     best = np.inf
-    arg = -9
+    arg = -1
     for i in range(out.shape[0]):
         v = out[i]
         if not np.isnan(v) and v < best:
             best = v
             arg = i
     if arg < 0:
-        return -9
-    return -2 if arg == 0 else -1 if arg == 1 else arg - 2
+        return NO_ACTION_CODE
+    return FMP_CODE if arg == 0 else STAY_CODE if arg == 1 else arg - 2
 
 
 @njit(cache=True)
@@ -232,7 +243,7 @@ def lookahead(
             v = outcomes_at(lay.opt_ptr[m], h, live, lay, idx, w, n)
             if not np.isnan(v):
                 best = tf[lay.opt_ptr[m], c] - offset + v
-                seq[0] = -2
+                seq[0] = FMP_CODE
                 length = 1
     level = 0
     while level >= 0:
@@ -279,7 +290,7 @@ def lookahead(
                 best = acc[level + 1] + tf[lay.opt_ptr[m], c] - offset + v
                 for i in range(level + 1):
                     seq[i] = choice[i]
-                seq[level + 1] = -2
+                seq[level + 1] = FMP_CODE
                 length = level + 2
         if level + 1 == depth:
             v = after_motion(qd[level + 1], m, h, live, model, idx, w, ibuf, frac)

@@ -177,13 +177,19 @@ def next_of_order(shape, flips, mi):  # pragma: no cover - numba
 
 
 @njit(cache=True, inline="always")
-def table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w):  # pragma: no cover
+def table_stencil(moves, grid, k, a, mi, idx, w):  # pragma: no cover - numba
     """Stencil of move ``a`` of class ``k`` from the centre of cell ``mi`` (precomputed offsets).
 
     From a cell centre the landing point of a move is ``mi + offs + fr`` in cell
-    coordinates, the same for every cell (per orientation slice for robot-frame moves),
-    so the multilinear stencil needs no floating-point division.
+    coordinates (``moves.offs``, ``moves.fr``), the same for every cell (per orientation
+    slice for robot-frame moves), so the multilinear stencil needs no floating-point
+    division. ``moves`` and ``grid`` are the bundles of :mod:`.bundles`.
     """
+    offs = moves.offs
+    fr = moves.fr
+    heading_axis = moves.heading_axis
+    shape = grid.shape
+    periodic = grid.periodic
     d = shape.shape[0]
     t = mi[heading_axis] if heading_axis >= 0 else 0
     ncorner = 1 << d
@@ -215,49 +221,29 @@ def table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w):  #
     return ncorner
 
 
-@njit(cache=True, inline="always")
-def move_corners(
-    k, a, c, mi, inner, offs, fr, coff, cw, heading_axis, shape, periodic, idx, w
-):  # pragma: no cover - numba
-    """Corners and weights of move ``a`` (class ``k``) from cell ``c``; returns their number.
-
-    Away from the border the flat offsets are precomputed (``coff``, ``cw``, corners by
-    decreasing weight, so the list stops at the first zero weight); at the border
-    :func:`table_stencil` clamps. ``mi`` is the multi-index of ``c``.
-    """
-    if inner:
-        t = mi[heading_axis] if heading_axis >= 0 else 0
-        nc = 0
-        for jj in range(idx.shape[0]):
-            wj = cw[k, a, t, jj]
-            if wj <= EPS_W:
-                break
-            idx[jj] = c + coff[k, a, t, jj]
-            w[jj] = wj
-            nc += 1
-        return nc
-    return table_stencil(k, a, mi, offs, fr, heading_axis, shape, periodic, idx, w)
-
-
 # Action codes of a policy: a move ``a >= 0``, stay -1, FMP (its first option) -2, a state
 # outside the MDP -3, and FMP option ``j >= 1`` of the mode (simultaneous requests,
 # Section VI-2: which open request a pick serves) ``-3 - j``.
 STAY_CODE = -1
 FMP_CODE = -2
 OUTSIDE_CODE = -3
+# What an online query (:func:`.points.query`) returns where no action is available, and
+# where the configuration is not finite.
+NO_ACTION_CODE = -9
+NOT_FINITE_CODE = -10
 
 
 @njit(cache=True, inline="always")
 def fmp_code(j):  # pragma: no cover - numba
     """The action code of FMP option ``j`` (0-based within its mode)."""
-    return -2 if j == 0 else -3 - j
+    return FMP_CODE if j == 0 else OUTSIDE_CODE - j
 
 
 @njit(cache=True, inline="always")
 def fmp_option(code):  # pragma: no cover - numba
     """The option ``j`` of an FMP action code, -1 for any other code."""
-    if code == -2:
+    if code == FMP_CODE:
         return 0
-    if code <= -4:
-        return -3 - code
+    if code < OUTSIDE_CODE:
+        return OUTSIDE_CODE - code
     return -1

@@ -27,10 +27,19 @@ from cellplan.strategies.model.mdp import LayeredMDP, compute_live, live_problem
 
 
 @njit(cache=True)
-def snap_free_moves(
-    free, valid, disp, nact, heading_axis, shape, lower, upper, spacing, periodic
-):  # pragma: no cover - numba
-    """``valid`` without the moves whose landing stencil touches a blocked cell."""
+def snap_free_moves(moves, grid):  # pragma: no cover - numba
+    """``moves.valid`` without the moves whose landing stencil touches a blocked cell
+    (``moves``, ``grid``: the bundles of :mod:`.bundles`)."""
+    free = moves.free
+    valid = moves.valid
+    disp = moves.disp
+    nact = moves.nact
+    heading_axis = moves.heading_axis
+    shape = grid.shape
+    lower = grid.lower
+    upper = grid.upper
+    spacing = grid.spacing
+    periodic = grid.periodic
     K, N = free.shape
     d = shape.shape[0]
     q = np.empty(d)
@@ -68,18 +77,8 @@ def forbid_snapping(mdp: LayeredMDP) -> LayeredMDP:
     ScenarioError
         When a request can no longer be served (as :func:`~.mdp.build_model`).
     """
-    valid = snap_free_moves(
-        mdp.free,
-        mdp.valid,
-        mdp.disp,
-        mdp.nact,
-        mdp.heading_axis,
-        mdp.shape,
-        mdp.lower,
-        mdp.upper,
-        mdp.spacing,
-        mdp.periodic,
-    )
+    model = mdp.kernel_args()
+    valid = snap_free_moves(model.moves, model.grid)
     live = np.stack([mdp.free[mdp.vcls[m]] for m in range(mdp.n_modes)])
     out = replace(mdp, valid=valid, live=live)
     compute_live(out)

@@ -20,18 +20,39 @@ from cellplan.strategies.model.mdp import LayeredMDP
 from cellplan.strategies.solve import kernels
 
 
+def motions_leave_layers(mdp: LayeredMDP) -> bool:
+    """Whether a motion in a layer with a request to finish never stays in that layer (no
+    such layer is among its own branches): then no layer can be solved, or searched ahead,
+    on its own. So it is in a time-varying model (Section VI-1), whose every motion leads
+    to the next phase's layer; the model's branch table says so, whichever variant built
+    it."""
+    ptr, layers = mdp.branch_ptr, mdp.branch_layer
+    return not any(
+        m in layers[ptr[m] : ptr[m + 1]] for m in range(mdp.n_modes) if mdp.fmp_next[m] >= 0
+    )
+
+
+def success_only(mdp: LayeredMDP) -> LayeredMDP:
+    """The model with every FMP certain to succeed (its FMP leads to ``fmp_next``): the
+    layer sweeps of the per-request values follow each FMP's success, and
+    :func:`_with_failures` folds the other outcomes (Section VI-3) into ``t_f`` (the
+    kernels' transition law would otherwise count them twice, or, before a layer is
+    solved, value a retry at the layer's own ``+inf``)."""
+    return mdp if mdp.outcomes is None else replace(mdp, outcomes=None)
+
+
 def per_request_values(mdp: LayeredMDP, tol: float = 1e-9, max_sweeps: int = 10000) -> np.ndarray:
     """``(M, N)`` time-to-finish of the current request alone (g = 0, nothing after delivery).
 
     Layer NR is 0 (a delivery ends the cost); each C layer is the expected time to deliver
     (stages plus t_f), each W layer the time to pick up and then deliver.
     """
-    if mdp.period > 1:
+    if motions_leave_layers(mdp):
         return _over_phases(mdp, tol, max_sweeps)
     h = np.where(mdp.live, 0.0, np.nan)
     D = np.zeros(h.shape)
     work = np.where(mdp.live, 0.0, 0.0)
-    args = mdp.kernel_args()
+    args = success_only(mdp).kernel_args()
     d = len(mdp.shape)
     for m in _request_layers(mdp):
         work[m][mdp.live[m]] = np.inf
@@ -91,7 +112,7 @@ def _with_failures(mdp: LayeredMDP, h: np.ndarray, tol: float, max_sweeps: int) 
     failure probability per pass (a failure is the only way back into a solved layer).
     """
     out = mdp.fmp_outcomes()
-    args_of = mdp.kernel_args
+    args_of = success_only(mdp).kernel_args  # the other outcomes are folded into t_f
     d = len(mdp.shape)
     order = _request_layers(mdp)
     failing = [m for m in order if out.ptr[m + 1] - out.ptr[m] > 1]
@@ -145,6 +166,7 @@ def home_values(
         branch_layer=np.array([0, 1], np.int64),
         branch_prob=np.array([1.0, 1.0]),
         live=live,
+        outcomes=None,  # the home's FMP is certain (and the model's are of other modes)
     )
     h = np.zeros((2, N))
     h[0][live_nr] = np.inf

@@ -48,16 +48,13 @@ import numpy as np
 from cellplan.strategies.model import stencils
 from cellplan.strategies.model.interpolation import interp
 from cellplan.strategies.model.mdp import LayeredMDP
-from cellplan.strategies.model.points import action_values_at, lookahead
-from cellplan.strategies.policy.strategy import (
-    FMP,
-    Strategy,
-    best_action,
-    checked_state,
-    option_or_motion,
-)
+from cellplan.strategies.model.points import action_values_at, after_motion, lookahead
+from cellplan.strategies.policy.baselines import motions_leave_layers
+from cellplan.strategies.policy.decisions import FMP, best_action, option_or_motion
+from cellplan.strategies.policy.strategy import Strategy, checked_state
 
-# Fraction of one stage's progress (l - g) below which an inconsistency is left alone.
+# Fraction of one stage's progress (:meth:`Executor._progress`, ``l - g`` in Section V's
+# W and C layers) below which an inconsistency is left alone.
 RAISE_FRACTION = 0.5
 # Motion sequences examined per stage by the lookahead, and its deepest horizon.
 LEAF_BUDGET = 400
@@ -75,7 +72,7 @@ def default_depth(mdp: LayeredMDP, budget: int = LEAF_BUDGET) -> int:
     """
     if len(mdp.noise_prob) > 1:
         return 1  # the lookahead follows commanded landings; noisy moves land elsewhere
-    if mdp.period > 1:
+    if motions_leave_layers(mdp):
         return 1  # the lookahead stays in one layer; a time-varying model's next is the next phase
     na = int(mdp.nact.max())
     depth = 1
@@ -109,7 +106,7 @@ class Executor:
     option_test
         In a model with FMP options (simultaneous requests, Section VI-2), the exact test
         of option ``j``: ``(configurations, mode, j) -> bool``
-        (:meth:`~cellplan.strategies.sim.simulate.RegionTest.option`). Such a model is
+        (:meth:`~cellplan.strategies.policy.regions.RegionTest.option`). Such a model is
         executed with rule (9) over the motions and the options the test confirms, and
         the correction step (depth 1: the lookahead follows one FMP per mode).
     """
@@ -155,6 +152,7 @@ class Executor:
         self._ibuf = np.empty(2 * stencils.MAX_DIM, np.int64)
         self._frac = np.empty(stencils.MAX_DIM)
         self._model = mdp.kernel_args()
+        self._here = float("nan")  # H(q) of the last _progress call
 
     def action_values(
         self, q: np.ndarray, mode: int, fmp_allowed: bool | None = None
@@ -219,16 +217,12 @@ class Executor:
         mdp = self.strategy.mdp
         if not self.learn or mdp.fmp_next[mode] < 0 or not np.isfinite(target):
             return 0.0
-        here = self._value(q, mode)  # also leaves q's stencil in _idx, _w
-        if np.isnan(here):
+        progress = self._progress(q, mode)  # also leaves q's stencil in _idx, _w
+        here = self._here
+        if np.isnan(here) or not progress > 0.0:
             return 0.0
-        progress = float(mdp.cost[mode]) - self.offset
         residual = target - here
-        # A mode whose loss per stage is below the gain (few open requests, Section VI-2)
-        # makes no progress in the average-cost sense: its values rise along a path, a
-        # cycle there is consistent with them and a raise would not break it. It is left
-        # alone (and never lowered); the arrivals carry the run into costlier modes.
-        if progress <= 0.0 or residual <= RAISE_FRACTION * progress:
+        if residual <= RAISE_FRACTION * progress:
             return 0.0
         corners = self._idx[(self._w > 1e-12) & self.live[mode, self._idx]]
         # Raising every live corner equally raises the interpolated H(q) by exactly the
@@ -237,6 +231,34 @@ class Executor:
         self.corrections += 1
         self.raised += residual
         return residual
+
+    def _progress(self, q: np.ndarray, mode: int) -> float:
+        """One stage's progress at ``(q, mode)``, the scale of the correction's threshold:
+        the smaller positive one of ``l(m) - offset`` and the cost of one stage of delay in
+        the values' terms, ``l(m) - offset + sum_b P_b H_{L_b}(q) - H_m(q)`` (the
+        right-hand side of (9) for staying less ``H(q)``); NaN where neither is positive.
+
+        Round a cycle of real states the residuals of the correction step sum to the sum
+        of the delay costs over the cycle (the ``H`` terms cancel), so a threshold below a
+        fraction of it keeps the LRTA* argument; the smaller of the two only corrects
+        sooner. In a W or C layer of Section V (its only branch is itself) both are
+        ``l - g``. In a mode whose loss is below the gain (one request open among
+        simultaneous requests, Section VI-2) ``l - g`` is negative, but delay is still
+        costly where the grid's optimal action is an FMP, through the arrivals that lead
+        to costlier modes (``P_b (H_{L_b} - H_m) > 0``): with ``l - g`` alone a cycle there
+        was never corrected (issue 35: a delivery refused at the edge of D2 held the
+        robot until the next arrival). Sets ``self._here`` to ``H_m(q)`` and leaves
+        ``q``'s stencil in ``_idx``, ``_w``.
+        """
+        mdp = self.strategy.mdp
+        self._here = self._value(q, mode)
+        after = after_motion(
+            q, mode, self.h, self.live, self._model, self._idx, self._w, self._ibuf, self._frac
+        )
+        stage = float(mdp.cost[mode]) - self.offset
+        delay = stage + float(after) - self._here
+        positive = [v for v in (stage, delay) if v > 0.0]
+        return min(positive) if positive else float("nan")
 
     def action(self, q: np.ndarray, mode: int, fmp_allowed: bool | None = None) -> int:
         """The action at ``(q, mode)``: FMP (-2), stay (-1) or a move index.
@@ -255,7 +277,6 @@ class Executor:
         q, mode = checked_state(mdp, q, mode)
         if self.options:
             u, best = option_or_motion(
-                mdp,
                 q,
                 mode,
                 self.h,

@@ -14,11 +14,9 @@ scenario whose digest differs raises :class:`~cellplan.errors.PersistenceError`.
 
 from __future__ import annotations
 
-import json
 import operator
 import re
-from collections.abc import Callable
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -26,42 +24,31 @@ import numpy as np
 
 from cellplan import units
 from cellplan.errors import ArgumentError, PersistenceError, Problem, ScenarioError
-from cellplan.fileio import atomic_path
-from cellplan.strategies.model.bundles import Model, Outcomes
-from cellplan.strategies.model.mdp import LayeredMDP, Mode
+from cellplan.strategies.model.bundles import Model
+from cellplan.strategies.model.mdp import LayeredMDP, Mode, build_model
 from cellplan.strategies.model.motion import motion_ok
-from cellplan.strategies.model.points import action_values_at, compiled_for, fmp_options_at, query
+from cellplan.strategies.model.points import action_values_at, compiled_for, query
 from cellplan.strategies.model.stencils import (
     MAX_DIM,
-    cell_containing,
+    NO_ACTION_CODE,
+    NOT_FINITE_CODE,
     displacement,
-    fmp_code,
     wrap,
 )
-from cellplan.strategies.policy.fileformat import FORMAT, VERSION, mode_of
-from cellplan.strategies.solve.solver import SolveResult
-
-FMP = -2
-STAY = -1
-
-_ARRAY_FIELDS = [
-    f.name
-    for f in fields(LayeredMDP)
-    if f.name
-    not in (
-        "modes",
-        "labels",
-        "heading_axis",
-        "stage_time",
-        "arrival",
-        "outcomes",
-        "opt_ptr",
-        "period",
-        "belts",
-    )
-]
-#: The FMP outcome arrays of a strategy file (:class:`~.bundles.Outcomes`, by field).
-_OUTCOME_ARRAYS = {"out_ptr": "ptr", "out_layer": "layer", "out_prob": "prob", "out_cost": "cost"}
+from cellplan.strategies.model.transitions import forbid_snapping
+from cellplan.strategies.policy.decisions import (
+    FMP,
+    OUTSIDE,
+    STAY,
+    Action,
+    Actions,
+    option_or_motion,
+    typed,
+)
+from cellplan.strategies.policy.fileformat import FORMAT, VERSION
+from cellplan.strategies.policy.persist import read_model, write_strategy
+from cellplan.strategies.policy.regions import region_test
+from cellplan.strategies.solve.solver import SolveResult, method_problem, solve
 
 
 class _QueryArgs(NamedTuple):
@@ -129,8 +116,6 @@ class Strategy:
             "seconds": result.seconds,
         }
         return Strategy(mdp, result.values, meta)
-
-    # --- queries ---------------------------------------------------------------------------
 
     @property
     def gain(self) -> float:
@@ -240,8 +225,9 @@ class Strategy:
         known = ", ".join(labels[:shown])
         if len(labels) > shown:
             known += f", ... ({len(labels)} modes)"
-        if self.mdp.period > 1:
-            known += f"; at phases 0 to {self.mdp.period - 1}, e.g. {labels[-1]}@1"
+        phases = self.mdp.n_modes // self.mdp.modes_per_phase  # layers per mode
+        if phases > 1:
+            known += f"; at phases 0 to {phases - 1}, e.g. {labels[-1]}@1"
         return PersistenceError(
             [Problem("--mode", f"no mode {text!r} in this strategy (modes: {known})")]
         )
@@ -259,6 +245,16 @@ class Strategy:
                 idx[j] % mdp.shape[j] if mdp.periodic[j] else min(max(idx[j], 0), mdp.shape[j] - 1)
             )
         return int(np.ravel_multi_index(tuple(idx), tuple(mdp.shape)))
+
+    def in_domain(self, q: np.ndarray, mode: int | str = 0) -> bool:
+        """Whether ``(q, mode)`` is in the strategy's domain: the grid cell of ``q`` is
+        live in the layer (Section IV: the states from which every request can be served).
+
+        The one rule of the domain (issue 35): :meth:`action` answers no action outside
+        it, and ``cellplan simulate`` refuses a start outside it, in every model.
+        """
+        q, m = checked_state(self.mdp, q, mode)
+        return bool(self.mdp.live[m, self._cell_of(q)])
 
     def action_values(
         self,
@@ -343,40 +339,69 @@ class Strategy:
         attached, :meth:`action` never returns an FMP the workcell refuses: it returns the
         best motion instead. Planners attach their workcell; returns ``self``.
         """
-        from cellplan.strategies.sim.simulate import region_test
-
         self.__dict__["_fmp_test"] = region_test(self, cell, self.meta.get("regions", "contact"))
         return self
 
-    def action(self, q: np.ndarray, mode: int, forbid_fmp: bool = False) -> int:
-        """The optimal action at ``(q, mode)``: ``FMP`` (-2), ``STAY`` (-1) or a move index;
-        with FMP options (simultaneous requests, Section VI-2) option ``j >= 1`` is
-        ``-3 - j`` (:func:`~cellplan.strategies.model.stencils.fmp_option` decodes it).
+    def action(self, q: Any, mode: int | str = 0) -> Action | Actions:
+        """What the strategy does at ``(q, mode)``: one step of equation (9) (Section IV-B).
+
+        ``q`` is one configuration ``(dim,)``, answered by an :class:`~.decisions.Action`,
+        or ``n`` of them ``(n, dim)``, answered by an :class:`~.decisions.Actions` bundle
+        (like the workcell's queries); ``mode`` is a layer index or a mode's name
+        (:meth:`mode_index`: ``"NR"``, ``"<P1,S1,D1,W>"`` ...), the same for every row.
+        An action says what to do: ``kind`` ``move`` (with the move's index and its C-space
+        ``step``), ``stay``, ``pick`` or ``drop`` (with the ``region``, and with
+        simultaneous requests the ``option``: which request a pick serves); ``code`` is the
+        integer code of :meth:`action_code`.
+
+        With a workcell :meth:`attach` ed, a pick or drop is returned only where the exact
+        region test allows it. Raises :class:`~cellplan.errors.ArgumentError` for a ``q``
+        that is not finite configurations of the grid's dimension or an unknown ``mode``,
+        and ``ValueError`` when a configuration is outside the strategy's domain
+        (:meth:`in_domain`; the simulator refuses such a start by the same rule).
+        """
+        d = len(self.mdp.shape)
+        if np.ndim(q) == 2 and np.shape(q)[1] == d and np.shape(q)[0] > 0:
+            rows = [checked_state(self.mdp, row, mode) for row in np.asarray(q)]
+            return Actions.of([self._typed(row, m) for row, m in rows], d)
+        row, m = checked_state(self.mdp, q, mode)
+        return self._typed(row, m)
+
+    def _typed(self, q: np.ndarray, mode: int) -> Action:
+        """:meth:`action` at one checked state."""
+        code = self.action_code(q, mode)
+        step = np.zeros(len(q))
+        if code >= 0:
+            k = self.mdp.vcls[mode]
+            displacement(q, self.mdp.disp[k, code], self.mdp.heading_axis, step)
+        return typed(code, self.mdp.modes[mode], step)
+
+    def action_code(self, q: np.ndarray, mode: int | str, forbid_fmp: bool = False) -> int:
+        """:meth:`action` at one configuration as its integer code: ``FMP`` (-2), ``STAY``
+        (-1) or a move index; with FMP options (simultaneous requests, Section VI-2)
+        option ``j >= 1`` is ``-3 - j`` (:func:`~.decisions.fmp_option_of` decodes it).
 
         One compiled evaluation of equation (9), a few microseconds: the compiled code is
-        called directly (:func:`~cellplan.strategies.model.points.compiled_for`). With a workcell
-        :meth:`attach` ed, an FMP is returned only where the exact region test allows it.
-        ``mode`` is a layer index or a mode's name (:meth:`mode_index`: ``"NR"``,
-        ``"<P1,S1,D1,W>"`` ...). Raises :class:`~cellplan.errors.ArgumentError` for a ``q``
-        that is not a finite configuration of the grid's dimension or an unknown ``mode``, and
-        ``ValueError`` when no action is available (``q`` outside the live states).
+        called directly (:func:`~cellplan.strategies.model.points.compiled_for`); the
+        simulators and the experiments step through it. ``forbid_fmp`` leaves the FMP out.
+        Raises as :meth:`action`.
         """
         q, mode = checked_state(self.mdp, q, mode, finite=self.mdp.opt_ptr is not None)
         args = self._query_args()
         if self.mdp.opt_ptr is not None:
+            if not self.mdp.live[mode, self._cell_of(q)]:
+                raise ValueError(OUTSIDE)  # the query kernel's rule (in_domain)
             return self._best_option_or_motion(q, mode, args.out, forbid_fmp)
         u = args.kernel(q, mode, args.h0, args.live, bool(forbid_fmp), args.model, args.out)
-        if u == -10:
+        if u == NOT_FINITE_CODE:
             raise ArgumentError([Problem("q", "contains NaN or infinite values")])
-        if u == -9:
-            raise ValueError(
-                "no action is available here (the state is outside the strategy's domain)"
-            )
+        if u == NO_ACTION_CODE:
+            raise ValueError(OUTSIDE)
         test = self.__dict__.get("_fmp_test")
         if u == FMP and test is not None:
             point = np.asarray(q, dtype=float)[None, :]
             if not test(point, mode)[0]:
-                return self.action(q, mode, forbid_fmp=True)
+                return self.action_code(q, mode, forbid_fmp=True)
         return int(u)
 
     def _best_option_or_motion(
@@ -386,11 +411,11 @@ class Strategy:
         the best of the motions, stay and every FMP option the grid cell of ``q`` allows
         (FMP first on a tie). Returns ``fmp_code(j)`` for option ``j``. With a workcell
         :meth:`attach` ed, each option is confirmed by the exact region test of the
-        request it serves (:meth:`~.simulate.RegionTest.option`), as a single FMP is."""
+        request it serves (:meth:`~.regions.RegionTest.option`), as a single FMP is."""
         test = self.__dict__.get("_fmp_test")
         option_test = test.option if test is not None else None
         u, _ = option_or_motion(
-            self.mdp, q, mode, self._h0, self.mdp.live, self._model, out, forbid_fmp, option_test
+            q, mode, self._h0, self.mdp.live, self._model, out, forbid_fmp, option_test
         )
         return u
 
@@ -401,7 +426,7 @@ class Strategy:
         return np.asarray(mdp.lower + (idx + 0.5) * mdp.spacing)
 
     def next_configuration(
-        self, q: np.ndarray, mode: int, action: int, landing: int | None = None
+        self, q: np.ndarray, mode: int, action: int | Action, landing: int | None = None
     ) -> np.ndarray:
         """Where a move (or stay/FMP) takes the robot, equation (5) and its variants.
 
@@ -414,6 +439,8 @@ class Strategy:
         q = q.copy()
         mdp = self.mdp
         k = mdp.vcls[mode]
+        if isinstance(action, Action):
+            action = action.code if action.kind == "move" else STAY  # a pick or drop stays
         n_moves = int(mdp.nact[k])
         if not isinstance(action, (int, np.integer)) or not FMP <= action < n_moves:
             raise ArgumentError(
@@ -452,44 +479,14 @@ class Strategy:
         wrap(q, mdp.lower, mdp.upper, mdp.periodic)
         return q
 
-    def move_vector(self, q: np.ndarray, mode: int, action: int) -> np.ndarray:
+    def move_vector(self, q: np.ndarray, mode: int, action: int | Action) -> np.ndarray:
         """The C-space displacement of an action (zero for stay and FMP)."""
         return self.next_configuration(q, mode, action) - np.asarray(q, float)
 
-    # --- persistence -----------------------------------------------------------------------
-
     def save(self, path: str | Path) -> Path:
-        """Write the strategy as a compressed .npz (atomically, no pickle)."""
-        mdp = self.mdp
-        arrays = {name: np.asarray(getattr(mdp, name)) for name in _ARRAY_FIELDS}
-        arrays["values"] = self.values
-        # One layout for every model: the identity (one option per mode) without options.
-        arrays["opt_ptr"] = np.asarray(mdp.options, np.int64)
-        out = mdp.fmp_outcomes()
-        for name, attr in _OUTCOME_ARRAYS.items():
-            arrays[name] = np.asarray(getattr(out, attr))
-        meta = dict(self.meta)
-        meta.update(
-            heading_axis=mdp.heading_axis,
-            stage_time=mdp.stage_time,
-            arrival=mdp.arrival,
-            modes=[_mode_fields(m) for m in mdp.modes],
-            labels=[list(lab) for lab in mdp.labels],
-            period=mdp.period,
-            phases=[m.phase for m in mdp.modes],
-            belts={name: [float(v) for v in vel] for name, vel in mdp.belts.items()},
-            grid={
-                "shape": mdp.shape.tolist(),
-                "lower": mdp.lower.tolist(),
-                "upper": mdp.upper.tolist(),
-                "periodic": mdp.periodic.tolist(),
-            },
-        )
-        arrays["meta"] = np.array(json.dumps(meta))
-        path = Path(path)
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]
-        return path
+        """Write the strategy as a compressed .npz (atomically, no pickle;
+        :func:`~.persist.write_strategy`)."""
+        return write_strategy(path, self.mdp, self.values, self.meta)
 
     @staticmethod
     def load(path: str | Path, scenario: Any = None) -> Strategy:
@@ -500,94 +497,7 @@ class Strategy:
         every index, consistency of the tables, the metadata schema); a file that fails
         raises :class:`~cellplan.errors.PersistenceError` naming the file and the field.
         """
-        from cellplan.strategies.policy.fileformat import read_strategy
-
-        meta, arrays = read_strategy(path, scenario)
-        modes = [
-            replace(mode_of(m), phase=p) for m, p in zip(meta["modes"], meta["phases"], strict=True)
-        ]
-        kw = {name: arrays[name] for name in _ARRAY_FIELDS}
-        opt_ptr = arrays["opt_ptr"]
-        if np.array_equal(opt_ptr, np.arange(len(modes) + 1)):
-            opt_ptr = None  # one option per mode: the model is as it was built (is_simple)
-        mdp = LayeredMDP(
-            modes=modes,
-            labels=[tuple(lab) for lab in meta["labels"]],
-            heading_axis=int(meta["heading_axis"]),
-            stage_time=float(meta["stage_time"]),
-            arrival=float(meta["arrival"]),
-            outcomes=Outcomes(**{attr: arrays[name] for name, attr in _OUTCOME_ARRAYS.items()}),
-            opt_ptr=opt_ptr,
-            period=int(meta["period"]),
-            belts={name: (float(v[0]), float(v[1])) for name, v in meta["belts"].items()},
-            **kw,
-        )
-        # Optional fields absent from older files stay absent (the defaults apply).
-        meta = {k: v for k, v in meta.items() if v is not None}
-        return Strategy(mdp, arrays["values"], meta)
-
-
-def _mode_fields(mode: Mode) -> list[str]:
-    """A mode as the strategy file stores it: kind, part, source, destination, and for X
-    modes the reject region and what follows the rejection, for Q modes (simultaneous
-    requests, Section VI-2) the waiting requests."""
-    fields = [mode.kind, mode.part, mode.source, mode.destination]
-    if mode.kind == "X":
-        return [*fields, mode.reject, mode.after]
-    return [*fields, *mode.waiting] if mode.kind == "Q" else fields
-
-
-def option_or_motion(
-    mdp: LayeredMDP,
-    q: np.ndarray,
-    mode: int,
-    h: np.ndarray,
-    live: np.ndarray,
-    model: Model,
-    out: np.ndarray,
-    forbid_fmp: bool = False,
-    option_test: Callable[[np.ndarray, int, int], np.ndarray] | None = None,
-) -> tuple[int, float]:
-    """Equation (9) at ``q`` in a mode with FMP options (simultaneous requests, Section
-    VI-2): the best of the motions, stay and the FMP options, on the values ``h`` (the
-    strategy's, or an executor's corrected copy). Returns ``(action, value)``: the action
-    as :meth:`Strategy.action` (``fmp_code(j)`` for option ``j``, FMP first on a tie) and
-    its right-hand side of (9).
-
-    An option is offered where the grid cell of ``q`` allows it and, with ``option_test``
-    (``(points, mode, j) -> bool array``, :meth:`.simulate.RegionTest.option`), where the
-    exact region test of the
-    request it serves passes at ``q`` (its source for a pick, its destination with the
-    part for a delivery): the same rule as the single FMP of the other models, so a
-    delivery the workcell refuses is never chosen. Raises ``ValueError`` when no action
-    is available.
-    """
-    action_values_at(q, mode, h, live, 0.0, False, model, out)
-    o0, o1 = int(mdp.options[mode]), int(mdp.options[mode + 1])
-    allowed = np.full(o1 - o0, not forbid_fmp, np.bool_)
-    if option_test is not None and not forbid_fmp:
-        g = model.grid
-        c = int(cell_containing(q, g.shape, g.lower, g.spacing, g.periodic))
-        point = np.asarray(q, dtype=float)[None, :]
-        for j in np.flatnonzero(np.isfinite(mdp.tf[o0:o1, c])):
-            allowed[j] = bool(option_test(point, mode, int(j))[0])
-    j, fval = fmp_options_at(q, mode, h, live, allowed, model)
-    motions = out[1:]
-    best_motion = float(np.nanmin(motions)) if not np.all(np.isnan(motions)) else np.inf
-    if j >= 0 and not (best_motion < fval):
-        return int(fmp_code(j)), float(fval)
-    if np.all(np.isnan(motions)):
-        raise ValueError("no action is available here (the state is outside the strategy's domain)")
-    i = int(np.nanargmin(motions))
-    return (STAY if i == 0 else i - 1), best_motion
-
-
-def best_action(vals: np.ndarray) -> int:
-    """Index convention of :meth:`Strategy.action` from an ``action_values`` vector."""
-    if np.all(np.isnan(vals)):
-        raise ValueError("no action is available here (the state is outside the strategy's domain)")
-    i = int(np.nanargmin(vals))
-    return FMP if i == 0 else STAY if i == 1 else i - 2
+        return Strategy(*read_model(path, scenario))
 
 
 def solve_scenario(
@@ -599,38 +509,40 @@ def solve_scenario(
     progress: Any = None,
     snap: bool = True,
     start: Any = None,
+    solver: Any = None,
 ) -> tuple[Strategy, SolveResult]:
     """Build the model of a scenario's ``strategy:`` section, solve it, wrap the result.
 
-    The solver settings come from ``strategy.solver`` (``method`` overrides its method).
+    The solver settings are ``solver`` (a :class:`~cellplan.strategies.section.SolverSpec`,
+    the planner's options resolved against the scenario), else ``strategy.solver``;
+    ``method`` overrides the method (and a refused one is blamed on the option).
     ``snap=False`` removes the moves whose interpolation snaps the robot sideways
     (:func:`~cellplan.strategies.model.transitions.forbid_snapping`). With ``start``, a start
     outside the strategy's domain is refused before solving
     (:func:`~cellplan.strategies.model.mdp.start_problems`).
     """
-    from cellplan.strategies.model.mdp import build_model
-    from cellplan.strategies.model.transitions import forbid_snapping
-    from cellplan.strategies.solve.solver import method_problem, solve
-
     sec = scenario.strategy
+    settings = solver if solver is not None else sec.solver
     mdp = build_model(scenario, cell, cells, start=start)
     if not snap:
         mdp = forbid_snapping(mdp)
-    problem = method_problem(mdp, method or sec.solver.method, sec.solver.damping)
+    problem = method_problem(mdp, method or settings.method, settings.damping)
     if problem is not None:
         if method is not None:
             raise ArgumentError([Problem("method", problem)])
         raise ScenarioError([Problem("strategy.solver.method", problem)])
     result = solve(
         mdp,
-        method or sec.solver.method,
-        sec.solver.tolerance,
-        sec.solver.max_sweeps,
-        sec.solver.damping,
+        method or settings.method,
+        settings.tolerance,
+        settings.max_sweeps,
+        settings.damping,
         progress,
     )
     strategy = Strategy.from_solution(mdp, result, scenario)
     strategy.meta["regions"] = sec.regions
+    # What a solve derived from this one solves to (pending_sim.single_request_strategy).
+    strategy.meta["tolerance"] = float(settings.tolerance)
     strategy.meta["transitions"] = "snap" if snap else "no-snap"
     if sec.home is None:
         home = cell.robot.start.tolist()

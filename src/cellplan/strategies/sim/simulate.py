@@ -23,112 +23,39 @@ within a bound (:func:`wait_bound`; docs/strategies.md, "Simulation status").
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cellplan import timing, units
 from cellplan.core import Progress, Result, Status
-from cellplan.strategies.model.mdp import NR, LayeredMDP, Mode
-from cellplan.strategies.planners import MAX_STAGES
+from cellplan.errors import ArgumentError, Problem
+from cellplan.strategies.model.mdp import NR
 from cellplan.strategies.policy.baselines import home_values, per_request_values
+from cellplan.strategies.policy.decisions import FMP, STAY, best_action
 from cellplan.strategies.policy.execution import Executor
-from cellplan.strategies.policy.strategy import FMP, STAY, Strategy, best_action
-from cellplan.strategies.variants.periodic import region_offset
-from cellplan.trajectory import Event, Trajectory
+from cellplan.strategies.policy.regions import region_test
+from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.section import MAX_STAGES
+from cellplan.strategies.sim.records import (
+    COUNT_METRICS,
+    Request,
+    Simulation,
+    default_start,
+)
+from cellplan.strategies.sim.report import (
+    _configuration,
+    _verdict,
+    axis_names,
+    first_collision,
+    to_trajectory,
+    wait_bound,
+)
+from cellplan.strategies.variants.pending_sim import PENDING_POLICIES, simulate_pending
 
 Policy = Literal["optimal", "reactive", "home"]
 POLICIES: tuple[str, ...] = ("optimal", "reactive", "home")
-
-
-@dataclass
-class Request:
-    """One request's life: arrival, pick-up and delivery stages, and its waiting time."""
-
-    part: str
-    source: str
-    destination: str
-    arrival: int
-    pickup: int = -1
-    delivery: int = -1
-    waiting: float = 0.0
-    changes: int = 0
-    failures: int = 0  # failed FMPs (Section VI-3)
-
-
-@dataclass
-class Simulation:
-    """A simulated run: the trajectory and the per-request statistics."""
-
-    q: np.ndarray  # (K+1, dim)
-    modes: np.ndarray  # (K+1,)
-    actions: np.ndarray  # (K,)
-    losses: np.ndarray  # (K,)
-    requests: list[Request] = field(default_factory=list)
-    policy: str = "optimal"
-    fmp_refused: int = 0
-    corrections: int = 0
-    raised: float = 0.0
-    events: list[tuple[int, str, str]] = field(default_factory=list)
-    """``(sample, kind, detail)``: ``request`` (at the first W sample), ``pick`` (first C
-    sample), ``place`` (first NR sample after delivery), ``fmp_refused`` (the stage whose
-    FMP the exact region test refused), ``source_change`` / ``destination_change``, and with
-    failure modes (Section VI-3) ``fmp_failed`` (a failed pick or delivery: retried, or the
-    part rejected) and ``reject`` (the rejected part dropped in the reject region)."""
-    # The modes of one phase of a time-varying model (Section VI-1), whose ``modes`` are
-    # layers ``phase * modes_per_phase + mode``; 0: a stationary model.
-    modes_per_phase: int = 0
-
-    def metrics(self) -> dict[str, float]:
-        """Loss per stage, waiting time per request (delivered only and all), counts.
-
-        ``loss_per_stage`` is the paper's objective: the long-run expected waiting per
-        stage, which the gain ``g`` predicts. ``mean_wait`` is the mean waiting time of the
-        delivered requests only; ``mean_wait_all`` counts every request that arrived, those
-        still open at the end at their age so far (their waiting up to the last stage), so
-        it equals the total loss divided by the number of requests and cannot hide a
-        request that is never served. ``open_requests`` is how many were still open (at
-        most one: a request arrives only in NR) and ``open_wait`` their waiting so far.
-        """
-        done = [r.waiting for r in self.requests if r.delivery >= 0]
-        waits = [r.waiting for r in self.requests]
-        still = [r.waiting for r in self.requests if r.delivery < 0]
-        stages = len(self.actions)
-        nan = float("nan")
-        return {
-            "stages": float(stages),
-            "requests": float(len(self.requests)),
-            "served": float(len(done)),
-            "mean_wait": float(np.mean(done)) if done else nan,
-            "mean_wait_all": float(np.mean(waits)) if waits else nan,
-            "open_requests": float(len(still)),
-            "open_wait": float(np.sum(still)),
-            "idle_fraction": float(np.mean(self.base_modes()[:-1] == 0)) if stages else nan,
-            "loss_per_stage": float(self.losses.mean()) if stages else nan,
-            "fmp_refused": float(self.fmp_refused),
-            "corrections": float(self.corrections),
-            "raised": float(self.raised),
-            "fmp_failures": float(sum(r.failures for r in self.requests)),
-        }
-
-    def base_modes(self) -> np.ndarray:
-        """The assembly mode of every sample, without the phase of a time-varying model."""
-        return self.modes % self.modes_per_phase if self.modes_per_phase else self.modes
-
-    def segments(self) -> list[tuple[int, int]]:
-        """``(first, last)`` stage of every maximal run of one mode (one frame each, Fig. 9)."""
-        out = []
-        start = 0
-        modes = self.base_modes()
-        for k in range(1, len(modes)):
-            if modes[k] != modes[k - 1]:
-                out.append((start, k))
-                start = k
-        out.append((start, len(self.modes) - 1))
-        return out
 
 
 class _Policies:
@@ -265,8 +192,6 @@ def simulate(
     ``optimal``, ``fcfs``, ``nearest`` and ``reactive``).
     """
     if strategy.mdp.opt_ptr is not None:
-        from cellplan.strategies.variants.pending_sim import simulate_pending
-
         return simulate_pending(
             strategy,
             stages,
@@ -414,68 +339,12 @@ def simulate(
         fixes,
         raised,
         events,
-        modes_per_phase=M if mdp.period > 1 else 0,
+        modes_per_phase=M,  # one phase of all layers in a stationary model
     )
 
 
 def _request_detail(r: Request) -> str:
     return f"{r.part} from {r.source} to {r.destination}"
-
-
-def default_start(strategy: Strategy) -> np.ndarray:
-    """A live NR cell centre near the middle of the C-space box."""
-    mdp = strategy.mdp
-    live = np.flatnonzero(mdp.live[0])
-    idx = np.array(np.unravel_index(live, tuple(mdp.shape))).T
-    centres = mdp.lower + (idx + 0.5) * mdp.spacing
-    mid = mdp.lower + 0.5 * (mdp.upper - mdp.lower)
-    return np.asarray(centres[np.argmin(np.linalg.norm(centres - mid, axis=1))])
-
-
-def region_test(strategy: Strategy, cell: Any, regions: str) -> RegionTest:
-    """The exact FMP region test of a workcell: ``(configurations, mode) -> bool array``.
-
-    W modes test the source (empty robot), C modes the destination with the carried part,
-    X modes (a rejected part, Section VI-3) the reject region with the part
-    (:meth:`~cellplan.workcell.Workcell.in_region`). In a time-varying model (Section VI-1)
-    a region on a belt is tested where it is at the layer's phase.
-    """
-    return RegionTest(strategy.mdp, cell, regions)
-
-
-@dataclass(frozen=True, eq=False)
-class RegionTest:
-    """:func:`region_test`'s callable; a module-level class, not a closure, so that a
-    strategy holding it (and the planner's :class:`~cellplan.core.Result`) pickles."""
-
-    mdp: LayeredMDP
-    cell: Any
-    regions: str
-
-    def __call__(self, points: np.ndarray, m: int) -> np.ndarray:
-        return self.option(points, m, 0)
-
-    def option(self, points: np.ndarray, m: int, j: int) -> np.ndarray:
-        """The test of FMP option ``j`` of mode ``m``: the only option of a W, C or X mode;
-        with simultaneous requests (Section VI-2, a Q mode) the delivery of the carried
-        request (its destination, with its part), or while empty the pick of the ``j``-th
-        waiting request type in the order of the model's options (its source)."""
-        mode = self.mdp.modes[m]
-        if mode.kind == "W":
-            region, part = mode.source, None
-        elif mode.kind == "X":
-            region, part = mode.reject, mode.part
-        elif mode.kind == "Q" and not mode.part:
-            # The options of an empty Q mode are its distinct waiting request types, in
-            # the order of mode.waiting (pending.assemble_pending).
-            waiting = list(dict.fromkeys(mode.waiting))
-            region, part = waiting[j].split(",")[1], None
-        else:
-            region, part = mode.destination, mode.part
-        offset = region_offset(self.mdp, region, m)
-        return np.asarray(
-            self.cell.in_region(points, region, self.regions, None, part, offset), dtype=bool
-        )
 
 
 def compare_policies(
@@ -489,103 +358,6 @@ def compare_policies(
 
 
 # --- the simulation as a Result ---------------------------------------------------------------
-
-#: A request that waits longer than this many crossings of the C-space box (at the slowest
-#: speed, plus a pick and a place) counts as starved; see :func:`wait_bound`.
-WAIT_CROSSINGS = 10.0
-
-
-def wait_bound(strategy: Strategy) -> float:
-    """The default bound on a request's waiting time (time units) in :func:`simulate_result`.
-
-    ``WAIT_CROSSINGS`` times the time the robot needs to cross the C-space box once along
-    every axis at its slowest speed (its step per stage in each mode's action set), plus
-    the largest fine-motion time twice (a pick and a place). A served request under the
-    optimal strategy waits for a path between two regions and two FMPs (Section III-C), so
-    a wait beyond this bound means that the strategy (or its execution) is not serving it.
-    """
-    mdp = strategy.mdp
-    dim = len(mdp.shape)
-    step = np.abs(np.asarray(mdp.disp, float))  # (classes, actions, dim)
-    if mdp.heading_axis >= 0:
-        # Robot-frame translation: a step along the heading moves either workcell axis.
-        planar = np.linalg.norm(step[:, :, :2], axis=2)
-        step[:, :, 0] = planar
-        step[:, :, 1] = planar
-    per_axis = step.max(axis=1).min(axis=0)  # the slowest class's largest step per axis
-    extent = np.asarray(mdp.upper, float) - np.asarray(mdp.lower, float)
-    stages = float(sum(extent[j] / per_axis[j] for j in range(dim) if per_axis[j] > 0))
-    tf = np.asarray(mdp.tf, float)
-    finite = tf[np.isfinite(tf)]
-    tf_max = float(finite.max()) if finite.size else 0.0
-    return WAIT_CROSSINGS * stages * float(mdp.stage_time) + 2.0 * tf_max
-
-
-def axis_names(strategy: Strategy, cell: Any = None) -> tuple[str, ...]:
-    """Names of the configuration axes: the workcell's, else those the strategy records.
-
-    A strategy file written before the planner recorded them falls back on the layout of
-    its grid: ``x, y, theta`` for a robot-frame action set, else ``x, y`` for a 2-D box
-    beyond two full turns, else ``q1 ... qn``.
-    """
-    if cell is not None:
-        return tuple(cell.robot.axis_names)
-    axes = strategy.meta.get("axes")
-    dim = len(strategy.mdp.shape)
-    if isinstance(axes, list) and len(axes) == dim:
-        return tuple(str(a) for a in axes)
-    mdp = strategy.mdp
-    if mdp.heading_axis >= 0 and dim == 3:
-        return ("x", "y", "theta")
-    extent = np.asarray(mdp.upper, float) - np.asarray(mdp.lower, float)
-    if dim == 2 and np.any(extent > 2.0 * units.ANGLE_LIMIT):
-        return ("x", "y")
-    return tuple(f"q{j + 1}" for j in range(dim))
-
-
-def to_trajectory(
-    strategy: Strategy,
-    sim: Simulation,
-    cell: Any = None,
-    meta: Mapping[str, str | int | float | bool] | None = None,
-    robot_spec: Any = None,
-) -> Trajectory:
-    """A simulated run as a :class:`~cellplan.trajectory.Trajectory`.
-
-    ``t`` is the stage, ``q`` the configuration (radians for angles; periodic axes
-    unwrapped), ``mode`` the assembly mode of each stage (``NR``, ``<P1,S1,D1,W>`` ...),
-    and the events are the simulation's (:attr:`Simulation.events`), typed. ``seconds``
-    is ``stage x stage_duration``: the time of the longest step of any action at the
-    robot's speeds (``robot_spec``: the scenario's robot section; else the URDF's or the
-    default speeds), :func:`cellplan.timing.stage_duration`.
-    """
-    names = axis_names(strategy, cell)
-    axis_units = units.axis_units(names)
-    robot = cell.robot if cell is not None else None
-    _, vlim, alim = timing.robot_motion(robot_spec, robot, names, axis_units)
-    mdp = strategy.mdp
-    dim = len(mdp.shape)
-    step = np.abs(np.asarray(mdp.disp, float)).reshape(-1, dim)
-    if mdp.heading_axis >= 0:
-        # Robot-frame translation: a step along the heading may move either workcell axis.
-        planar = np.linalg.norm(step[:, :2], axis=1)
-        step[:, 0] = planar
-        step[:, 1] = planar
-    return Trajectory(
-        t=np.arange(len(sim.modes), dtype=float),
-        q=sim.q,
-        mode=sim.modes,
-        modes=tuple(m.label for m in mdp.modes),
-        columns=names,
-        units=axis_units,
-        time_unit="stage",
-        events=tuple(Event.from_text(k, kind, detail) for k, kind, detail in sim.events),
-        meta=dict(meta or {}),
-        periodic=tuple(bool(p) for p in np.asarray(mdp.periodic).reshape(-1)),
-        stage_duration=timing.stage_duration(step, vlim),
-        velocity_limits=vlim,
-        acceleration_limits=alim,
-    )
 
 
 def simulate_result(
@@ -656,8 +428,6 @@ def simulate_result(
         ``stages`` or ``seed`` out of range, an unknown ``policy``, a start that is not a
         configuration of the strategy's C-space or lies outside its domain.
     """
-    from cellplan.errors import ArgumentError, Problem
-
     problems = []
     if not isinstance(stages, int | np.integer) or not 1 <= int(stages) <= MAX_STAGES:
         problems.append(
@@ -667,7 +437,7 @@ def simulate_result(
         problems.append(Problem("seed", f"must be a non-negative integer, got {seed!r}"))
     allowed = POLICIES
     if strategy.mdp.opt_ptr is not None:  # simultaneous requests (Section VI-2)
-        from cellplan.strategies.variants.pending_sim import PENDING_POLICIES as allowed
+        allowed = PENDING_POLICIES
     if policy not in allowed:
         problems.append(Problem("policy", f"must be one of {', '.join(allowed)}, got {policy!r}"))
     if max_wait is not None and not (np.isfinite(max_wait) and max_wait > 0):
@@ -681,7 +451,7 @@ def simulate_result(
     q0 = _configuration(start, strategy.meta.get("start"), names, "start")
     if q0 is None:
         q0 = default_start(strategy)
-    if not mdp.live[start_mode, strategy.cell_of(q0)]:
+    if not strategy.in_domain(q0, start_mode):
         raise ArgumentError(
             [Problem("start", "lies outside the strategy's domain (no live state there)")]
         )
@@ -734,124 +504,4 @@ def simulate_result(
         solution=sim,
         trajectory=to_trajectory(strategy, sim, cell, meta, robot_spec),
         options={"stages": int(stages), "seed": int(seed), "policy": policy, "max_wait": bound},
-    )
-
-
-#: The metrics of a run that are counts (:meth:`Simulation.metrics` gives floats, for
-#: averaging over seeds; a result's ``stats`` keeps these as ints).
-COUNT_METRICS = frozenset(
-    (
-        "stages",
-        "requests",
-        "served",
-        "open_requests",
-        "fmp_refused",
-        "corrections",
-        "fmp_failures",
-        "turned_away",
-        "arrivals",
-    )
-)
-#: Samples of a checked motion per grid cell it crosses (:func:`first_collision`).
-SAMPLES_PER_CELL = 4
-#: Segments checked in one batch (bounds the samples held at once).
-COLLISION_BATCH = 4096
-
-
-def carried_part(mode: Mode) -> str | None:
-    """The part the robot holds in ``mode``: C and X modes (Section VI-3) and a Q mode
-    that carries a request (Section VI-2) hold one."""
-    if mode.kind in ("C", "X") or (mode.kind == "Q" and mode.part):
-        return mode.part
-    return None
-
-
-def first_collision(strategy: Strategy, sim: Simulation, cell: Any) -> tuple[int, str] | None:
-    """The first sample of a run whose motion there collides with the workcell, exactly.
-
-    The check the grid cannot give for a strategy it did not build: each stage's straight
-    motion ``q[k] -> q[k + 1]`` (and the start) is tested against the workcell's
-    obstacles and bounds (the sources are not obstacles here: the robot picks inside
-    them) with the part of the stage's mode, sampled :data:`SAMPLES_PER_CELL` times per
-    grid cell of workspace travel (:meth:`~cellplan.workcell.Workcell.motion_collides`).
-    A strategy solved for this workcell never collides (its free cells are collision-free
-    in their whole box, cspace.py); one that does was solved for another.
-
-    Returns ``(k, description)`` for the first colliding sample ``k`` (0: the start), or
-    None.
-    """
-    mdp = strategy.mdp
-    modes = mdp.modes
-    names = tuple(cell.robot.axis_names)
-    cell_travel = cell.robot.workspace_step(np.diag(np.asarray(mdp.spacing, float)))
-    step = float(cell_travel[cell_travel > 0].min()) / SAMPLES_PER_CELL
-    q, ms = sim.q, sim.modes
-
-    def describe(k: int, m: int) -> str:
-        part = carried_part(modes[m])
-        holding = f" carrying {part}" if part else ""
-        shown = ", ".join(f"{n} {v:.4g}" for n, v in zip(names, q[k], strict=True))
-        return f"the robot{holding} collides with the workcell at {shown} in mode {modes[m].label}"
-
-    m0 = int(ms[0])
-    if cell.collides(q[:1], carried_part(modes[m0]), "none")[0]:
-        return 0, describe(0, m0)
-    moved = np.flatnonzero(np.any(q[1:] != q[:-1], axis=1))
-    parts = np.array([carried_part(modes[int(m)]) or "" for m in ms[:-1]], dtype=object)
-    first: int | None = None
-    for part in sorted(set(parts[moved].tolist())):
-        ks = moved[parts[moved] == part]
-        for lo in range(0, len(ks), COLLISION_BATCH):
-            batch = ks[lo : lo + COLLISION_BATCH]
-            if first is not None and batch[0] >= first:
-                break
-            hit = cell.motion_collides(
-                q[batch], q[batch + 1], step, part or None, "none", certified=False
-            )
-            if hit.any():
-                k = int(batch[np.argmax(hit)])
-                first = k if first is None else min(first, k)
-                break
-    if first is None:
-        return None
-    return first + 1, describe(first + 1, int(ms[first]))
-
-
-def _configuration(
-    given: ArrayLike | None, recorded: Any, names: tuple[str, ...], field: str
-) -> np.ndarray | None:
-    if given is not None:
-        return units.check_configurations(given, names, field)[0]
-    if recorded is not None:
-        return np.asarray(recorded, dtype=float)
-    return None
-
-
-def _verdict(
-    strategy: Strategy, sim: Simulation, metrics: Mapping[str, float], bound: float
-) -> tuple[Status, str]:
-    stages = len(sim.actions)
-    if not sim.requests:
-        return Status.SOLVED, f"no request arrived in {stages} stages"
-    late = [(i, r) for i, r in enumerate(sim.requests) if r.waiting > bound]
-    if late:
-        i, r = late[0]
-        state = "still open" if r.delivery < 0 else f"delivered at stage {r.delivery}"
-        return (
-            Status.FAILED,
-            f"request {i + 1} (<{r.part},{r.source},{r.destination}>, arrived at stage "
-            f"{r.arrival}) waited {r.waiting:g} > {bound:g} ({state}); "
-            f"{len(late)} request(s) over the bound",
-        )
-    served = int(metrics["served"])
-    open_part = (
-        f" ({int(metrics['open_requests'])} open after {metrics['open_wait']:g})"
-        if metrics["open_requests"]
-        else ""
-    )
-    wait = f"mean wait {metrics['mean_wait']:.2f}, " if served else ""
-    return (
-        Status.SOLVED,
-        f"served {served} of {len(sim.requests)} requests{open_part}, {wait}"
-        f"loss {metrics['loss_per_stage']:.3f} per stage (gain {strategy.gain:.3f})",
     )

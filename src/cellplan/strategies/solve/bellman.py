@@ -25,222 +25,106 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cellplan.strategies.model.stencils import EPS_W, decode, fmp_code, table_stencil
+from cellplan.strategies.model.stencils import decode, fmp_code
 from cellplan.strategies.solve.improvement import RUN, move_sums, move_tables
-from cellplan.strategies.solve.noisy import noisy_move_value
+from cellplan.strategies.solve.law import (
+    OUTSIDE,
+    STAY,
+    Site,
+    borrowed,
+    fmp_value,
+    is_single,
+    keep,
+    lend,
+    move_value,
+    reader,
+    scratch,
+    site_at,
+    stay_value,
+)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def fmp_value(opt, c, tf_oc, h, live, lay):  # pragma: no cover - numba
-    """FMP option ``opt`` at cell ``c``: ``t_f + sum_o P_o (c_o + h(L_o, c))``; inf if an
-    outcome with positive probability is not a live state."""
-    val = tf_oc
-    for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
-        p = lay.out_prob[o]
-        if p <= 0.0:
-            continue
-        L = lay.out_layer[o]
-        if not live[L, c]:
-            return np.inf
-        val += p * (lay.out_cost[o] + h[L, c])
-    return val
+@njit(cache=True, inline="always")
+def _take(val, a, acc):  # pragma: no cover - numba
+    """Action ``a`` of value ``val`` offered to ``acc = (best, second, arg)``: it wins only
+    if better by more than 1e-12 relative (ties go to the action offered first)."""
+    best, second, arg = acc
+    if val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
+        return val, best, a
+    if val < second:
+        return best, val, arg
+    return acc
+
+
+@njit(cache=True, inline="always")
+def _fmp_options(model, law, m, c, acc):  # pragma: no cover - numba
+    """The FMP options of mode ``m`` at cell ``c`` offered to ``acc`` (:func:`_take`)."""
+    lay = model.layers
+    if lay.fmp_next[m] >= 0:
+        opt0 = lay.opt_ptr[m]
+        for opt in range(opt0, lay.opt_ptr[m + 1]):
+            if lay.tf[opt, c] < np.inf:
+                fval, _ = fmp_value(model, law, opt, c, (lay.tf[opt, c], 0.0))
+                acc = _take(fval, fmp_code(opt - opt0), acc)
+    return acc
 
 
 @njit(cache=True, nogil=True)
 def bellman_rows(h, out, policy, gap, subset, start, stop, model):  # pragma: no cover - numba
     """One Jacobi sweep over the states ``start <= m * N + c < stop``: ``out = T h`` there.
 
-    No ``g`` is subtracted. ``policy[m, c]`` receives the minimising action: ``-1`` stay,
-    ``-2`` FMP (``-3 - j`` its option ``j >= 1``, :func:`.stencils.fmp_code`), ``a >= 0``
-    move ``a``; ``-3`` for states outside the MDP. Ties (within 1e-12 relative) go to the
-    first action in the order FMP options, stay, moves. ``gap[m, c]``
-    receives the second-best action value minus the best (``inf`` with a single action):
-    adding to ``h`` anything whose span (max - min) is below it cannot change the action
-    there. A non-empty ``subset`` (boolean, like ``h``) limits the sweep to the live
-    states it marks (the outputs elsewhere are left as they were). Every state is
-    independent, so disjoint ranges may run in parallel threads (the GIL is released).
+    No ``g`` is subtracted; every action's value is the law of :mod:`.law` (every corner
+    and branch read, none at ``+inf`` left out). ``policy[m, c]`` receives the minimising
+    action: ``-1`` stay, ``-2`` FMP (``-3 - j`` its option ``j >= 1``,
+    :func:`.stencils.fmp_code`), ``a >= 0`` move ``a``; ``-3`` for states outside the MDP.
+    Ties (within 1e-12 relative) go to the first action in the order FMP options, stay,
+    moves. ``gap[m, c]`` receives the second-best action value minus the best (``inf``
+    with a single action): adding to ``h`` anything whose span (max - min) is below it
+    cannot change the action there. A non-empty ``subset`` (boolean, like ``h``) limits the
+    sweep to the live states it marks (the outputs elsewhere are left as they were). Every
+    state is independent, so disjoint ranges may run in parallel threads (the GIL is
+    released).
     """
+    model = borrowed(model)
     moves = model.moves
-    grid = model.grid
     lay = model.layers
     live = lay.live
-    tf = lay.tf
-    valid = moves.valid
-    interior = moves.interior
-    coff = moves.coff
-    cw = moves.cw
-    heading_axis = moves.heading_axis
-    branch_layer = lay.branch_layer
-    branch_prob = lay.branch_prob
-    shape = grid.shape
+    shape = model.grid.shape
     ncell = h.shape[1]
     some = subset.shape[0] > 0
-    d = shape.shape[0]
-    ncorner = 1 << d
-    noise_prob = moves.noise_prob
-    nj = noise_prob.shape[0]
-    noisy = nj > 1  # Section VI-4: several landings per move
-    mi = np.empty(d, np.int64)
-    idx = np.empty(ncorner, np.int64)
-    w = np.empty(ncorner)
+    held = scratch(shape.shape[0])
+    s = lend(held)
+    law = reader(h, h, live, False, False, False)
     for m in range(start // ncell, (stop + ncell - 1) // ncell):
-        nxt = lay.fmp_next[m]
-        opt0 = lay.opt_ptr[m]
-        opt1 = lay.opt_ptr[m + 1]
         kcls = lay.vcls[m]
         na = moves.nact[kcls]
-        b0 = lay.branch_ptr[m]
-        b1 = lay.branch_ptr[m + 1]
         cost = lay.cost[m]
         # One branch into the layer itself (C and W without mode changes): the moves read
-        # the stencil tables directly (the same sums as the general loop below).
-        single = b1 - b0 == 1 and branch_layer[b0] == m and branch_prob[b0] == 1.0
-        livem = live[m]
-        hm = h[m]
+        # the stencil tables directly (the same sums as the general loop).
+        single = is_single(lay, m)
         for c in range(max(start - m * ncell, 0), min(stop - m * ncell, ncell)):
             if not live[m, c]:
                 out[m, c] = np.nan
-                policy[m, c] = -3
+                policy[m, c] = OUTSIDE
                 gap[m, c] = np.nan
                 continue
             if some and not subset[m, c]:
                 continue
-            decode(c, shape, mi)
-            best = np.inf
-            second = np.inf
-            arg = -3
-            if nxt >= 0:
-                for opt in range(opt0, opt1):
-                    if tf[opt, c] < np.inf:
-                        fval = fmp_value(opt, c, tf[opt, c], h, live, lay)
-                        if fval < best and (best == np.inf or fval < best - 1e-12 * abs(best)):
-                            second = best
-                            best = fval
-                            arg = fmp_code(opt - opt0)
-                        elif fval < second:
-                            second = fval
-            sval = cost
-            sok = True
-            for b in range(b0, b1):
-                L = branch_layer[b]
-                if not live[L, c]:
-                    sok = False
-                    break
-                sval += branch_prob[b] * h[L, c]
-            if sok and sval < best and (best == np.inf or sval < best - 1e-12 * abs(best)):
-                second = best
-                best = sval
-                arg = -1
-            elif sok and sval < second:
-                second = sval
-            vb = valid[kcls, c]
-            inner = interior[kcls, c]
-            t = mi[heading_axis] if heading_axis >= 0 else 0
+            decode(c, shape, s.mi)
+            site = site_at(model, m, c, single, s.mi)
+            acc = _fmp_options(model, law, m, c, (np.inf, np.inf, OUTSIDE))
+            sval, _ = stay_value(model, law, site, (cost, 0.0), -1)
+            acc = _take(sval, STAY, acc)
+            vb = moves.valid[kcls, c]
             for a in range(na):
-                if ((vb >> a) & 1) == 0:
-                    continue
-                if noisy:
-                    if single and inner:
-                        # The landings' corners straight from the tables, as below.
-                        val = cost
-                        for j in range(nj):
-                            pj = noise_prob[j]
-                            if pj <= 0.0:
-                                continue
-                            row = na + a * nj + j
-                            ssum = 0.0
-                            vsum = 0.0
-                            for jj in range(ncorner):
-                                wj = cw[kcls, row, t, jj]
-                                if wj <= EPS_W:
-                                    break
-                                i = c + coff[kcls, row, t, jj]
-                                if livem[i]:
-                                    ssum += wj
-                                    vsum += wj * hm[i]
-                            if ssum <= EPS_W:
-                                val = np.inf
-                                break
-                            val += pj * vsum / ssum
-                    else:
-                        val = cost + noisy_move_value(m, c, a, mi, inner, h, live, model, idx, w)
-                    if val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
-                        second = best
-                        best = val
-                        arg = a
-                    elif val < second:
-                        second = val
-                    continue
-                if single and inner:
-                    ssum = 0.0
-                    vsum = 0.0
-                    for jj in range(ncorner):
-                        wj = cw[kcls, a, t, jj]
-                        if wj <= EPS_W:
-                            break
-                        i = c + coff[kcls, a, t, jj]
-                        if livem[i]:
-                            ssum += wj
-                            vsum += wj * hm[i]
-                    if ssum <= EPS_W:
-                        continue
-                    val = cost + vsum / ssum
-                    if val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
-                        second = best
-                        best = val
-                        arg = a
-                    elif val < second:
-                        second = val
-                    continue
-                # Written out as in sweeps.sweep_policy (an inlined helper is slower here).
-                if inner:
-                    nc = 0
-                    for jj in range(ncorner):
-                        wj = cw[kcls, a, t, jj]
-                        if wj <= EPS_W:
-                            break
-                        idx[jj] = c + coff[kcls, a, t, jj]
-                        w[jj] = wj
-                        nc += 1
-                else:
-                    nc = table_stencil(
-                        kcls,
-                        a,
-                        mi,
-                        moves.offs,
-                        moves.fr,
-                        heading_axis,
-                        shape,
-                        grid.periodic,
-                        idx,
-                        w,
-                    )
-                val = cost
-                ok = True
-                for b in range(b0, b1):
-                    L = branch_layer[b]
-                    ssum = 0.0
-                    vsum = 0.0
-                    for j in range(nc):
-                        wj = w[j]
-                        if wj > EPS_W:
-                            i = idx[j]
-                            if live[L, i]:
-                                ssum += wj
-                                vsum += wj * h[L, i]
-                    if ssum <= EPS_W:
-                        ok = False
-                        break
-                    val += branch_prob[b] * vsum / ssum
-                if ok and val < best and (best == np.inf or val < best - 1e-12 * abs(best)):
-                    second = best
-                    best = val
-                    arg = a
-                elif ok and val < second:
-                    second = val
+                if (vb >> a) & 1:
+                    val, _ = move_value(model, law, site, a, (cost, 0.0), -1, s)
+                    acc = _take(val, a, acc)
+            best, second, arg = acc
             out[m, c] = best
             policy[m, c] = arg
             gap[m, c] = second - best
+    keep(held)
 
 
 @njit(cache=True, nogil=True)
@@ -261,6 +145,7 @@ def bellman_dense(m, h, out, policy, gap, subset, model):  # pragma: no cover - 
     every state sees its actions in the order of :func:`bellman_rows`, with the same sums
     and the same tie rule: the same values, actions and gaps bit for bit.
     """
+    model = borrowed(model)
     moves = model.moves
     lay = model.layers
     live = lay.live
@@ -268,15 +153,11 @@ def bellman_dense(m, h, out, policy, gap, subset, model):  # pragma: no cover - 
     hm = h[m]
     N = hm.shape[0]
     d = model.grid.shape.shape[0]
-    ncorner = 1 << d
     kcls = lay.vcls[m]
     na = moves.nact[kcls]
     valid = moves.valid[kcls]
     interior = moves.interior[kcls]
     dense = lay.dense[m]
-    nxt = lay.fmp_next[m]
-    opt0 = lay.opt_ptr[m]
-    opt1 = lay.opt_ptr[m + 1]
     cost = lay.cost[m]
     some = subset.shape[0] > 0
     nk, wts, offs, lo, hi, wsum = move_tables(model, kcls, N)
@@ -285,40 +166,27 @@ def bellman_dense(m, h, out, policy, gap, subset, model):  # pragma: no cover - 
     arg = np.empty(RUN, np.int64)
     acc = np.empty(RUN)
     other = np.empty(RUN, np.int64)  # live cells of the run with moves off the dense path
-    mi = np.empty(d, np.int64)
-    idx = np.empty(ncorner, np.int64)
-    w = np.empty(ncorner)
+    held = scratch(d)
+    sc = lend(held)
+    law = reader(h, h, live, False, False, False)
     for c0 in range(0, N, RUN):
         c1 = min(N, c0 + RUN)
         n_other = 0
         for c in range(c0, c1):
             i = c - c0
             b = np.inf
-            s = np.inf
-            ar = -3
+            s2 = np.inf
+            ar = OUTSIDE
             if livem[c]:
-                if nxt >= 0:
-                    for opt in range(opt0, opt1):
-                        if lay.tf[opt, c] < np.inf:
-                            v = fmp_value(opt, c, lay.tf[opt, c], h, live, lay)
-                            if v < b and (b == np.inf or v < b - 1e-12 * abs(b)):
-                                s = b
-                                b = v
-                                ar = fmp_code(opt - opt0)
-                            elif v < s:
-                                s = v
-                v = cost + 1.0 * hm[c]
-                if v < b and (b == np.inf or v < b - 1e-12 * abs(b)):
-                    s = b
-                    b = v
-                    ar = -1
-                elif v < s:
-                    s = v
+                tk = _fmp_options(model, law, m, c, (b, s2, ar))
+                site = Site(m, kcls, c, interior[c], 0, True)
+                sval, _ = stay_value(model, law, site, (cost, 0.0), -1)
+                b, s2, ar = _take(sval, STAY, tk)
                 if (valid[c] & ~dense[c]) != 0:
                     other[n_other] = c
                     n_other += 1
             best[i] = b
-            second[i] = s
+            second[i] = s2
             arg[i] = ar
         for a in range(na):
             bit = np.int64(1) << a
@@ -345,39 +213,16 @@ def bellman_dense(m, h, out, policy, gap, subset, model):  # pragma: no cover - 
                 c = other[k]
                 if (valid[c] & bit) == 0 or (dense[c] & bit) != 0:
                     continue
-                if interior[c]:
-                    nc = nk[a]
-                    for j in range(nc):
-                        idx[j] = c + offs[a, j]
-                        w[j] = wts[a, j]
-                else:
-                    decode(c, model.grid.shape, mi)
-                    nc = table_stencil(
-                        kcls, a, mi, moves.offs, moves.fr, -1, model.grid.shape,
-                        model.grid.periodic, idx, w,
-                    )  # fmt: skip
-                ssum = 0.0
-                vsum = 0.0
-                for j in range(nc):
-                    wj = w[j]
-                    if wj > EPS_W and livem[idx[j]]:
-                        ssum += wj
-                        vsum += wj * hm[idx[j]]
-                if ssum <= EPS_W:
-                    continue
-                v = cost + vsum / ssum
+                if not interior[c]:
+                    decode(c, model.grid.shape, sc.mi)
+                site = Site(m, kcls, c, interior[c], 0, True)
+                v, _ = move_value(model, law, site, a, (cost, 0.0), -1, sc)
                 i = c - c0
-                bb = best[i]
-                if v < bb and (bb == np.inf or v < bb - 1e-12 * abs(bb)):
-                    second[i] = bb
-                    best[i] = v
-                    arg[i] = a
-                elif v < second[i]:
-                    second[i] = v
+                best[i], second[i], arg[i] = _take(v, a, (best[i], second[i], arg[i]))
         for c in range(c0, c1):
             if not livem[c]:
                 out[m, c] = np.nan
-                policy[m, c] = -3
+                policy[m, c] = OUTSIDE
                 gap[m, c] = np.nan
                 continue
             if some and not subset[m, c]:
@@ -386,6 +231,7 @@ def bellman_dense(m, h, out, policy, gap, subset, model):  # pragma: no cover - 
             out[m, c] = best[i]
             policy[m, c] = arg[i]
             gap[m, c] = second[i] - best[i]
+    keep(held)
 
 
 @njit(cache=True, nogil=True)

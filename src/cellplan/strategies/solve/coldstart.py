@@ -23,6 +23,7 @@ import numpy as np
 from numba import njit
 
 from cellplan.strategies.model.stencils import decode
+from cellplan.strategies.solve.law import FMP, Law, fmp_value
 
 
 @njit(cache=True, inline="always")
@@ -94,11 +95,16 @@ def dijkstra_layer(m, h, g, pol, model):  # pragma: no cover - numba
     keys = np.empty(cap)
     vals = np.empty(cap, np.int64)
     size = 0
+    law = Law(h, h, live, True, True, False)
+    opt = lay.opt_ptr[m]
     for c in range(ncell):
-        if live[m, c] and tf[m, c] < np.inf and live[nxt, c] and h[nxt, c] < np.inf:
-            dist[c] = tf[m, c] - g + h[nxt, c]
-            pol[m, c] = -2
-            size = _push(keys, vals, size, dist[c], c)
+        if live[m, c] and tf[opt, c] < np.inf:
+            # The terminal cost of the layer: FMP (the law of :mod:`.law`).
+            v, _ = fmp_value(model, law, opt, c, (tf[opt, c] - g, 0.0))
+            if v < np.inf:
+                dist[c] = v
+                pol[m, c] = FMP
+                size = _push(keys, vals, size, v, c)
     mi = np.empty(d, np.int64)
     reached = 0
     while size > 0:

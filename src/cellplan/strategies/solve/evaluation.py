@@ -24,10 +24,27 @@ cells (interpolation can point back) by Gauss-Seidel on that component alone.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
-from cellplan.strategies.model.stencils import EPS_W, decode, move_corners
+from cellplan.strategies.model.stencils import EPS_W, decode
+from cellplan.strategies.solve.law import (
+    FMP,
+    STAY,
+    borrow,
+    borrowed,
+    fmp_value,
+    is_single,
+    keep,
+    lend,
+    live_sums,
+    move_stencil,
+    reader,
+    scratch,
+    site_at,
+)
 
 # A component's Gauss-Seidel stops when its values change by less than this (relative).
 COMPONENT_TOL = 1e-13
@@ -46,23 +63,89 @@ def live_cells(livem):  # pragma: no cover - numba
     return cells, local
 
 
+class Rows(NamedTuple):
+    """A linear system ``h = const + W h`` (and ``D = dconst + W D``) being written.
+
+    Row ``v`` of ``W`` is ``succ[ptr[v]:ptr[v + 1]]`` (local indices) with weights ``wt``;
+    ``fixed`` rows keep their value (no usable action).
+    """
+
+    ptr: np.ndarray
+    succ: np.ndarray
+    wt: np.ndarray
+    const: np.ndarray
+    dconst: np.ndarray
+    fixed: np.ndarray
+
+
+@njit(cache=True, inline="always")
+def _rows(n, cap):  # pragma: no cover - numba
+    """Empty :class:`Rows` for ``n`` unknowns and at most ``cap`` weights."""
+    return Rows(
+        np.zeros(n + 1, np.int64), np.empty(cap, np.int64), np.empty(cap), np.zeros(n),
+        np.zeros(n), np.zeros(n, np.bool_),
+    )  # fmt: skip
+
+
+@njit(cache=True, inline="always")
+def _lend(rows):  # pragma: no cover - numba
+    """:class:`Rows` borrowed (:func:`.law.borrow`): the owner ``rows`` stays alive, it is
+    what the kernel returns."""
+    return Rows(
+        borrow(rows.ptr), borrow(rows.succ), borrow(rows.wt), borrow(rows.const),
+        borrow(rows.dconst), borrow(rows.fixed),
+    )  # fmt: skip
+
+
+@njit(cache=True, inline="always")
+def _landing_row(rows, ne, law, site, row, local, s, model):  # pragma: no cover
+    """Row entries of a move's landing (table row ``row``) from ``site``, from ``ne`` on:
+    in every branch, the live (finite) corners with their renormalised weights (the law
+    of :func:`.law.move_value`) times the branch probability; the branch into the layer
+    itself becomes weights of ``W``, the others are added to the row's constants (which
+    hold the stage loss). Returns the new ``ne``, -1 where a branch has no live corner."""
+    lay = model.layers
+    m = site.m
+    v = local[site.c]
+    cv = rows.const[v]
+    dv = rows.dconst[v]
+    nc = move_stencil(model, site, row, s)
+    for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+        L = lay.branch_layer[b]
+        p = lay.branch_prob[b]
+        if p == 0.0:
+            continue
+        ssum, _, _ = live_sums(law, L, nc, s)
+        if ssum <= EPS_W:
+            return -1
+        for j in range(nc):
+            i = s.idx[j]
+            if s.w[j] > EPS_W and law.live[L, i] and law.h[L, i] < np.inf:
+                q = p * s.w[j] / ssum
+                if L == m:
+                    rows.succ[ne] = local[i]
+                    rows.wt[ne] = q
+                    ne += 1
+                else:
+                    cv += q * law.h[L, i]
+                    dv += q * law.D[L, i]
+    rows.const[v] = cv
+    rows.dconst[v] = dv
+    return ne
+
+
 @njit(cache=True)
 def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - numba
     """The linear system of the policy ``pol[m]`` on layer ``m`` (other layers fixed).
 
     The same update as :func:`cellplan.strategies.solve.sweeps.sweep_policy` restricted to the
-    recorded action, written as ``(ptr, succ, wt)`` (rows of ``W`` over the local indices
-    of ``cells``), ``const``, ``dconst`` and ``fixed`` (cells without a usable action keep
-    their value).
+    recorded action (the law of :mod:`.law`), written as :class:`Rows` over the local
+    indices of ``cells`` (cells without a usable action are ``fixed``: they keep their
+    value).
     """
-    moves = model.moves
-    grid = model.grid
+    model = borrowed(model)
     lay = model.layers
-    live = lay.live
-    tf = lay.tf
-    branch_layer = lay.branch_layer
-    branch_prob = lay.branch_prob
-    shape = grid.shape
+    shape = model.grid.shape
     d = shape.shape[0]
     n = cells.shape[0]
     ncorner = 1 << d
@@ -70,25 +153,14 @@ def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - nu
     b1 = lay.branch_ptr[m + 1]
     nself = 0
     for b in range(b0, b1):
-        if branch_layer[b] == m and branch_prob[b] > 0.0:
+        if lay.branch_layer[b] == m and lay.branch_prob[b] > 0.0:
             nself += 1
-    cap = n * max(1, nself * ncorner)
-    # One branch into the layer itself (C and W without mode changes): interior moves read
-    # the stencil tables directly (the same weights as the general loop below).
-    single = b1 - b0 == 1 and branch_layer[b0] == m and branch_prob[b0] == 1.0
-    livem = live[m]
-    hm = h[m]
-    ptr = np.zeros(n + 1, np.int64)
-    succ = np.empty(cap, np.int64)
-    wt = np.empty(cap)
-    const = np.zeros(n)
-    dconst = np.zeros(n)
-    fixed = np.zeros(n, np.bool_)
-    mi = np.empty(d, np.int64)
-    idx = np.empty(ncorner, np.int64)
-    w = np.empty(ncorner)
-    kcls = lay.vcls[m]
-    nxt = lay.fmp_next[m]
+    owner = _rows(n, n * max(1, nself * ncorner))
+    rows = _lend(owner)
+    held = scratch(d)
+    s = lend(held)
+    law = reader(h, D, lay.live, True, True, True)
+    single = is_single(lay, m)
     step_cost = lay.cost[m] - g
     ne = 0
     for v in range(n):
@@ -96,199 +168,116 @@ def layer_system(m, h, D, g, pol, cells, local, model):  # pragma: no cover - nu
         pa = pol[m, c]
         start = ne
         ok = True
-        if pa == -2:
-            if nxt >= 0 and tf[m, c] < np.inf and live[nxt, c] and h[nxt, c] < np.inf:
-                const[v] = tf[m, c] - g + h[nxt, c]
-                dconst[v] = -1.0 + D[nxt, c]
-            else:
-                ok = False
-        elif pa == -1:
+        if pa == FMP:
+            opt = lay.opt_ptr[m]
+            cv = np.inf
+            dv = 0.0
+            if lay.fmp_next[m] >= 0 and lay.tf[opt, c] < np.inf:
+                cv, dv = fmp_value(model, law, opt, c, (lay.tf[opt, c] - g, -1.0))
+            ok = cv < np.inf
+            rows.const[v] = cv
+            rows.dconst[v] = dv
+        elif pa == STAY:
             cv = step_cost
             dv = -1.0
             for b in range(b0, b1):
-                L = branch_layer[b]
-                p = branch_prob[b]
+                L = lay.branch_layer[b]
+                p = lay.branch_prob[b]
                 if p == 0.0:
                     continue
-                if not live[L, c] or h[L, c] == np.inf:
+                if not lay.live[L, c] or h[L, c] == np.inf:
                     ok = False
                     break
                 if L == m:
-                    succ[ne] = v
-                    wt[ne] = p
+                    rows.succ[ne] = v
+                    rows.wt[ne] = p
                     ne += 1
                 else:
                     cv += p * h[L, c]
                     dv += p * D[L, c]
-            const[v] = cv
-            dconst[v] = dv
-        elif pa >= 0 and single and moves.interior[kcls, c]:
-            t = 0
-            if moves.heading_axis >= 0:
-                decode(c, shape, mi)
-                t = mi[moves.heading_axis]
-            ssum = 0.0
-            for jj in range(ncorner):
-                wj = moves.cw[kcls, pa, t, jj]
-                if wj <= EPS_W:
-                    break
-                i = c + moves.coff[kcls, pa, t, jj]
-                if livem[i] and hm[i] < np.inf:
-                    ssum += wj
-            if ssum <= EPS_W:
-                ok = False
-            else:
-                for jj in range(ncorner):
-                    wj = moves.cw[kcls, pa, t, jj]
-                    if wj <= EPS_W:
-                        break
-                    i = c + moves.coff[kcls, pa, t, jj]
-                    if livem[i] and hm[i] < np.inf:
-                        succ[ne] = local[i]
-                        wt[ne] = wj / ssum
-                        ne += 1
-                const[v] = step_cost
-                dconst[v] = -1.0
+            rows.const[v] = cv
+            rows.dconst[v] = dv
         elif pa >= 0:
-            inner = moves.interior[kcls, c]
             # The multi-index is read only at the border or for a robot-frame heading.
-            if not inner or moves.heading_axis >= 0:
-                decode(c, shape, mi)
-            nc = move_corners(
-                kcls,
-                pa,
-                c,
-                mi,
-                inner,
-                moves.offs,
-                moves.fr,
-                moves.coff,
-                moves.cw,
-                moves.heading_axis,
-                grid.shape,
-                grid.periodic,
-                idx,
-                w,
-            )
-            cv = step_cost
-            dv = -1.0
-            for b in range(b0, b1):
-                L = branch_layer[b]
-                p = branch_prob[b]
-                if p == 0.0:
-                    continue
-                ssum = 0.0
-                for j in range(nc):
-                    i = idx[j]
-                    if w[j] > EPS_W and live[L, i] and h[L, i] < np.inf:
-                        ssum += w[j]
-                if ssum <= EPS_W:
-                    ok = False
-                    break
-                for j in range(nc):
-                    i = idx[j]
-                    if w[j] > EPS_W and live[L, i] and h[L, i] < np.inf:
-                        q = p * w[j] / ssum
-                        if L == m:
-                            succ[ne] = local[i]
-                            wt[ne] = q
-                            ne += 1
-                        else:
-                            cv += q * h[L, i]
-                            dv += q * D[L, i]
-            const[v] = cv
-            dconst[v] = dv
+            if not model.moves.interior[lay.vcls[m], c] or model.moves.heading_axis >= 0:
+                decode(c, shape, s.mi)
+            site = site_at(model, m, c, single, s.mi)
+            rows.const[v] = step_cost
+            rows.dconst[v] = -1.0
+            ne = _landing_row(rows, ne, law, site, pa, local, s, model)
+            ok = ne >= 0
         else:
             ok = False
         if not ok:
             ne = start
-            fixed[v] = True
-        ptr[v + 1] = ne
-    return ptr, succ[:ne], wt[:ne], const, dconst, fixed
+            rows.fixed[v] = True
+        rows.ptr[v + 1] = ne
+    keep(held)
+    return Rows(owner.ptr, owner.succ[:ne], owner.wt[:ne], owner.const, owner.dconst, owner.fixed)
 
 
 @njit(cache=True)
-def self_system(m, h, D, g, E, ED, pself, pol, cells, local, model):  # pragma: no cover - numba
-    """The linear system of ``pol[m]`` for the NR update of :func:`.sweeps.sweep_self`.
+def self_system(m, h, g, nr, pol, cells, local, model):  # pragma: no cover - numba
+    """The linear system of ``pol[m]`` for the NR update of :func:`.nr.sweep_self`
+    (``nr``: :class:`.nr.NRBranches`), as :class:`Rows`.
 
     Stay is solved exactly, ``h = (l - g + E[c, 0]) / (1 - pself)`` (a constant here); a
-    move costs ``l - g + E[c, 1 + a] + pself * h[m](x')``.
+    move costs ``l - g + E[c, 1 + a] + pself * h[m](x')`` (the law of :mod:`.law`; the
+    derivatives ``D`` enter through ``nr.ED`` only).
     """
-    moves = model.moves
-    grid = model.grid
-    live = model.layers.live
-    shape = grid.shape
+    model = borrowed(model)
+    lay = model.layers
+    shape = model.grid.shape
     d = shape.shape[0]
     n = cells.shape[0]
-    ncorner = 1 << d
-    ptr = np.zeros(n + 1, np.int64)
-    succ = np.empty(n * ncorner, np.int64)
-    wt = np.empty(n * ncorner)
-    const = np.zeros(n)
-    dconst = np.zeros(n)
-    fixed = np.zeros(n, np.bool_)
-    mi = np.empty(d, np.int64)
-    idx = np.empty(ncorner, np.int64)
-    w = np.empty(ncorner)
-    kcls = model.layers.vcls[m]
-    step_cost = model.layers.cost[m] - g
+    owner = _rows(n, n * (1 << d))
+    rows = _lend(owner)
+    held = scratch(d)
+    s = lend(held)
+    law = reader(h, h, lay.live, True, True, False)
+    E = nr.E
+    ED = nr.ED
+    pself = nr.pself
+    step_cost = lay.cost[m] - g
     ne = 0
     for v in range(n):
         c = cells[v]
         pa = pol[m, c]
         start = ne
         ok = True
-        if pa == -1:
+        if pa == STAY:
             if E[c, 0] < np.inf and pself < 1.0 - 1e-12:
-                const[v] = (step_cost + E[c, 0]) / (1.0 - pself)
-                dconst[v] = (-1.0 + ED[c, 0]) / (1.0 - pself)
+                rows.const[v] = (step_cost + E[c, 0]) / (1.0 - pself)
+                rows.dconst[v] = (-1.0 + ED[c, 0]) / (1.0 - pself)
             else:
                 ok = False
         elif pa >= 0 and E[c, 1 + pa] < np.inf:
-            const[v] = step_cost + E[c, 1 + pa]
-            dconst[v] = -1.0 + ED[c, 1 + pa]
+            rows.const[v] = step_cost + E[c, 1 + pa]
+            rows.dconst[v] = -1.0 + ED[c, 1 + pa]
             if pself > 0.0:
-                inner = moves.interior[kcls, c]
                 # The multi-index is read only at the border or for a robot-frame heading.
-                if not inner or moves.heading_axis >= 0:
-                    decode(c, shape, mi)
-                nc = move_corners(
-                    kcls,
-                    pa,
-                    c,
-                    mi,
-                    inner,
-                    moves.offs,
-                    moves.fr,
-                    moves.coff,
-                    moves.cw,
-                    moves.heading_axis,
-                    grid.shape,
-                    grid.periodic,
-                    idx,
-                    w,
-                )
-                ssum = 0.0
-                for j in range(nc):
-                    i = idx[j]
-                    if w[j] > EPS_W and live[m, i] and h[m, i] < np.inf:
-                        ssum += w[j]
+                if not model.moves.interior[lay.vcls[m], c] or model.moves.heading_axis >= 0:
+                    decode(c, shape, s.mi)
+                site = site_at(model, m, c, False, s.mi)
+                nc = move_stencil(model, site, pa, s)
+                ssum, _, _ = live_sums(law, m, nc, s)
                 if ssum <= EPS_W:
                     ok = False
                 else:
                     for j in range(nc):
-                        i = idx[j]
-                        if w[j] > EPS_W and live[m, i] and h[m, i] < np.inf:
-                            succ[ne] = local[i]
-                            wt[ne] = pself * w[j] / ssum
+                        i = s.idx[j]
+                        if s.w[j] > EPS_W and lay.live[m, i] and h[m, i] < np.inf:
+                            rows.succ[ne] = local[i]
+                            rows.wt[ne] = pself * s.w[j] / ssum
                             ne += 1
         else:
             ok = False
         if not ok:
             ne = start
-            fixed[v] = True
-        ptr[v + 1] = ne
-    return ptr, succ[:ne], wt[:ne], const, dconst, fixed
+            rows.fixed[v] = True
+        rows.ptr[v + 1] = ne
+    keep(held)
+    return Rows(owner.ptr, owner.succ[:ne], owner.wt[:ne], owner.const, owner.dconst, owner.fixed)
 
 
 @njit(cache=True)
@@ -423,9 +412,10 @@ def solve_system(ptr, succ, wt, const, dconst, fixed, hl, Dl):  # pragma: no cov
 
 
 @njit(cache=True)
-def evaluate(hm, Dm, cells, ptr, succ, wt, const, dconst, fixed):  # pragma: no cover - numba
-    """Solve the system of :func:`layer_system` / :func:`self_system` into a layer's
-    ``hm`` and ``Dm`` (indexed by cell)."""
+def evaluate(hm, Dm, cells, system):  # pragma: no cover - numba
+    """Solve the system (:class:`Rows`) of :func:`layer_system` / :func:`self_system` into a
+    layer's ``hm`` and ``Dm`` (indexed by cell)."""
+    ptr, succ, wt, const, dconst, fixed = system
     n = cells.shape[0]
     hl = np.empty(n)
     Dl = np.empty(n)

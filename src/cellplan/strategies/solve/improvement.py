@@ -29,7 +29,21 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cellplan.strategies.model.stencils import EPS_W, decode, table_stencil
+from cellplan.strategies.model.stencils import EPS_W, decode
+from cellplan.strategies.solve.law import (
+    FMP,
+    OUTSIDE,
+    STAY,
+    Site,
+    borrowed,
+    fmp_value,
+    keep,
+    lend,
+    move_value,
+    reader,
+    scratch,
+    stay_value,
+)
 
 # Cells per run of the vectorised loops: its scratch rows stay in the L1 cache.
 RUN = 2048
@@ -104,6 +118,34 @@ def move_sums(hm, a, s0, n, nk, wts, offs, acc):  # pragma: no cover - numba
             acc[i] += wj * hv[i]
 
 
+@njit(cache=True, inline="always")
+def _dense_run(hm, dense, c0, c1, step_cost, tables, run):  # pragma: no cover - numba
+    """The moves of the dense cells of the run ``c0:c1`` into ``run = (best, arg, acc)``,
+    one move at a time over the run (the law of :func:`.law.table_sums` where every corner
+    is live: the same sums in the same order). ``tables``: :func:`move_tables`."""
+    nk, wts, offs, lo, hi, wsum = tables
+    best, arg, acc = run
+    for a in range(nk.shape[0]):
+        s0 = max(c0, lo[a])
+        s1 = min(c1, hi[a])
+        n = s1 - s0
+        if n <= 0 or nk[a] == 0:
+            continue
+        # Slices, so that the loops index from zero: numba then drops the negative-index
+        # checks and vectorises them.
+        move_sums(hm, a, s0, n, nk, wts, offs, acc)
+        bit = np.int64(1) << a
+        ws = wsum[a]
+        bl = best[s0 - c0 : s1 - c0]
+        al = arg[s0 - c0 : s1 - c0]
+        dl = dense[s0:s1]
+        for i in range(n):
+            v = step_cost + acc[i] / ws
+            take = ((dl[i] & bit) != 0) & (v < bl[i])
+            bl[i] = v if take else bl[i]
+            al[i] = a if take else al[i]
+
+
 @njit(cache=True, nogil=True)
 def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
     """One policy-improvement step on layer ``m`` from the exact values ``h`` of ``pol[m]``.
@@ -123,6 +165,7 @@ def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
     The cell takes its best other action (FMP or a move) and the residual is ``inf``, so
     the layer is not taken for solved.
     """
+    model = borrowed(model)
     moves = model.moves
     lay = model.layers
     live = lay.live
@@ -130,47 +173,29 @@ def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
     hm = h[m]
     N = hm.shape[0]
     d = model.grid.shape.shape[0]
-    ncorner = 1 << d
     kcls = lay.vcls[m]
     na = moves.nact[kcls]
     valid = moves.valid[kcls]
     dense = lay.dense[m]  # moves of each cell whose corners are all live
     nxt = lay.fmp_next[m]
-    tfm = lay.tf[m]
+    opt = lay.opt_ptr[m]
+    tfm = lay.tf[opt]
     step_cost = lay.cost[m] - g
-    nk, wts, offs, lo, hi, wsum = move_tables(model, kcls, N)
+    tables = move_tables(model, kcls, N)
     best = np.empty(RUN)
     arg = np.empty(RUN, np.int64)
     acc = np.empty(RUN)
-    mi = np.empty(d, np.int64)
-    idx = np.empty(ncorner, np.int64)
-    w = np.empty(ncorner)
+    held = scratch(d)
+    sc = lend(held)
+    law = reader(h, h, live, True, True, False)
     residual = 0.0
     changed = 0
     for c0 in range(0, N, RUN):
         c1 = min(N, c0 + RUN)
         for i in range(c1 - c0):
             best[i] = np.inf
-            arg[i] = -3
-        # Moves of the dense cells, one move at a time over the run (slices, so that the
-        # loops index from zero: numba then drops the negative-index checks and vectorises).
-        for a in range(na):
-            s0 = max(c0, lo[a])
-            s1 = min(c1, hi[a])
-            n = s1 - s0
-            if n <= 0 or nk[a] == 0:
-                continue
-            move_sums(hm, a, s0, n, nk, wts, offs, acc)
-            bit = np.int64(1) << a
-            ws = wsum[a]
-            bl = best[s0 - c0 : s1 - c0]
-            al = arg[s0 - c0 : s1 - c0]
-            dl = dense[s0:s1]
-            for i in range(n):
-                v = step_cost + acc[i] / ws
-                take = ((dl[i] & bit) != 0) & (v < bl[i])
-                bl[i] = v if take else bl[i]
-                al[i] = a if take else al[i]
+            arg[i] = OUTSIDE
+        _dense_run(hm, dense, c0, c1, step_cost, tables, (best, arg, acc))
         # Every live cell: the moves of the cells that are not dense, then FMP and stay
         # ahead of the moves (the tie order of the sweeps).
         for c in range(c0, c1):
@@ -178,61 +203,40 @@ def improve_layer(m, h, g, pol, tie, model):  # pragma: no cover - numba
                 continue
             i = c - c0
             vb = valid[c] & ~dense[c]  # the moves left to the scalar path
+            site = Site(m, kcls, c, moves.interior[kcls, c], 0, True)
             if vb != 0:
-                inner = moves.interior[kcls, c]
-                if not inner:
-                    decode(c, model.grid.shape, mi)
+                if not site.inner:
+                    decode(c, model.grid.shape, sc.mi)
                 for a in range(na):
-                    if ((vb >> a) & 1) == 0:
-                        continue
-                    if inner:
-                        nc = nk[a]
-                        for j in range(nc):
-                            idx[j] = c + offs[a, j]
-                            w[j] = wts[a, j]
-                    else:
-                        nc = table_stencil(
-                            kcls, a, mi, moves.offs, moves.fr, -1, model.grid.shape,
-                            model.grid.periodic, idx, w,
-                        )  # fmt: skip
-                    ssum = 0.0
-                    vsum = 0.0
-                    for j in range(nc):
-                        wj = w[j]
-                        if wj > EPS_W and livem[idx[j]]:
-                            hv0 = hm[idx[j]]
-                            if hv0 < np.inf:
-                                ssum += wj
-                                vsum += wj * hv0
-                    if ssum <= EPS_W:
-                        continue
-                    v = step_cost + vsum / ssum
-                    if v < best[i]:
-                        best[i] = v
-                        arg[i] = a
+                    if (vb >> a) & 1:
+                        v, _ = move_value(model, law, site, a, (step_cost, 0.0), -1, sc)
+                        if v < best[i]:
+                            best[i] = v
+                            arg[i] = a
             fmp = np.inf
-            if nxt >= 0 and tfm[c] < np.inf and live[nxt, c] and h[nxt, c] < np.inf:
-                fmp = tfm[c] - g + h[nxt, c]
+            if nxt >= 0 and tfm[c] < np.inf:
+                fmp, _ = fmp_value(model, law, opt, c, (tfm[c] - g, 0.0))
             top = fmp
-            act = -2 if fmp < np.inf else -3
-            stay = step_cost + hm[c]
+            act = FMP if fmp < np.inf else OUTSIDE
+            stay, _ = stay_value(model, law, site, (step_cost, 0.0), -1)
             if stay < top:
                 top = stay
-                act = -1
+                act = STAY
             if best[i] < top:
                 top = best[i]
                 act = arg[i]
             drop = hm[c] - top
             old = pol[m, c]
-            if old == -1 and step_cost > 0.0 and min(fmp, best[i]) < np.inf:
+            if old == STAY and step_cost > 0.0 and min(fmp, best[i]) < np.inf:
                 # Staying for ever has no finite value: the exact evaluation leaves such a
                 # state as it was, possibly below every action it has, so ``h`` is not the
                 # policy's value there. Leaving is an improvement of unbounded size.
-                act = -2 if fmp <= best[i] else arg[i]
+                act = FMP if fmp <= best[i] else arg[i]
                 drop = np.inf
             if drop > residual:
                 residual = drop
-            if act != old and (old == -3 or not drop <= tie):
+            if act != old and (old == OUTSIDE or not drop <= tie):
                 pol[m, c] = act
                 changed += 1
+    keep(held)
     return residual, changed

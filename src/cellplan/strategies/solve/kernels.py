@@ -3,17 +3,19 @@
 | module | kernels |
 |---|---|
 | :mod:`.bundles` | the typed, named model bundle every kernel takes (``Model``) |
+| :mod:`.law` | the transition law: the value of an action at a cell, written once |
 | :mod:`.stencils` | grid indices, multilinear stencils, sweep orders |
 | :mod:`.interpolation` | interpolated cost-to-go over live corners (Section IV-B) |
 | :mod:`.motion` | swept-motion checks on the free bitmaps |
 | :mod:`.domain` | live states (the states that can finish their request) |
 | :mod:`.sweeps` | Gauss-Seidel sweeps and policy iteration per layer |
+| :mod:`.nr` | NR's sweep in slabs, its stay self-loop solved exactly |
 | :mod:`.evaluation` | exact evaluation of a layer's policy (Tarjan order) |
 | :mod:`.improvement` | one Jacobi policy-improvement step, vectorised over cells |
 | :mod:`.coldstart` | a first policy by Dijkstra's algorithm |
 | :mod:`.bellman` | the Jacobi Bellman operator over every state (certificate) |
 | :mod:`.points` | equation (9) at a real state: online query, executor lookahead |
-| :mod:`.policy_iteration` | policy matrix (CSR), hop distances, back-substitution |
+| :mod:`.pi_kernels` | policy matrix (CSR), hop distances, back-substitution |
 
 The names below are re-exported for callers written against the single module.
 """
@@ -27,13 +29,12 @@ from cellplan.strategies.model.points import action_values_at, lookahead, query
 from cellplan.strategies.model.stencils import decode, displacement, stencil, table_stencil, wrap
 from cellplan.strategies.solve.bellman import bellman_all, bellman_rows
 from cellplan.strategies.solve.improvement import improve_layer
+from cellplan.strategies.solve.nr import other_branches, sweep_self
 from cellplan.strategies.solve.sweeps import (
     dense_cells,
     layer_iteration,
-    other_branches,
     sweep_layer,
     sweep_policy,
-    sweep_self,
 )
 
 __all__ = [

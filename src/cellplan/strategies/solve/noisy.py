@@ -9,8 +9,10 @@ landings in rows ``A + a J + j`` after the ``A`` commanded moves), so its value 
 
 and the move is allowed only where every landing's swept motion is free (the model's
 ``valid`` bitmask says so per commanded move) and, in every branch, every landing has a
-live corner. The structured solver's kernels assume one landing per move; noisy models
-are solved by policy iteration, whose kernels call these functions.
+live corner. At cell centres that is the transition law of
+:mod:`cellplan.strategies.solve.law` (:func:`~cellplan.strategies.solve.law.move_value`,
+:func:`~cellplan.strategies.solve.law.move_supported`); here is its value at a real
+configuration (an online query).
 """
 
 from __future__ import annotations
@@ -18,107 +20,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cellplan.strategies.model.interpolation import interp, supported
+from cellplan.strategies.model.interpolation import interp
 from cellplan.strategies.model.motion import motion_ok
-from cellplan.strategies.model.stencils import EPS_W, displacement, move_corners, stencil, wrap
-
-
-@njit(cache=True, nogil=True, inline="always")
-def landing_row(na, a, j, J):  # pragma: no cover - numba
-    """The table row of landing ``j`` of move ``a`` (``na`` commanded moves)."""
-    return na + a * J + j
-
-
-@njit(cache=True, nogil=True, inline="always")
-def noisy_move_value(m, c, a, mi, inner, h, live, model, idx, w):  # pragma: no cover - numba
-    """``sum_b P_b sum_j p_j H_{L_b}(x_c + dx_{a,j})`` from the centre of cell ``c`` of mode
-    ``m`` (without the loss ``l(m)``); ``inf`` where some landing has no live corner.
-
-    :func:`.bellman.bellman_rows` writes the single-branch interior case out itself (a call
-    per move costs ten times the work there) and calls this for the rest."""
-    moves = model.moves
-    lay = model.layers
-    grid = model.grid
-    k = lay.vcls[m]
-    na = moves.nact[k]
-    J = moves.noise_prob.shape[0]
-    total = 0.0
-    for j in range(J):
-        p = moves.noise_prob[j]
-        if p <= 0.0:
-            continue
-        n = move_corners(
-            k,
-            landing_row(na, a, j, J),
-            c,
-            mi,
-            inner,
-            moves.offs,
-            moves.fr,
-            moves.coff,
-            moves.cw,
-            moves.heading_axis,
-            grid.shape,
-            grid.periodic,
-            idx,
-            w,
-        )
-        for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
-            L = lay.branch_layer[b]
-            ssum = 0.0
-            vsum = 0.0
-            for i in range(n):
-                wi = w[i]
-                if wi > EPS_W and live[L, idx[i]]:
-                    ssum += wi
-                    vsum += wi * h[L, idx[i]]
-            if ssum <= EPS_W:
-                return np.inf
-            total += lay.branch_prob[b] * p * vsum / ssum
-    return total
+from cellplan.strategies.model.stencils import displacement, stencil, wrap
+from cellplan.strategies.solve.law import landing_row
 
 
 @njit(cache=True)
-def noisy_supported(m, c, a, mi, inner, target, live, model, idx, w):  # pragma: no cover
-    """Whether every landing of move ``a`` from cell ``c`` has a live corner in every branch
-    (``target`` stands for layer ``m`` itself), as :func:`.domain.live_layer` requires."""
-    moves = model.moves
-    lay = model.layers
-    grid = model.grid
-    k = lay.vcls[m]
-    na = moves.nact[k]
-    J = moves.noise_prob.shape[0]
-    for j in range(J):
-        if moves.noise_prob[j] <= 0.0:
-            continue
-        n = move_corners(
-            k,
-            landing_row(na, a, j, J),
-            c,
-            mi,
-            inner,
-            moves.offs,
-            moves.fr,
-            moves.coff,
-            moves.cw,
-            moves.heading_axis,
-            grid.shape,
-            grid.periodic,
-            idx,
-            w,
-        )
-        for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
-            if lay.branch_prob[b] <= 0.0:
-                continue
-            L = lay.branch_layer[b]
-            src = target if L == m else live[L]
-            if not supported(src, idx, w, n):
-                return False
-    return True
-
-
-@njit(cache=True)
-def noisy_value_at(q, m, a, h, live, model, idx, w, ibuf, fbuf, mbuf):  # pragma: no cover
+def noisy_value_at(q, m, a, h, live, model, bufs):  # pragma: no cover - numba
     """``sum_b P_b sum_j p_j H_{L_b}(q_j)`` at a real configuration (without the loss),
     ``q_j = q + dq_{a,j}``, or ``q`` itself where landing ``j``'s swept motion is blocked;
     NaN where every landing is blocked or a value has no live corner.
@@ -126,8 +35,10 @@ def noisy_value_at(q, m, a, h, live, model, idx, w, ibuf, fbuf, mbuf):  # pragma
     A real configuration is not a cell centre: near a wall a landing that is free from the
     centre can be blocked from ``q``. Execution guards the motion (the robot stops where it
     is, :meth:`~cellplan.strategies.policy.strategy.Strategy.next_configuration`), and the value
-    here counts that outcome, so the robot is never left without a move.
+    here counts that outcome, so the robot is never left without a move. ``bufs`` is the
+    scratch ``(idx, w, ibuf, fbuf, mbuf)`` of :func:`.points.action_values_at`.
     """
+    idx, w, ibuf, fbuf, mbuf = bufs
     moves = model.moves
     lay = model.layers
     grid = model.grid

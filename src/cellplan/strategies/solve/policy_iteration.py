@@ -6,7 +6,7 @@ carrying layer, with certainty, and a move lands where it is commanded. With fai
 modes (Section VI-3 of the strategies paper) an FMP has several outcomes (a retry in
 place, a rejected part carried elsewhere), with noisy motion (Section VI-4) a move has
 several landings, and relative value iteration
-(:func:`~cellplan.strategies.solve.solver.solve_general`) needs thousands of sweeps because the
+(:func:`~cellplan.strategies.solve.certify.solve_general`) needs thousands of sweeps because the
 request cycle mixes slowly. Policy iteration needs a handful of iterations, each
 
 1. *assembly*: the policy's transition matrix ``P`` over the live states in CSR and its
@@ -22,7 +22,7 @@ request cycle mixes slowly. Policy iteration needs a handful of iterations, each
    their order (:func:`back_substitute`);
 4. *improvement*: a few value iteration sweeps from ``h`` (modified policy iteration,
    :data:`LOOKAHEAD_SWEEPS`), then the Jacobi Bellman operator
-   (:func:`cellplan.strategies.solve.solver.bellman`); a state changes its action only where the
+   (:func:`cellplan.strategies.solve.certify.bellman`); a state changes its action only where the
    best action beats the current one by more than a small relative margin, so ties never
    make the policy cycle.
 
@@ -32,7 +32,7 @@ every action's successors, Gauss-Seidel sweeps of ``d(s) = 1 + min_a min_{s'} d(
 :func:`hop_sweep`, layers in the order they read each other), so every request is
 finished with probability one. If a factorisation fails anyway, or its solution does not
 satisfy its equations, relative value iteration sweeps from the last values stand in for
-the evaluation. The answer is certified like every solve (:func:`.solver._finish`).
+the evaluation. The answer is certified like every solve (:func:`.certify.finish`).
 docs/strategies.md ("Policy iteration") has the choices and the measurements.
 """
 
@@ -44,31 +44,24 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from numba import njit
 from scipy.sparse import csgraph
 from scipy.sparse.linalg import splu
 
 from cellplan.strategies.model.bundles import Model
 from cellplan.strategies.model.mdp import LayeredMDP
-from cellplan.strategies.model.stencils import (
-    EPS_W,
-    cell_of_order,
-    decode,
-    fmp_code,
-    fmp_option,
-    move_corners,
-)
 from cellplan.strategies.solve.bellman import residual_range
-from cellplan.strategies.solve.noisy import landing_row
-from cellplan.strategies.solve.solver import (
+from cellplan.strategies.solve.certify import (
     INNER_FACTOR,
     Certificate,
     Progress,
     SolveResult,
-    _finish,
+    Tally,
     bellman,
+    finish,
     solve_general,
 )
+from cellplan.strategies.solve.law import OUTSIDE
+from cellplan.strategies.solve.pi_kernels import PolicyRows, back_substitute, hop_sweep, policy_rows
 from cellplan.strategies.solve.threads import Workers, workers_for
 
 log = logging.getLogger(__name__)
@@ -87,321 +80,6 @@ LOOKAHEAD_SWEEPS = 4
 # Strongly connected components larger than this are evaluated by sparse LU, smaller ones
 # by Gauss-Seidel on the component.
 DIRECT_ABOVE = 64
-
-
-@njit(cache=True, nogil=True)
-def action_successors(m, c, a, mi, index, model, idx, w, out_s, out_p):  # pragma: no cover
-    """Successor states of action ``a`` at live state ``(m, c)`` and their probabilities.
-
-    ``a`` is an FMP code (``-2``, or ``-3 - j`` for option ``j``), ``-1`` (stay) or a
-    move. Fills ``out_s`` (state indices from ``index``) and ``out_p``; returns
-    ``(n, cost)``, ``n = -1`` where the action is not available (FMP not allowed or an
-    outcome not live; a move not collision-free, or a branch with no live corner). The
-    law is that of
-    :func:`cellplan.strategies.solve.bellman.bellman_rows` (the same weights and renormalisation);
-    a successor may appear twice (the caller's sparse matrix sums them). ``mi`` is the
-    multi-index of ``c``; ``idx`` and ``w`` are scratch of ``2^d``.
-    """
-    lay = model.layers
-    moves = model.moves
-    grid = model.grid
-    live = lay.live
-    n = 0
-    j = fmp_option(a)
-    if j >= 0:
-        opt = lay.opt_ptr[m] + j
-        if lay.fmp_next[m] < 0 or opt >= lay.opt_ptr[m + 1] or not lay.tf[opt, c] < np.inf:
-            return -1, 0.0
-        cost = lay.tf[opt, c]
-        for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
-            p = lay.out_prob[o]
-            if p <= 0.0:
-                continue
-            L = lay.out_layer[o]
-            if not live[L, c]:
-                return -1, 0.0
-            cost += p * lay.out_cost[o]
-            out_s[n] = index[L, c]
-            out_p[n] = p
-            n += 1
-        return n, cost
-    cost = lay.cost[m]
-    b0 = lay.branch_ptr[m]
-    b1 = lay.branch_ptr[m + 1]
-    if a == -1:
-        for b in range(b0, b1):
-            L = lay.branch_layer[b]
-            if not live[L, c]:
-                return -1, 0.0
-            p = lay.branch_prob[b]
-            if p > 0.0:
-                out_s[n] = index[L, c]
-                out_p[n] = p
-                n += 1
-        return n, cost
-    k = lay.vcls[m]
-    na = moves.nact[k]
-    if a >= na or ((moves.valid[k, c] >> a) & 1) == 0:
-        return -1, 0.0
-    # With noisy motion (Section VI-4) the move lands at each of J displacements with
-    # probability noise_prob[j] (table rows na + a J + j, :mod:`.noisy`); else J = 1.
-    J = moves.noise_prob.shape[0]
-    for jn in range(J):
-        pj = moves.noise_prob[jn] if J > 1 else 1.0
-        if pj <= 0.0:
-            continue
-        nc = move_corners(
-            k,
-            landing_row(na, a, jn, J) if J > 1 else a,
-            c,
-            mi,
-            moves.interior[k, c],
-            moves.offs,
-            moves.fr,
-            moves.coff,
-            moves.cw,
-            moves.heading_axis,
-            grid.shape,
-            grid.periodic,
-            idx,
-            w,
-        )
-        for b in range(b0, b1):
-            L = lay.branch_layer[b]
-            ssum = 0.0
-            for j in range(nc):
-                if w[j] > EPS_W and live[L, idx[j]]:
-                    ssum += w[j]
-            if ssum <= EPS_W:
-                return -1, 0.0
-            p = lay.branch_prob[b] * pj
-            if p <= 0.0:
-                continue
-            for j in range(nc):
-                if w[j] > EPS_W and live[L, idx[j]]:
-                    out_s[n] = index[L, idx[j]]
-                    out_p[n] = p * w[j] / ssum
-                    n += 1
-    return n, cost
-
-
-@njit(cache=True, nogil=True)
-def policy_rows(
-    states, actions, index, starts, cols, vals, counts, cost, start, stop, model
-):  # pragma: no cover - numba
-    """Rows ``start:stop`` of the policy's transition matrix and its cost vector.
-
-    ``states`` are the flat ``m * N + c`` of the live states, ``actions`` their actions.
-    Row ``k``'s successors and probabilities are written from ``starts[k]`` on (room for
-    the most its mode can have), their number to ``counts[k]``, its loss to ``cost[k]``.
-    Returns the number of rows whose action is not available (0 for a policy chosen by
-    the Bellman operator; such a row is left empty).
-    """
-    ncell = model.layers.live.shape[1]
-    shape = model.grid.shape
-    d = shape.shape[0]
-    mi = np.empty(d, np.int64)
-    idx = np.empty(1 << d, np.int64)
-    w = np.empty(1 << d)
-    bad = 0
-    for k in range(start, stop):
-        m = states[k] // ncell
-        c = states[k] % ncell
-        decode(c, shape, mi)
-        at = starts[k]
-        room = starts[k + 1] - at
-        n, cst = action_successors(
-            m, c, actions[k], mi, index, model, idx, w, cols[at : at + room], vals[at : at + room]
-        )
-        if n < 0:
-            bad += 1
-            n = 0
-        counts[k] = n
-        cost[k] = cst
-    return bad
-
-
-@njit(cache=True, nogil=True)
-def hop_sweep(dist, act, fixed, index, order, flips, usable, model):  # pragma: no cover
-    """One Gauss-Seidel sweep of the hop distances ``d(s) = 1 + min_a min_{s'} d(s')``.
-
-    ``dist`` (per state: 0 on the targets, a large number where unknown) and ``act`` are
-    updated in place, except at the ``fixed`` states (the targets), which keep their
-    action (or take the first available one, stay first, where it is ``-3``). The layers
-    are visited in ``order``, the cells of each in the sweep order ``flips``
-    (:func:`~cellplan.strategies.model.stencils.cell_of_order`). A state takes the action with
-    the successor nearest to the targets, among the moves whose every successor is a live
-    state (``usable``, a bitmask per state, found on the first visit: -1 before); a noisy
-    move's successors for the distance are those of its first landing (Section VI-4).
-    Returns whether any distance fell.
-    """
-    lay = model.layers
-    moves = model.moves
-    live = lay.live
-    shape = model.grid.shape
-    ncell = live.shape[1]
-    d = shape.shape[0]
-    mi = np.empty(d, np.int64)
-    idx = np.empty(1 << d, np.int64)
-    w = np.empty(1 << d)
-    width = (
-        (1 << d)
-        * moves.noise_prob.shape[0]
-        * (lay.branch_prob.shape[0] + lay.out_prob.shape[0] + 1)
-    )
-    out_s = np.empty(width, np.int64)
-    out_p = np.empty(width)
-    changed = False
-    J = moves.noise_prob.shape[0]
-    j0 = 0
-    while J > 1 and moves.noise_prob[j0] <= 0.0:
-        j0 += 1
-    for m in order:
-        na = moves.nact[lay.vcls[m]]
-        for kk in range(ncell):
-            c = cell_of_order(kk, shape, flips, mi)
-            if not live[m, c]:
-                continue
-            s = index[m, c]
-            nopt = lay.opt_ptr[m + 1] - lay.opt_ptr[m]
-            if fixed[s]:
-                # The first available action: stay, the moves, then the FMP options.
-                for a in range(-1, na + nopt):
-                    if act[s] == -3:
-                        aa = a if a < na else fmp_code(a - na)
-                        n, _ = action_successors(m, c, aa, mi, index, model, idx, w, out_s, out_p)
-                        if n >= 0:
-                            act[s] = aa
-                continue
-            best = dist[s]
-            arg = act[s]
-            # FMP and stay: their successors keep the cell.
-            for j in range(nopt if lay.fmp_next[m] >= 0 else 0):
-                opt = lay.opt_ptr[m] + j
-                if not lay.tf[opt, c] < np.inf:
-                    continue
-                near = np.inf
-                for o in range(lay.out_ptr[opt], lay.out_ptr[opt + 1]):
-                    if lay.out_prob[o] > 0.0:
-                        L = lay.out_layer[o]
-                        near = min(near, dist[index[L, c]]) if live[L, c] else -np.inf
-                if near > -np.inf and near + 1 < best:
-                    best = near + 1
-                    arg = fmp_code(j)
-            near = np.inf
-            for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
-                L = lay.branch_layer[b]
-                if not live[L, c]:
-                    near = np.inf
-                    break
-                if lay.branch_prob[b] > 0.0:
-                    near = min(near, dist[index[L, c]])
-            if near + 1 < best:
-                best = near + 1
-                arg = -1
-            # Moves, written out (a helper call per move costs ten times the work here).
-            k = lay.vcls[m]
-            b0 = lay.branch_ptr[m]
-            b1 = lay.branch_ptr[m + 1]
-            vb = moves.valid[k, c]
-            # The moves every landing of which has a live corner in every branch do not
-            # change from sweep to sweep: found once per state (usable[s] < 0 until then).
-            bits = usable[s]
-            if bits < 0:
-                bits = 0
-                for a in range(na):
-                    if ((vb >> a) & 1) == 0:
-                        continue
-                    ok = True
-                    for jn in range(J):  # the landings of a noisy move (one without noise)
-                        if J > 1 and moves.noise_prob[jn] <= 0.0:
-                            continue
-                        nc = move_corners(
-                            k, landing_row(na, a, jn, J) if J > 1 else a, c, mi,
-                            moves.interior[k, c], moves.offs, moves.fr, moves.coff, moves.cw,
-                            moves.heading_axis, shape, model.grid.periodic, idx, w,
-                        )  # fmt: skip
-                        for b in range(b0, b1):
-                            L = lay.branch_layer[b]
-                            sup = False
-                            for j in range(nc):
-                                if w[j] > EPS_W and live[L, idx[j]]:
-                                    sup = True
-                                    break
-                            if not sup:
-                                ok = False
-                                break
-                        if not ok:
-                            break
-                    if ok:
-                        bits |= 1 << a
-                usable[s] = bits
-            # A hop goes through the first landing of positive probability: progress there
-            # has positive probability, which is all a proper policy needs.
-            for a in range(na):
-                if ((bits >> a) & 1) == 0:
-                    continue
-                nc = move_corners(
-                    k, landing_row(na, a, j0, J) if J > 1 else a, c, mi,
-                    moves.interior[k, c], moves.offs, moves.fr, moves.coff, moves.cw,
-                    moves.heading_axis, shape, model.grid.periodic, idx, w,
-                )  # fmt: skip
-                near = np.inf
-                for b in range(b0, b1):
-                    if lay.branch_prob[b] <= 0.0:
-                        continue
-                    L = lay.branch_layer[b]
-                    for j in range(nc):
-                        if w[j] > EPS_W and live[L, idx[j]]:
-                            near = min(near, dist[index[L, idx[j]]])
-                if near + 1 < best:
-                    best = near + 1
-                    arg = a
-            act[s] = arg
-            if best < dist[s]:
-                dist[s] = best
-                changed = True
-    return changed
-
-
-@njit(cache=True, nogil=True)
-def back_substitute(
-    indptr, indices, data, cost, g, h, order, starts, first, last
-):  # pragma: no cover
-    """``h = c - g + P h`` on the strongly connected components ``first:last`` of the chain.
-
-    The components are numbered sinks first (every edge leaves a component for one with a
-    smaller number), their states are ``order[starts[k]:starts[k + 1]]``, and ``h`` is
-    known on every state they lead to. A single state is solved directly (its self-loop
-    divided out); a small component (interpolation cycles) by Gauss-Seidel on itself
-    alone, which converges since it is transient. Returns the largest number of
-    Gauss-Seidel passes one component needed.
-    """
-    most = 0
-    for k in range(first, last):
-        a = starts[k]
-        b = starts[k + 1]
-        passes = 0
-        while True:
-            change = 0.0
-            for q in range(a, b):
-                s = order[q]
-                acc = cost[s] - g
-                diag = 1.0
-                for e in range(indptr[s], indptr[s + 1]):
-                    j = indices[e]
-                    if j == s:
-                        diag -= data[e]
-                    else:
-                        acc += data[e] * h[j]
-                new = acc / diag
-                change = max(change, abs(new - h[s]) / (1.0 + abs(new)))
-                h[s] = new
-            passes += 1
-            if b - a == 1 or change <= 1e-15 or passes >= 100_000:
-                break
-        most = max(most, passes)
-    return most
 
 
 class _Chain:
@@ -469,7 +147,7 @@ def hop_policy(
     """
     S = chain.size
     dist = np.where(targets, 0.0, float(S))
-    act = np.where(targets, actions, -3).astype(np.int64)
+    act = np.where(targets, actions, OUTSIDE).astype(np.int64)
     order = layer_order(mdp)
     d = len(mdp.shape)
     usable = np.full(S, -1, np.int64)  # per state, the moves a policy may take (bitmask)
@@ -513,22 +191,10 @@ def assemble(
     counts = np.zeros(S, np.int64)
     cost = np.zeros(S)
 
+    out = PolicyRows(chain.states, actions, chain.index, starts, cols, vals, counts, cost)
+
     def rows(r: tuple[int, int]) -> int:
-        return int(
-            policy_rows(
-                chain.states,
-                actions,
-                chain.index,
-                starts,
-                cols,
-                vals,
-                counts,
-                cost,
-                r[0],
-                r[1],
-                model,
-            )
-        )
+        return int(policy_rows(out, r[0], r[1], model))
 
     bad = sum(workers.map(rows, workers.ranges(S)))
     keep = chain.slot < counts[chain.slot_row]
@@ -591,7 +257,7 @@ def evaluate(
     fill = int(memo["fill"])
     first = 1
     for k in [*(int(k) for k in np.flatnonzero(sizes > DIRECT_ABOVE) if k > 0), n]:
-        back_substitute(P.indptr, P.indices, P.data, cost, g, h, order, starts, first, k)
+        back_substitute((P.indptr, P.indices, P.data), cost, g, h, (order, starts), first, k)
         if k == n:
             break
         idx = order[starts[k] : starts[k + 1]]
@@ -647,7 +313,7 @@ def solve_policy_iteration(
     Stops when an improvement changes no action, or when the Bellman bracket of the
     evaluated policy is already narrower than ``tol / 100``; gives up (``NOT_CONVERGED``)
     after ``max_iterations`` iterations. The result is certified by
-    :func:`cellplan.strategies.solve.solver._finish` (``SOLVED`` only when the span test
+    :func:`cellplan.strategies.solve.certify.finish` (``SOLVED`` only when the span test
     passes). ``sweeps`` and ``full_sweeps`` count the Jacobi Bellman sweeps over every
     state (per iteration one plus :data:`LOOKAHEAD_SWEEPS`, plus any recovery sweeps;
     the certificate's two are added to ``full_sweeps``), ``eval_sweeps`` the exact
@@ -662,7 +328,7 @@ def solve_policy_iteration(
     # The first policy: NR waits where it is (stay, the reactive robot), every other state
     # heads for NR by the fewest stages (hop distances to the NR states).
     nr = chain.states < live.shape[1]
-    actions, dist, hops = hop_policy(mdp, chain, nr, np.full(chain.size, -3), model)
+    actions, dist, hops = hop_policy(mdp, chain, nr, np.full(chain.size, OUTSIDE), model)
     unreachable = int(np.count_nonzero(dist >= chain.size))
     log.debug("first policy: %d hop sweeps, %d states unreachable", hops, unreachable)
     if unreachable:
@@ -671,11 +337,7 @@ def solve_policy_iteration(
             unreachable,
         )
         return solve_general(mdp, tol, progress=progress, threads=threads)
-    h = np.zeros(chain.size)
-    g = 0.0
-    sweeps = 0
-    evaluations = 0
-    it = 0
+    h, g, sweeps, evaluations, it = np.zeros(chain.size), 0.0, 0, 0, 0
     cert: Certificate | None = None
     memo: dict[str, Any] = {}
     with workers_for(chain.size, threads) as workers:
@@ -690,20 +352,13 @@ def solve_policy_iteration(
                 log.debug("iteration %d: %d states did not reach the recurrent class", it, fixed)
                 actions = repaired
                 P, cost, _ = assemble(chain, actions, model, workers)
-            try:
-                g, h_new, _ = evaluate(P, cost, labels, actions, memo)
-                evaluations += 1
-                res = cost - g + P @ h_new - h_new
-                trusted = bool(
-                    np.all(np.isfinite(h_new))
-                    and np.max(np.abs(res)) <= EVAL_RESIDUAL * (1.0 + np.max(np.abs(h_new)))
-                )
-            except RuntimeError as err:  # a singular factor
-                log.debug("iteration %d: evaluation failed (%s)", it, err)
-                trusted = False
+            solved = _trusted_evaluation(P, cost, labels, actions, memo)
+            evaluations += solved is not None
             hfull = chain.spread(h)
-            if trusted:
-                h = h_new
+            if solved is not None:
+                g = solved[0]
+            if solved is not None and solved[2]:
+                h = solved[1]
                 hfull = chain.spread(h)
             else:
                 hfull, n = _recover(mdp, hfull, ref_cell, workers)
@@ -730,11 +385,8 @@ def solve_policy_iteration(
             # values carry an improvement several states further up the paths before
             # the next (greedy) policy is taken; late iterations otherwise move it by
             # one state each, along every path whose better route is found at its end.
-            h2 = hfull
-            for _ in range(LOOKAHEAD_SWEEPS):
-                h2 = np.where(live, th - g, 0.0)
-                th, pol, _ = bellman(mdp, h2, workers=workers)
-                sweeps += 1
+            h2, th, pol = _lookahead(mdp, th, g, workers)
+            sweeps += LOOKAHEAD_SWEEPS
             q2 = cost + P @ h2.ravel()[chain.states]
             thv = th.ravel()[chain.states]
             better2 = thv < q2 - IMPROVE_MARGIN * np.maximum(1.0, np.abs(q2))
@@ -743,11 +395,45 @@ def solve_policy_iteration(
             else:
                 pol = cert_pol
             actions = np.where(better, pol.ravel()[chain.states], actions)
-        result = _finish(
-            mdp, chain.spread(h), g, tol, sweeps, sweeps, it, "policy", t0, ref_cell, cert, workers
-        )
+        tally = Tally("policy", t0, sweeps, sweeps, it, ref_cell)
+        result = finish(mdp, chain.spread(h), g, tol, tally, cert, workers)
     result.eval_sweeps = evaluations
     return result
+
+
+def _trusted_evaluation(
+    P: sp.csr_matrix,
+    cost: np.ndarray,
+    labels: np.ndarray,
+    actions: np.ndarray,
+    memo: dict[str, Any],
+) -> tuple[float, np.ndarray, bool] | None:
+    """``(g, h, trusted)`` of the policy (:func:`evaluate`), or None where the
+    factorisation failed; ``trusted`` whether the solution satisfies its equations (to
+    :data:`EVAL_RESIDUAL`)."""
+    try:
+        g, h, _ = evaluate(P, cost, labels, actions, memo)
+    except RuntimeError as err:  # a singular factor
+        log.debug("evaluation failed (%s)", err)
+        return None
+    res = cost - g + P @ h - h
+    trusted = bool(
+        np.all(np.isfinite(h)) and np.max(np.abs(res)) <= EVAL_RESIDUAL * (1.0 + np.max(np.abs(h)))
+    )
+    return g, h, trusted
+
+
+def _lookahead(
+    mdp: LayeredMDP, th: np.ndarray, g: float, workers: Workers
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:data:`LOOKAHEAD_SWEEPS` value iteration sweeps from ``T h - g``: ``(h', T h', its
+    policy)`` (modified policy iteration)."""
+    h2 = np.where(mdp.live, th - g, 0.0)
+    th2, pol, _ = bellman(mdp, h2, workers=workers)
+    for _ in range(LOOKAHEAD_SWEEPS - 1):
+        h2 = np.where(mdp.live, th2 - g, 0.0)
+        th2, pol, _ = bellman(mdp, h2, workers=workers)
+    return h2, th2, pol
 
 
 def _recover(

@@ -15,16 +15,17 @@ by policy iteration built from the kernels here:
   actions, :mod:`cellplan.strategies.solve.evaluation` evaluates the chosen policy exactly once
   it has nearly settled (the solver runs independent layers in parallel threads; the
   kernels release the GIL);
-* :func:`other_branches`, :func:`sweep_self` - the same for NR with its stay self-loop
-  solved exactly, ``h = (l - g + E_stay) / (1 - P_self)``; NR is one layer, so its sweep
-  runs in slabs of rows on parallel threads (the policy-iteration loop around it is
-  :meth:`cellplan.strategies.solve.solver._Layers.nr_layer`).
+* the same for NR, with its stay self-loop solved exactly, is in :mod:`.nr`.
+
+Every value of an action is the transition law of :mod:`cellplan.strategies.solve.law`.
 
 Cells are visited in alternating axis orders (``flips``) so that values propagate in
 every direction. The model arrives as one :class:`~cellplan.strategies.model.bundles.Model`.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -34,14 +35,28 @@ from cellplan.strategies.model.stencils import (
     EPS_W,
     decode,
     first_of_order,
-    first_of_rows,
-    move_corners,
     next_of_order,
-    table_stencil,
 )
 from cellplan.strategies.solve.coldstart import dijkstra_layer
 from cellplan.strategies.solve.evaluation import evaluate, layer_system, live_cells
 from cellplan.strategies.solve.improvement import improvable, improve_layer
+from cellplan.strategies.solve.law import (
+    FMP,
+    OUTSIDE,
+    STAY,
+    UNRECORDED,
+    borrow,
+    borrowed,
+    fmp_value,
+    is_single,
+    keep,
+    lend,
+    move_value,
+    reader,
+    scratch,
+    site_at,
+    stay_value,
+)
 
 # A recorded policy is evaluated exactly once a full sweep changes the minimiser (by more
 # than the inner accuracy) in at most this fraction of the live cells.
@@ -54,100 +69,149 @@ SETTLED_FRACTION = 0.01
 PI_FRACTION = 0.03
 
 
+class Sweep(NamedTuple):
+    """What one Gauss-Seidel sweep does besides updating the values.
+
+    ``flips``: the axes swept in reverse (:func:`~cellplan.strategies.model.stencils.
+    first_of_order`). ``exact_stay``: the stay action's self-loop is solved exactly.
+    ``track``: ``D = dh/dg`` is updated along the minimising action. ``mode`` 0: ``pol`` is
+    not touched; 1: the minimiser is recorded in ``pol``, ``nchg[0]`` counting the cells
+    whose minimiser changed by more than ``tie`` in value (ties between equally good
+    actions are not counted).
+    """
+
+    flips: int
+    exact_stay: bool
+    track: bool
+    pol: np.ndarray
+    mode: int
+    nchg: np.ndarray
+    tie: float
+
+
+def sweep_spec(
+    flips: int, pol: np.ndarray, nchg: np.ndarray, tie: float, exact_stay: bool = False
+) -> Sweep:
+    """A :class:`Sweep` that tracks ``D`` and records the minimiser (``mode`` 1)."""
+    return Sweep(int(flips), bool(exact_stay), True, pol, 1, nchg, float(tie))
+
+
 @njit(cache=True, inline="never")
-def _dense_moves(hm, cwk, cok, c, t, vb, na, step_cost, pold, best, barg, oldv):  # pragma: no cover
-    """The moves of a dense cell (:func:`dense_cells`) in :func:`sweep_policy`: corners read
-    without tests. Returns the updated ``(best, barg, oldv)``. A function of its own: written
+def _dense_moves(hm, cwk, cok, site, vb, step_cost, pold, acc):  # pragma: no cover - numba
+    """The moves of a dense cell (:func:`dense_cells`) in :func:`sweep_policy`: the law of
+    :func:`.law.table_sums` where every corner is live and finite, read without tests.
+    ``acc`` is ``(best, barg, oldv)``; returns it updated. A function of its own: written
     into the sweep, it slows the sweep's general path down by half (multi-branch layers)."""
+    best, barg, oldv = acc
     ncorner = cwk.shape[2]
-    for a in range(na):
-        if ((vb >> a) & 1) == 0:
-            continue
-        ssum = 0.0
-        vsum = 0.0
-        for jj in range(ncorner):
-            wj = cwk[a, t, jj]
-            if wj <= EPS_W:
-                break
-            ssum += wj
-            vsum += wj * hm[c + cok[a, t, jj]]
-        val = step_cost + vsum / ssum
-        if a == pold:
-            oldv = val
-        if val < best:
-            best = val
-            barg = a
+    c = site.c
+    t = site.t
+    a = 0
+    while (vb >> a) != 0:
+        if (vb >> a) & 1:
+            ssum = 0.0
+            vsum = 0.0
+            for jj in range(ncorner):
+                wj = cwk[a, t, jj]
+                if wj <= EPS_W:
+                    break
+                ssum += wj
+                vsum += wj * hm[c + cok[a, t, jj]]
+            val = step_cost + vsum / ssum
+            if a == pold:
+                oldv = val
+            if val < best:
+                best = val
+                barg = a
+        a += 1
     return best, barg, oldv
 
 
-@njit(cache=True)
-def sweep_policy(
-    m, flips, h, D, g, exact_stay, track, pol, mode, nchg, tie, model
-):  # pragma: no cover - numba
-    """One Gauss-Seidel sweep of layer ``m`` in place (axis order reversed where ``flips``).
+@njit(cache=True, inline="always")
+def _self_probability(lay, m):  # pragma: no cover - numba
+    """The probability of the branches of mode ``m`` into itself."""
+    pself = 0.0
+    for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+        if lay.branch_layer[b] == m:
+            pself += lay.branch_prob[b]
+    return pself
 
-    ``mode`` 0: ``pol`` is not touched; 1: the minimiser is recorded in ``pol[m]``,
-    ``nchg[0]`` counting the cells whose minimiser changed by more than ``tie`` in value
-    (ties between equally good actions are not counted).
+
+@njit(cache=True)
+def _all_finite(livem, hm):  # pragma: no cover - numba
+    """Whether every live value of a layer is finite."""
+    for c in range(hm.shape[0]):
+        if livem[c] and hm[c] == np.inf:
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _fmp_and_stay(model, law, site, g, own, pself):  # pragma: no cover - numba
+    """FMP and stay at ``site`` in the average-cost form of a sweep: ``(fmp, fmp_D, stay,
+    stay_D)`` (``inf`` where not available), stay solved exactly for the self-loop of
+    probability ``pself`` when ``own`` is the layer itself."""
+    lay = model.layers
+    m = site.m
+    c = site.c
+    fv = np.inf
+    fd = 0.0
+    opt = lay.opt_ptr[m]
+    if lay.fmp_next[m] >= 0 and lay.tf[opt, c] < np.inf:
+        # FMP: the next mode at the same configuration, loss t_f (equation (7)).
+        fv, fd = fmp_value(model, law, opt, c, (lay.tf[opt, c] - g, -1.0))
+    sv, sd = stay_value(model, law, site, (lay.cost[m] - g, -1.0), own)
+    if sv < np.inf and own == m:
+        if pself < 1.0 - 1e-12:
+            sv /= 1.0 - pself
+            sd /= 1.0 - pself
+        else:
+            sv = np.inf
+    return fv, fd, sv, sd
+
+
+@njit(cache=True)
+def sweep_policy(m, h, D, g, sw, model):  # pragma: no cover - numba
+    """One Gauss-Seidel sweep of layer ``m`` in place, as :class:`Sweep` ``sw`` says.
 
     ``h[m, c] = min_u [ l(u) - g + sum_b P_b h[L_b](x'_u) ]`` (the average-cost form of
-    equation (9)); corners still at ``+inf`` (not yet reached by a solve started from
-    ``+inf``) are left out and the weights renormalised. With ``exact_stay`` the stay
-    action's self-loop is solved exactly, ``h = (l - g + sum_{b != m} P_b h[L_b](x)) /
-    (1 - P_mm)``. With ``track`` the derivative ``D = dh/dg`` along the minimising action
-    is updated as well. Returns the largest change of ``h[m]``.
-
-    The move loop is written out here rather than calling a helper: numba compiles the
-    inlined :func:`~cellplan.strategies.model.stencils.move_corners` into a loop about twice as
-    slow in this, the hottest loop of the solver.
+    equation (9), the law of :mod:`.law`); corners still at ``+inf`` (not yet reached by a
+    solve started from ``+inf``) are left out and the weights renormalised. With
+    ``exact_stay`` the stay action's self-loop is solved exactly, ``h = (l - g + sum_{b !=
+    m} P_b h[L_b](x)) / (1 - P_mm)``. With ``track`` the derivative ``D = dh/dg`` along the
+    minimising action is updated as well. Returns the largest change of ``h[m]``.
     """
+    model = borrowed(model)
     moves = model.moves
-    grid = model.grid
     lay = model.layers
     live = lay.live
-    cw = moves.cw
-    coff = moves.coff
-    heading_axis = moves.heading_axis
-    branch_layer = lay.branch_layer
-    branch_prob = lay.branch_prob
-    valid = moves.valid
-    interior = moves.interior
-    shape = grid.shape
-    d = shape.shape[0]
+    shape = model.grid.shape
     ncell = h.shape[1]
-    mi = np.empty(d, np.int64)
-    ncorner = 1 << d
-    idx = np.empty(ncorner, np.int64)
-    w = np.empty(ncorner)
+    held = scratch(shape.shape[0])
+    s = lend(held)
+    mi = s.mi
+    pol, nchg, flips, track = borrow(sw.pol), borrow(sw.nchg), sw.flips, sw.track
     hm = h[m]
     livem = live[m]
-    nxt = lay.fmp_next[m]
-    tfm = lay.tf[m]
     kcls = lay.vcls[m]
     na = moves.nact[kcls]
-    b0 = lay.branch_ptr[m]
-    b1 = lay.branch_ptr[m + 1]
     step_cost = lay.cost[m] - g
-    pself = 0.0
-    for b in range(b0, b1):
-        if branch_layer[b] == m:
-            pself += branch_prob[b]
+    pself = _self_probability(lay, m)
+    own = m if sw.exact_stay else -1
     # A C or W layer without mode changes has one branch, into itself with probability 1:
     # its moves and the winner's D read the stencil tables directly (the same sums in the
     # same order; a sweep of a P1 200 x 200 C layer 5.1 -> 2.8 ms).
-    single = b1 - b0 == 1 and branch_layer[b0] == m and branch_prob[b0] == 1.0
+    single = is_single(lay, m)
+    law = reader(h, D, live, True, True, False)  # the moves: values only
+    dlaw = reader(h, D, live, True, True, True)  # and with D (the winner, FMP, stay)
+    slaw = dlaw if track else law
     # Where every corner a move can land on is live and no value is +inf, the corner
     # tests are skipped (the same sums in the same order; P1 200 x 200 C layer sweep
     # 2.8-3.0 -> 2.65 ms, W layer 3.5-3.9 -> 3.2 ms).
     dense = lay.dense
-    fast = single and dense.shape[0] > 0
-    if fast:
-        for c in range(ncell):
-            if livem[c] and hm[c] == np.inf:
-                fast = False
-                break
-    cwk = cw[kcls]
-    cok = coff[kcls]
+    fast = single and dense.shape[0] > 0 and _all_finite(livem, hm)
+    cwk = moves.cw[kcls]
+    cok = moves.coff[kcls]
     maxchange = 0.0
     c = -1
     for kk in range(ncell):
@@ -155,167 +219,47 @@ def sweep_policy(
         c = first_of_order(shape, flips, mi) if kk == 0 else next_of_order(shape, flips, mi)
         if not livem[c]:
             continue
+        site = site_at(model, m, c, single, mi)
+        pold = pol[m, c] if sw.mode == 1 else UNRECORDED
+        fv, fd, sv, sd = _fmp_and_stay(model, slaw, site, g, own, pself)
         best = np.inf
         bestd = 0.0
-        barg = -3
-        pold = pol[m, c] if mode == 1 else -9
+        barg = OUTSIDE
         oldv = np.inf
-        # FMP: switch to the next mode at the same configuration, loss t_f (equation (7)).
-        if nxt >= 0 and tfm[c] < np.inf and live[nxt, c] and h[nxt, c] < np.inf:
-            best = tfm[c] - g + h[nxt, c]
-            barg = -2
-            if pold == -2:
-                oldv = best
-            if track:
-                bestd = -1.0 + D[nxt, c]
-        # Stay: the configuration is unchanged; solved exactly for the self-loop if asked.
-        sval = step_cost
-        sder = -1.0
-        sok = True
-        for b in range(b0, b1):
-            L = branch_layer[b]
-            if (exact_stay and L == m) or branch_prob[b] == 0.0:
-                continue
-            if not live[L, c] or h[L, c] == np.inf:
-                sok = False
-                break
-            sval += branch_prob[b] * h[L, c]
-            if track:
-                sder += branch_prob[b] * D[L, c]
-        if sok:
-            if exact_stay:
-                if pself < 1.0 - 1e-12:
-                    sval /= 1.0 - pself
-                    sder /= 1.0 - pself
-                else:
-                    sok = False
-            if sok and pold == -1:
-                oldv = sval
-            if sok and sval < best:
-                best = sval
-                barg = -1
-                bestd = sder
-        # Moves.
-        vb = valid[kcls, c]
-        inner = interior[kcls, c]
-        t = mi[heading_axis] if heading_axis >= 0 else 0
+        if fv < np.inf:
+            best = fv
+            bestd = fd
+            barg = FMP
+            if pold == FMP:
+                oldv = fv
+        if sv < np.inf:
+            if pold == STAY:
+                oldv = sv
+            if sv < best:
+                best = sv
+                barg = STAY
+                bestd = sd
+        vb = moves.valid[kcls, c]
         if fast and dense[m, c] == vb:
             best, barg, oldv = _dense_moves(
-                hm, cwk, cok, c, t, vb, na, step_cost, pold, best, barg, oldv
+                hm, cwk, cok, site, vb, step_cost, pold, (best, barg, oldv)
             )
             vb = 0  # the moves are done
         for a in range(na):
             if ((vb >> a) & 1) == 0:
                 continue
-            if single and inner:
-                ssum = 0.0
-                vsum = 0.0
-                for jj in range(ncorner):
-                    wj = cw[kcls, a, t, jj]
-                    if wj <= EPS_W:
-                        break
-                    i = c + coff[kcls, a, t, jj]
-                    if livem[i]:
-                        hv = hm[i]
-                        if hv < np.inf:
-                            ssum += wj
-                            vsum += wj * hv
-                if ssum <= EPS_W:
-                    continue
-                val = step_cost + vsum / ssum
-                if a == pold:
-                    oldv = val
-                if val < best:
-                    best = val
-                    barg = a
-                continue
-            if inner:
-                nc = 0
-                for jj in range(ncorner):
-                    wj = cw[kcls, a, t, jj]
-                    if wj <= EPS_W:
-                        break
-                    idx[jj] = c + coff[kcls, a, t, jj]
-                    w[jj] = wj
-                    nc += 1
-            else:
-                nc = table_stencil(
-                    kcls, a, mi, moves.offs, moves.fr, heading_axis, shape, grid.periodic, idx, w
-                )
-            val = step_cost
-            ok = True
-            for b in range(b0, b1):
-                L = branch_layer[b]
-                if branch_prob[b] == 0.0:
-                    continue
-                ssum = 0.0
-                vsum = 0.0
-                for j in range(nc):
-                    wj = w[j]
-                    if wj > EPS_W:
-                        i = idx[j]
-                        if live[L, i]:
-                            hv = h[L, i]
-                            if hv < np.inf:
-                                ssum += wj
-                                vsum += wj * hv
-                if ssum <= EPS_W:
-                    ok = False
-                    break
-                val += branch_prob[b] * vsum / ssum
-            if ok and a == pold:
+            val, _ = move_value(model, law, site, a, (step_cost, 0.0), -1, s)
+            if a == pold:
                 oldv = val
-            if ok and val < best:
+            if val < best:
                 best = val
                 barg = a
-        if track and barg >= 0 and single and inner:
+        if track and barg >= 0:
             # The derivative of the winning move only (cheaper than one per action).
-            ssum = 0.0
-            dsum = 0.0
-            for jj in range(ncorner):
-                wj = cw[kcls, barg, t, jj]
-                if wj <= EPS_W:
-                    break
-                i = c + coff[kcls, barg, t, jj]
-                if livem[i] and hm[i] < np.inf:
-                    ssum += wj
-                    dsum += wj * D[m, i]
-            bestd = -1.0 + dsum / ssum
-        elif track and barg >= 0:
-            nc = move_corners(
-                kcls,
-                barg,
-                c,
-                mi,
-                inner,
-                moves.offs,
-                moves.fr,
-                moves.coff,
-                moves.cw,
-                moves.heading_axis,
-                grid.shape,
-                grid.periodic,
-                idx,
-                w,
-            )
-            bestd = -1.0
-            for b in range(b0, b1):
-                L = branch_layer[b]
-                if branch_prob[b] == 0.0:
-                    continue
-                ssum = 0.0
-                dsum = 0.0
-                for j in range(nc):
-                    wj = w[j]
-                    if wj > EPS_W:
-                        i = idx[j]
-                        if live[L, i] and h[L, i] < np.inf:
-                            ssum += wj
-                            dsum += wj * D[L, i]
-                bestd += branch_prob[b] * dsum / ssum
-        if mode == 1 and pol[m, c] != barg:
+            _, bestd = move_value(model, dlaw, site, barg, (step_cost, -1.0), -1, s)
+        if sw.mode == 1 and pol[m, c] != barg:
             pol[m, c] = barg
-            if not oldv - best <= tie:
+            if not oldv - best <= sw.tie:
                 nchg[0] += 1
         old = hm[c]
         if best < np.inf:
@@ -325,6 +269,7 @@ def sweep_policy(
             hm[c] = best
             if track:
                 D[m, c] = bestd
+    keep(held)
     return maxchange
 
 
@@ -405,9 +350,8 @@ def sweep_layer(m, flips, h, D, g, exact_stay, track, model):  # pragma: no cove
 
     Returns the largest change of ``h[m]``.
     """
-    pol = np.empty((1, 1), np.int16)
-    nchg = np.zeros(1, np.int64)
-    return sweep_policy(m, flips, h, D, g, exact_stay, track, pol, 0, nchg, 0.0, model)
+    sw = Sweep(flips, exact_stay, track, np.empty((1, 1), np.int16), 0, np.zeros(1, np.int64), 0.0)
+    return sweep_policy(m, h, D, g, sw, model)
 
 
 @njit(cache=True)
@@ -420,31 +364,64 @@ def unreached(hm, cells):  # pragma: no cover - numba
     return n
 
 
+class LayerSolve(NamedTuple):
+    """How far :func:`layer_iteration` solves a layer.
+
+    ``accuracy``: a full sweep that changes the values by less ends the solve. ``cap``:
+    sweeps and evaluations after which an inexact solve stops (once every live state has
+    a finite value); ``limit``: after which any solve stops. ``warm``: start by evaluating
+    the policy recorded last pass. ``check``: the residual check after an evaluation.
+    ``dijkstra``: a cold start takes the policy of
+    :func:`cellplan.strategies.solve.coldstart.dijkstra_layer` first.
+    """
+
+    accuracy: float
+    cap: int
+    limit: int
+    warm: bool
+    check: bool
+    dijkstra: bool
+
+
+def layer_solve(
+    accuracy: float, cap: int, limit: int, warm: bool, check: bool, dijkstra: bool
+) -> LayerSolve:
+    """A :class:`LayerSolve` with the types the compiled kernel expects."""
+    return LayerSolve(
+        float(accuracy), int(cap), int(limit), bool(warm), bool(check), bool(dijkstra)
+    )
+
+
+@njit(cache=True, inline="always")
+def _evaluate_policy(m, h, D, g, pol, cells, local, model):  # pragma: no cover - numba
+    """Exact evaluation of ``pol[m]`` into ``h[m]``, ``D[m]`` (:mod:`.evaluation`)."""
+    evaluate(h[m], D[m], cells, layer_system(m, h, D, g, pol, cells, local, model))
+
+
 @njit(cache=True, nogil=True)
-def layer_iteration(
-    m, h, D, g, accuracy, cap, limit, pol, warm, check, dijkstra, model
-):  # pragma: no cover - numba
+def layer_iteration(m, h, D, g, pol, opts, model):  # pragma: no cover - numba
     """Policy iteration on one C or W layer; returns (full sweeps, exact evaluations).
 
     Alternates full Gauss-Seidel sweeps (every action, minimiser recorded in ``pol``) with
     an exact evaluation of the recorded policy once a full sweep changes the minimiser in
     at most :data:`SETTLED_FRACTION` of the cells; stops when a *full* sweep changes the
-    values by less than ``accuracy``, or after ``cap`` sweeps and evaluations (an inexact
-    solve) once every live state has a finite value, or after ``limit``. After each exact
-    evaluation of a single-branch layer, a Jacobi residual check
+    values by less than ``opts.accuracy``, or after ``opts.cap`` sweeps and evaluations (an
+    inexact solve) once every live state has a finite value, or after ``opts.limit``. After
+    each exact evaluation of a single-branch layer, a Jacobi residual check
     (:func:`cellplan.strategies.solve.improvement.improve_layer`, vectorised) ends the solve when
-    no state can improve by ``accuracy``, without the confirming sweep (with ``check``: the
-    solver asks for it on uncapped passes, where layers converge; on capped ones they stop
-    at the cap, and a failed check costs half a sweep in 3-D). A solve started
+    no state can improve by ``accuracy``, without the confirming sweep (with ``opts.check``:
+    the solver asks for it on uncapped passes, where layers converge; on capped ones they
+    stop at the cap, and a failed check costs half a sweep in 3-D). A solve started
     from ``+inf`` is never stopped by ``cap`` with live states unreached: a later pass
     would start from them, and an infinite value has no place in the outer iteration's
     arithmetic; it goes on until every live state is reached or ``2^d`` sweeps in a row
     reach none.
-    With ``warm`` (later passes) it starts by evaluating the policy recorded in the last
-    pass; otherwise (values at ``+inf``), with ``dijkstra``, from the policy of
+    With ``opts.warm`` (later passes) it starts by evaluating the policy recorded in the last
+    pass; otherwise (values at ``+inf``), with ``opts.dijkstra``, from the policy of
     :func:`cellplan.strategies.solve.coldstart.dijkstra_layer`.
     """
     d = model.grid.shape.shape[0]
+    accuracy = opts.accuracy
     cells, local = live_cells(model.layers.live[m])
     nlive = cells.shape[0]
     nchg = np.zeros(1, np.int64)
@@ -453,15 +430,15 @@ def layer_iteration(
     flip = 0
     left = nlive  # live states still at +inf (counted only past the cap)
     stuck = 0  # sweeps past the cap in a row that reached no new state
-    check = check and improvable(m, model)
+    check = opts.check and improvable(m, model)
     evaluated = False  # h[m] is the exact value of pol[m]
     # Warm start: the recorded policy is last pass's and nearly right, so evaluate it first
     # and let the residual check (or one full sweep) confirm it.
-    evaluate_first = warm
-    if not warm and dijkstra:
+    evaluate_first = opts.warm
+    if not opts.warm and opts.dijkstra:
         evaluate_first = dijkstra_layer(m, h, g, pol, model) > 0
-    while full + ev < max(1, limit):
-        if full + ev >= max(1, cap):
+    while full + ev < max(1, opts.limit):
+        if full + ev >= max(1, opts.cap):
             now = unreached(h[m], cells)
             stuck = 0 if now < left else stuck + 1
             left = now
@@ -484,258 +461,21 @@ def layer_iteration(
                 break
             if 0 < changed <= PI_FRACTION * nlive:
                 full += 1
-                ptr, succ, wt, const, dconst, fixed = layer_system(
-                    m, h, D, g, pol, cells, local, model
-                )
-                evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
+                _evaluate_policy(m, h, D, g, pol, cells, local, model)
                 ev += 1
                 evaluated = True
             continue
         else:
             nchg[0] = 0
-            change = sweep_policy(
-                m, flip % (1 << d), h, D, g, False, True, pol, 1, nchg, accuracy, model
-            )
+            sw = Sweep(flip % (1 << d), False, True, pol, 1, nchg, accuracy)
+            change = sweep_policy(m, h, D, g, sw, model)
             full += 1
             flip += 1
             evaluated = False
             if change < accuracy:
                 break
         if nchg[0] <= SETTLED_FRACTION * nlive:
-            ptr, succ, wt, const, dconst, fixed = layer_system(m, h, D, g, pol, cells, local, model)
-            evaluate(h[m], D[m], cells, ptr, succ, wt, const, dconst, fixed)
+            _evaluate_policy(m, h, D, g, pol, cells, local, model)
             ev += 1
             evaluated = True
     return full, ev
-
-
-@njit(cache=True, nogil=True)
-def other_branches(m, h, D, E, ED, start, stop, model):  # pragma: no cover - numba
-    """Expected next value over the branches that leave layer ``m``, per cell and action.
-
-    ``E[c, 0] = sum_{b: L_b != m} P_b h[L_b](c)`` for stay and ``E[c, 1 + a]`` the same at
-    the landing point of move ``a`` (interpolated as in :func:`sweep_policy`); ``ED`` is
-    the same for ``D``. ``inf`` marks an action that is not available (move not
-    collision-free, or some branch without a live corner). In NR these branches lead to
-    the W layers, which are fixed while NR is solved, so a Gauss-Seidel sweep of NR then
-    touches only its own values (the request branches cost 16 interpolations per move in
-    problem 1; done once here instead of once per sweep). Only cells ``start <= c < stop``
-    are written, so that disjoint ranges can run in parallel threads.
-    """
-    moves = model.moves
-    grid = model.grid
-    lay = model.layers
-    live = lay.live
-    cw = moves.cw
-    coff = moves.coff
-    heading_axis = moves.heading_axis
-    shape = grid.shape
-    d = shape.shape[0]
-    ncorner = 1 << d
-    kcls = lay.vcls[m]
-    na = moves.nact[kcls]
-    b0 = lay.branch_ptr[m]
-    b1 = lay.branch_ptr[m + 1]
-    mi = np.empty(d, np.int64)
-    idx = np.empty(ncorner, np.int64)
-    w = np.empty(ncorner)
-    for c in range(start, stop):
-        for a in range(E.shape[1]):
-            E[c, a] = np.inf
-            ED[c, a] = 0.0
-        if not live[m, c]:
-            continue
-        decode(c, grid.shape, mi)
-        sval = 0.0
-        sder = 0.0
-        sok = True
-        for b in range(b0, b1):
-            L = lay.branch_layer[b]
-            if L == m or lay.branch_prob[b] == 0.0:
-                continue
-            if not live[L, c] or h[L, c] == np.inf:
-                sok = False
-                break
-            sval += lay.branch_prob[b] * h[L, c]
-            sder += lay.branch_prob[b] * D[L, c]
-        if sok:
-            E[c, 0] = sval
-            ED[c, 0] = sder
-        vb = moves.valid[kcls, c]
-        inner = moves.interior[kcls, c]
-        t = mi[heading_axis] if heading_axis >= 0 else 0
-        for a in range(na):
-            if ((vb >> a) & 1) == 0:
-                continue
-            # Written out, as in sweep_policy (an inlined helper is slower here).
-            if inner:
-                nc = 0
-                for jj in range(ncorner):
-                    wj = cw[kcls, a, t, jj]
-                    if wj <= EPS_W:
-                        break
-                    idx[jj] = c + coff[kcls, a, t, jj]
-                    w[jj] = wj
-                    nc += 1
-            else:
-                nc = table_stencil(
-                    kcls, a, mi, moves.offs, moves.fr, heading_axis, shape, grid.periodic, idx, w
-                )
-            val = 0.0
-            der = 0.0
-            ok = True
-            for b in range(b0, b1):
-                L = lay.branch_layer[b]
-                if L == m or lay.branch_prob[b] == 0.0:
-                    continue
-                ssum = 0.0
-                vsum = 0.0
-                dsum = 0.0
-                for j in range(nc):
-                    wj = w[j]
-                    if wj > EPS_W:
-                        i = idx[j]
-                        if live[L, i]:
-                            hv = h[L, i]
-                            if hv < np.inf:
-                                ssum += wj
-                                vsum += wj * hv
-                                dsum += wj * D[L, i]
-                if ssum <= EPS_W:
-                    ok = False
-                    break
-                val += lay.branch_prob[b] * vsum / ssum
-                der += lay.branch_prob[b] * dsum / ssum
-            if ok:
-                E[c, 1 + a] = val
-                ED[c, 1 + a] = der
-
-
-@njit(cache=True, nogil=True)
-def sweep_self(
-    m, flips, h, D, g, E, ED, pself, pol, mode, nchg, tie, model, rows, frozen_h, frozen_D
-):  # pragma: no cover - numba
-    """One Gauss-Seidel sweep of a slab of a layer without FMP whose other branches are in
-    ``E``.
-
-    The update of :func:`sweep_policy` with ``exact_stay`` for NR (``pself`` is the
-    probability of staying in the layer): stay is solved exactly,
-    ``h = (l - g + E[c, 0]) / (1 - pself)``, and a move costs
-    ``l - g + E[c, 1 + a] + pself * H_m(x')``. ``pol``, ``mode`` and ``nchg`` as in
-    :func:`sweep_policy`. Returns the largest change.
-
-    Only the cells whose first index lies in ``rows = (start, stop)`` are updated, in the
-    sweep order; a landing corner outside the slab is read from ``frozen_h`` and
-    ``frozen_D`` (the layer's values before the sweep) rather than from ``h`` and ``D``.
-    Slabs of one sweep therefore read nothing another writes, so they can run on parallel
-    threads in any order and give the same values: Gauss-Seidel inside a slab, Jacobi
-    across slabs.
-    """
-    moves = model.moves
-    grid = model.grid
-    lay = model.layers
-    cw = moves.cw
-    coff = moves.coff
-    heading_axis = moves.heading_axis
-    shape = grid.shape
-    d = shape.shape[0]
-    ncell = h.shape[1]
-    mi = np.empty(d, np.int64)
-    ncorner = 1 << d
-    idx = np.empty(ncorner, np.int64)
-    w = np.empty(ncorner)
-    hm = h[m]
-    Dm = D[m]
-    livem = lay.live[m]
-    kcls = lay.vcls[m]
-    na = moves.nact[kcls]
-    step_cost = lay.cost[m] - g
-    maxchange = 0.0
-    # The slab is a run of flat indices (the first axis varies slowest).
-    stride = ncell // shape[0]
-    lo = rows[0] * stride
-    hi = rows[1] * stride
-    # A cell at least `reach` rows inside the slab lands only on corners in the slab.
-    reach = 0
-    for a in range(na):
-        for t in range(moves.offs.shape[2]):
-            o = moves.offs[kcls, a, t, 0]
-            reach = max(reach, -o if o < 0 else o + 1)
-    safe_lo = lo + reach * stride
-    safe_hi = hi - reach * stride
-    c = -1
-    for kk in range(hi - lo):
-        c = first_of_rows(shape, flips, rows, mi) if kk == 0 else next_of_order(shape, flips, mi)
-        if not livem[c]:
-            continue
-        inside = safe_lo <= c < safe_hi
-        best = np.inf
-        bestd = 0.0
-        barg = -3
-        pold = pol[m, c] if mode == 1 else -9
-        oldv = np.inf
-        if E[c, 0] < np.inf and pself < 1.0 - 1e-12:
-            best = (step_cost + E[c, 0]) / (1.0 - pself)
-            bestd = (-1.0 + ED[c, 0]) / (1.0 - pself)
-            barg = -1
-            if pold == -1:
-                oldv = best
-        vb = moves.valid[kcls, c]
-        inner = moves.interior[kcls, c]
-        t = mi[heading_axis] if heading_axis >= 0 else 0
-        for a in range(na):
-            if ((vb >> a) & 1) == 0 or E[c, 1 + a] == np.inf:
-                continue
-            # Written out, as in sweep_policy (move_corners here is twice as slow).
-            if inner:
-                nc = 0
-                for jj in range(ncorner):
-                    wj = cw[kcls, a, t, jj]
-                    if wj <= EPS_W:
-                        break
-                    idx[jj] = c + coff[kcls, a, t, jj]
-                    w[jj] = wj
-                    nc += 1
-            else:
-                nc = table_stencil(
-                    kcls, a, mi, moves.offs, moves.fr, heading_axis, shape, grid.periodic, idx, w
-                )
-            val = step_cost + E[c, 1 + a]
-            der = -1.0 + ED[c, 1 + a]
-            if pself > 0.0:
-                ssum = 0.0
-                vsum = 0.0
-                dsum = 0.0
-                for j in range(nc):
-                    wj = w[j]
-                    if wj > EPS_W:
-                        i = idx[j]
-                        if livem[i]:
-                            own = inside or lo <= i < hi
-                            hv = hm[i] if own else frozen_h[i]
-                            if hv < np.inf:
-                                ssum += wj
-                                vsum += wj * hv
-                                dsum += wj * (Dm[i] if own else frozen_D[i])
-                if ssum <= EPS_W:
-                    continue
-                val += pself * vsum / ssum
-                der += pself * dsum / ssum
-            if a == pold:
-                oldv = val
-            if val < best:
-                best = val
-                bestd = der
-                barg = a
-        if mode == 1 and pol[m, c] != barg:
-            pol[m, c] = barg
-            if not oldv - best <= tie:
-                nchg[0] += 1
-        old = hm[c]
-        if best < np.inf:
-            ch = abs(best - old) if old < np.inf else np.inf
-            if ch > maxchange:
-                maxchange = ch
-            hm[c] = best
-            Dm[c] = bestd
-    return maxchange

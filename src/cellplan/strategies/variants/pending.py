@@ -40,32 +40,22 @@ source)), so the layers cost one bitmap each only in ``live`` and ``tf``.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from itertools import combinations_with_replacement
 
 import numpy as np
 
 from cellplan.errors import Problem
-from cellplan.strategies.model.actions import ActionSet
 from cellplan.strategies.model.bundles import Grid, Outcomes
 from cellplan.strategies.model.mdp import NR, Geometry, LayeredMDP, Mode, MoveClasses, finish_model
+from cellplan.strategies.model.spec import ModeTables, Motions, Process
+from cellplan.strategies.variants.request_sets import (
+    MAX_PENDING,
+    mode_counts,
+    option_count,
+    pending_modes,
+)
 
-
-def pending_modes(R: int, k: int) -> list[tuple[tuple[int, ...], int]]:
-    """Every mode ``(Q, r)`` for ``R`` request types and at most ``k`` open requests.
-
-    ``Q`` is a sorted tuple of request indices (a multiset: an index may repeat), ``r``
-    the carried request or -1. Order:
-    NR (``((), -1)``) first, then the empty modes by the size of ``Q``, then the
-    carrying modes by ``r`` and the size of ``Q``.
-    """
-    out: list[tuple[tuple[int, ...], int]] = []
-    for n in range(k + 1):
-        out += [(q, -1) for q in combinations_with_replacement(range(R), n)]
-    for r in range(R):
-        for n in range(k):
-            out += [(q, r) for q in combinations_with_replacement(range(R), n)]
-    return out
-
+#: Re-exported: the modes of simultaneous requests are reached through this module too.
+__all__ = ["MAX_PENDING", "assemble_pending", "mode_counts", "option_count", "pending_modes"]
 
 ModeKey = tuple[tuple[str, ...], str, str, str]
 
@@ -77,35 +67,23 @@ def mode_keys(mdp: LayeredMDP) -> dict[ModeKey, int]:
     return {(m.waiting, m.part, m.source, m.destination): i for i, m in enumerate(mdp.modes)}
 
 
-def option_count(R: int, k: int) -> int:
-    """FMP options: one per waiting request type in each empty mode, one per carrying mode."""
-    return sum(len(set(q)) if r < 0 else 1 for q, r in pending_modes(R, k))
-
-
 def assemble_pending(
-    *,
     grid: Grid,
     requests: Sequence[tuple[str, str, str, float]],
     geometry: Geometry,
-    actions_empty: ActionSet,
-    actions_carrying: Mapping[str, ActionSet],
-    stage_time: float,
-    arrival: float,
+    motions: Motions,
+    process: Process,
     max_pending: int,
     urgency: Mapping[str, float],
 ) -> LayeredMDP:
     """The layered MDP of simultaneous requests (module docstring) on a grid.
 
-    ``urgency`` weighs each part's open requests in the loss (default 1).
+    ``urgency`` weighs each part's open requests in the loss (default 1); ``process``
+    gives the stage time and the arrival probability (no changes with this model).
     """
-    R = len(requests)
-    ncell = int(np.prod(grid.shape))
-    probs = np.array([q for *_, q in requests], float)
     names = [f"{p},{s},{d}" for p, s, d, _ in requests]
     weight = np.array([float(urgency.get(p, 1.0)) for p, *_ in requests])
-    keys = pending_modes(R, max_pending)
-    index = {key: m for m, key in enumerate(keys)}
-    M = len(keys)
+    keys = pending_modes(len(requests), max_pending)
     modes: list[Mode] = []
     for q, r in keys:
         if not q and r < 0:
@@ -113,16 +91,15 @@ def assemble_pending(
             continue
         p, s, d, _ = requests[r] if r >= 0 else ("", "", "", 0.0)
         modes.append(Mode("Q", p, s, d, waiting=tuple(names[i] for i in q)))
-
     classes = MoveClasses()
-    vcls = np.zeros(M, np.int64)
-    cost = np.zeros(M)
+    vcls = np.zeros(len(keys), np.int64)
+    cost = np.zeros(len(keys))
     free_of: dict[tuple[str, ...], np.ndarray] = {}
     for m, (q, r) in enumerate(keys):
-        cost[m] = stage_time * (weight[list(q)].sum() + (weight[r] if r >= 0 else 0.0))
+        cost[m] = process.stage_time * (weight[list(q)].sum() + (weight[r] if r >= 0 else 0.0))
         if r >= 0:
             p, s, _, _ = requests[r]
-            vcls[m] = classes.add(geometry.free_c[(p, s)].ravel(), actions_carrying[p])
+            vcls[m] = classes.add(geometry.free_c[(p, s)].ravel(), motions.carrying[p])
             continue
         sources = tuple(sorted({requests[i][1] for i in q}))
         if sources not in free_of:
@@ -130,10 +107,32 @@ def assemble_pending(
             for s in sources:
                 free |= geometry.free_w[s].ravel()
             free_of[sources] = free
-        vcls[m] = classes.add(free_of[sources], actions_empty)
+        vcls[m] = classes.add(free_of[sources], motions.empty)
     free_mode = [classes.free[k] for k in vcls]
+    opt, tf, outcomes = _fmp_options(keys, requests, geometry, free_mode, cost, process.stage_time)
+    fmp_next = np.array(
+        [outcomes.layer[opt[m]] if opt[m + 1] > opt[m] else -1 for m in range(len(keys))],
+        np.int64,
+    )
+    probs = np.array([q for *_, q in requests], float)
+    branches = _arrivals(keys, probs * process.arrival, max_pending)
+    tables = ModeTables(modes, classes, vcls, cost, fmp_next, tf, branches, outcomes, opt)
+    return finish_model(grid, tables, motions.empty, process, probs)
 
-    # FMP options, each with one certain outcome (no failures with simultaneous requests).
+
+def _fmp_options(
+    keys: list[tuple[tuple[int, ...], int]],
+    requests: Sequence[tuple[str, str, str, float]],
+    geometry: Geometry,
+    free_mode: list[np.ndarray],
+    cost: np.ndarray,
+    stage_time: float,
+) -> tuple[np.ndarray, np.ndarray, Outcomes]:
+    """The FMP options ``(opt_ptr, tf, outcomes)`` of every mode, each with one certain
+    outcome (no failures with simultaneous requests): the pick of each waiting request
+    type in an empty mode, the delivery in a carrying one. An FMP's time field is weighed
+    by the mode's loss per stage (``cost``, in stage times): every open request waits."""
+    index = {key: m for m, key in enumerate(keys)}
     opt_ptr = [0]
     opt_tf: list[np.ndarray] = []
     out_layer: list[int] = []
@@ -157,53 +156,38 @@ def assemble_pending(
                 out_layer.append(nxt)
         opt_ptr.append(len(opt_tf))
     n_opt = len(opt_tf)
-    tf = np.stack(opt_tf) if n_opt else np.zeros((0, ncell))
-    opt = np.asarray(opt_ptr, np.int64)
-    fmp_next = np.array(
-        [out_layer[opt[m]] if opt[m + 1] > opt[m] else -1 for m in range(M)], np.int64
-    )
+    tf = np.stack(opt_tf) if n_opt else np.zeros((0, geometry.free_nr.size))
     outcomes = Outcomes(
         np.arange(n_opt + 1, dtype=np.int64),
         np.asarray(out_layer, np.int64),
         np.ones(n_opt),
         np.zeros(n_opt),
     )
+    return np.asarray(opt_ptr, np.int64), tf, outcomes
 
-    # Arrivals (Section III-B, type 1) in every mode with room for one more request.
+
+def _arrivals(
+    keys: list[tuple[tuple[int, ...], int]], p_arrive: np.ndarray, max_pending: int
+) -> tuple[list[int], list[int], list[float]]:
+    """The branches ``(ptr, layer, prob)``: arrivals (Section III-B, type 1, ``p_arrive``
+    per request type) in every mode with room for one more request."""
+    index = {key: m for m, key in enumerate(keys)}
     ptr = [0]
     layers: list[int] = []
     bprob: list[float] = []
     for m, (q, r) in enumerate(keys):
         stay = 1.0
         if len(q) + (r >= 0) < max_pending:
-            for i in range(R):
-                p_i = arrival * probs[i]
+            for i, p_i in enumerate(p_arrive):
                 if p_i <= 0.0:
                     continue
                 layers.append(index[(tuple(sorted((*q, i))), r)])
-                bprob.append(p_i)
+                bprob.append(float(p_i))
                 stay -= p_i
         layers.append(m)
         bprob.append(stay)
         ptr.append(len(layers))
-
-    return finish_model(
-        grid=grid,
-        modes=modes,
-        classes=classes,
-        vcls=vcls,
-        cost=cost,
-        fmp_next=fmp_next,
-        tf=tf,
-        branches=(ptr, layers, bprob),
-        outcomes=outcomes,
-        noise_prob=actions_empty.noise_prob,
-        heading_axis=actions_empty.heading_axis,
-        stage_time=stage_time,
-        arrival=arrival,
-        request_prob=probs,
-        opt_ptr=opt,
-    )
+    return ptr, layers, bprob
 
 
 def pending_problems(
@@ -213,7 +197,7 @@ def pending_problems(
 
     Request ``r`` alone is served through the modes ``({r}, none)`` and ``(empty, r)``,
     the Section V modes ``W`` and ``C`` of ``r``; the messages are those of
-    :func:`cellplan.strategies.model.mdp.live_problems`.
+    :func:`cellplan.strategies.model.live.live_problems`.
     """
     index = mode_keys(mdp)
     problems = []

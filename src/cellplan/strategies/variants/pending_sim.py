@@ -38,9 +38,18 @@ import numpy as np
 
 from cellplan.strategies.model.mdp import NR, LayeredMDP, Mode, compute_live
 from cellplan.strategies.model.stencils import fmp_code
+from cellplan.strategies.policy.decisions import FMP, STAY, best_action
 from cellplan.strategies.policy.execution import Executor
-from cellplan.strategies.policy.strategy import FMP, STAY, Strategy, best_action
-from cellplan.strategies.sim.simulate import Request, Simulation, region_test
+from cellplan.strategies.policy.regions import region_test
+from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.section import SolverSpec
+from cellplan.strategies.sim.records import (
+    Request,
+    Simulation,
+    default_start,
+    open_requests,
+)
+from cellplan.strategies.solve.solver import solve
 from cellplan.strategies.variants.pending import mode_keys
 
 PENDING_POLICIES: tuple[str, ...] = ("optimal", "fcfs", "nearest", "reactive")
@@ -130,26 +139,54 @@ def single_request_model(mdp: LayeredMDP) -> LayeredMDP:
     return sub
 
 
+def single_request_strategy(strategy: Strategy, tolerance: float | None = None) -> Strategy:
+    """The solved Section V strategy of :func:`single_request_model`: the baselines'
+    navigation (``fcfs``, ``nearest``, ``reactive``).
+
+    It is solved to ``tolerance``, by default the tolerance the strategy itself was solved
+    to (its ``tolerance`` metadata, the planner's option or the scenario's
+    ``strategy.solver.tolerance``; a file written before it was recorded: the
+    scenario schema's default). The optimal policy never needs it.
+    """
+    if tolerance is None:
+        recorded = strategy.meta.get("tolerance")
+        tolerance = float(recorded) if recorded is not None else DEFAULT_TOLERANCE
+    sub = single_request_model(strategy.mdp)
+    return Strategy.from_solution(sub, solve(sub, "auto", tolerance))
+
+
+#: The solver's tolerance for a strategy file that does not record its own (the
+#: scenario schema's default, :class:`~cellplan.strategies.section.SolverSpec`).
+DEFAULT_TOLERANCE = float(SolverSpec.model_fields["tolerance"].default)
+
+
 class Rules:
     """The action rules of :data:`PENDING_POLICIES` on one solved strategy.
 
-    ``single`` is the solved Section V strategy of :func:`single_request_model` (the
-    baselines' navigation); it is solved here when not given. Build once per strategy and
-    reuse it across runs (the experiment runs many seeds).
+    ``single`` is the solved Section V strategy of :func:`single_request_model`
+    (:func:`single_request_strategy`), the baselines' navigation; the optimal policy runs
+    without it (None), and a baseline asked for without it raises ``ValueError``. Build
+    once per strategy and reuse it across runs (the experiment runs many seeds).
     """
 
     def __init__(self, strategy: Strategy, single: Strategy | None = None) -> None:
-        from cellplan.strategies.solve.solver import solve
-
         self.strategy = strategy
         mdp = strategy.mdp
-        if single is None:
-            sub = single_request_model(mdp)
-            single = Strategy.from_solution(sub, solve(sub, "auto", 1e-6))
-        self.single = single
+        self._single = single
         self.R = len(mdp.request_prob)
-        self.names = [f"{m.part},{m.source},{m.destination}" for m in single.modes[1 : 1 + self.R]]
+        # pending_modes puts the modes ({r}, none) right after NR, in request order.
+        self.names = [mdp.modes[1 + r].waiting[0] for r in range(self.R)]
         self.index = mode_keys(mdp)
+
+    @property
+    def single(self) -> Strategy:
+        """The Section V strategy of the baselines (``ValueError`` where none was given)."""
+        if self._single is None:
+            raise ValueError(
+                "the baseline policies need the Section V strategy inside the model: "
+                "Rules(strategy, single_request_strategy(strategy))"
+            )
+        return self._single
 
     def mode_of(self, waiting: list[int], carried: int) -> int:
         """The model's mode of these waiting request types and the carried one (-1)."""
@@ -212,9 +249,13 @@ def simulate_pending(
     if policy not in PENDING_POLICIES:
         raise ValueError(f"policy must be one of {PENDING_POLICIES}, not {policy!r}")
     mdp = strategy.mdp
-    rules = rules if rules is not None else Rules(strategy)
+    if rules is None:
+        # The baselines' navigation is solved here, visibly, to the strategy's own
+        # tolerance; the optimal policy needs none.
+        single = single_request_strategy(strategy) if policy != "optimal" else None
+        rules = Rules(strategy, single)
     R = rules.R
-    k_max = max(len(m.waiting) + bool(m.part) for m in mdp.modes)
+    k_max = max(open_requests(m) for m in mdp.modes)
     stream = np.random.default_rng(seed)
     arrive = stream.random(stages) < mdp.arrival
     kinds = stream.choice(R, size=stages, p=mdp.request_prob / mdp.request_prob.sum())
@@ -343,8 +384,9 @@ def simulate_pending(
 
 
 class _CountingTest:
-    """An option's exact region test (:meth:`~.simulate.RegionTest.option`) that counts
-    its refusals, for the run's ``fmp_refused``."""
+    """An option's exact region test
+    (:meth:`~cellplan.strategies.policy.regions.RegionTest.option`) that counts its
+    refusals, for the run's ``fmp_refused``."""
 
     def __init__(self, test: Any) -> None:
         self.test = test
@@ -377,8 +419,7 @@ def _triple(name: str) -> tuple[str, str, str]:
 
 
 def _start(strategy: Strategy) -> np.ndarray:
-    from cellplan.strategies.sim.simulate import default_start
-
+    """The start the strategy records (the robot's), if live in NR; else the default."""
     recorded = strategy.meta.get("start")
     if recorded is not None:
         q = np.asarray(recorded, float)

@@ -28,7 +28,7 @@ MDP on the product (mode, phase). The choices where the paper is silent
 * **Memory.** The values of every phase are stored: ``T`` times the stationary model's
   ``(2R + 1) N`` values (and its fine-motion fields and live states); the move classes
   and their tables are shared by every phase. The scenario checks refuse more than
-  :data:`~cellplan.strategies.model.section.MAX_PERIODIC_LAYERS` layers.
+  :data:`~cellplan.strategies.section.MAX_PERIODIC_LAYERS` layers.
 * **Live states** are computed on the product (:func:`periodic_live`): a W or C state is
   live when its request can be finished from it, the least fixed point over the phases
   (a waiting robot that idles for ever is not finishing its request), and NR keeps the
@@ -48,7 +48,8 @@ import numpy as np
 
 from cellplan.errors import Problem
 from cellplan.strategies.model.domain import live_layer
-from cellplan.strategies.model.mdp import LayeredMDP
+from cellplan.strategies.model.mdp import LayeredMDP, request_fields
+from cellplan.strategies.model.spec import Build
 
 #: Passes of :func:`periodic_live` before it gives up (each carries reachability at
 #: least one period further back, so this is far beyond any grid).
@@ -201,7 +202,7 @@ def periodic_live(mdp: LayeredMDP) -> None:
 
 def periodic_problems(mdp: LayeredMDP) -> list[Problem]:
     """One problem per request that can never be served at any phase (checked before
-    solving); the messages are those of :func:`cellplan.strategies.model.mdp.live_problems`."""
+    solving); the messages are those of :func:`cellplan.strategies.model.live.live_problems`."""
     problems = []
     T = mdp.period
     if not mdp.live[[mdp.layer(0, t) for t in range(T)]].any():
@@ -234,3 +235,49 @@ def periodic_problems(mdp: LayeredMDP) -> list[Problem]:
             continue
         problems.append(Problem(where, message))
     return problems
+
+
+def periodic_model(build: Build, base: LayeredMDP) -> LayeredMDP:
+    """The time-varying model of a scenario (Section VI-1, :mod:`.periodic`): the Section
+    V model ``base`` on ``geometry`` (phase 0), and the pick and delivery regions at every
+    phase."""
+    sec, requests, cell, geometry = (
+        build.spec.section,
+        build.spec.requests,
+        build.cell,
+        build.geometry,
+    )
+    T = sec.period
+    velocity = {name: (float(b.velocity[0]), float(b.velocity[1])) for name, b in sec.belts.items()}
+    pts = build.grid.points()
+    kind = sec.regions
+
+    def moved(name: str, carrying: str | None, t: int) -> np.ndarray:
+        offset = belt_offset(velocity[name], t, sec.stage_time)
+        return cell.in_region(pts, name, kind, None, carrying, offset)
+
+    fields = np.empty((T, base.n_modes, base.n_cells))
+    for t in range(T):
+        pick = dict(geometry.pick)
+        drop = dict(geometry.drop)
+        if t > 0:
+            for p, s in pick:
+                if s in velocity:
+                    pick[(p, s)] = moved(s, None, t)
+            for p, d in drop:
+                if d in velocity:
+                    drop[(p, d)] = moved(d, p, t)
+        fields[t] = request_fields(replace(geometry, pick=pick, drop=drop), requests)
+
+    def stages(region: str) -> int:
+        spec = sec.fine_motion_regions.get(region, sec.fine_motion)
+        return int(np.floor(float(spec.time) / sec.stage_time + 0.5))  # half up
+
+    fmp_stages = [0] + [stages(s) for _, s, _, _ in requests] + [stages(d) for *_, d, _ in requests]
+    return assemble_periodic(
+        base,
+        fields=fields,
+        arrival=sec.arrival_by_phase(),
+        fmp_stages=fmp_stages,
+        belts=velocity,
+    )

@@ -1,7 +1,6 @@
 """Issue 35 part 1's measurement: long simultaneous-requests runs agree with the gain.
 
-``python -m cellplan.strategies.experiments.lockup_check STRATEGY.npz [STAGES] [SEEDS...]``
-simulates
+``.venv/bin/python benchmarks/lockup_check.py STRATEGY.npz [STAGES] [SEEDS...]`` simulates
 the bundled ``strategies_pending`` scenario under a solved strategy (``cellplan solve
 strategies_pending -o STRATEGY.npz``) with the workcell's exact region tests, one run
 per seed, and prints per seed the loss per stage with its 95% batch-means interval (20
@@ -18,11 +17,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from cellplan.api import load
-from cellplan.core import MIN_RUNS
+from cellplan.core import MIN_RUNS, mean_interval
 from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.sim.simulate import wait_bound
 from cellplan.strategies.variants.pending_sim import simulate_pending
 
 BATCHES = 20
@@ -30,9 +29,8 @@ DEFAULT_SEEDS = (0, 1234, 1235, 1, 2, 3, 4, 5, 6, 7)
 
 
 def interval(values: np.ndarray) -> tuple[float, float, float]:
-    """Mean and 95% t-interval of ``values``."""
-    mean = float(values.mean())
-    half = float(stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / np.sqrt(len(values)))
+    """Mean and 95% t-interval of ``values`` (:func:`cellplan.core.mean_interval`)."""
+    mean, half = mean_interval(values)
     return mean, mean - half, mean + half
 
 
@@ -44,6 +42,7 @@ def main(argv: list[str]) -> int:
     setup = load("strategies_pending")
     strategy = Strategy.load(path, setup.scenario)
     regions = setup.scenario.strategy.regions
+    bound = wait_bound(strategy)
     per_seed = []
     print(f"gain {strategy.gain:.6f}; {stages:,} stages per seed; seeds {seeds}")
     for seed in seeds:
@@ -55,12 +54,14 @@ def main(argv: list[str]) -> int:
         lo, hi = interval(sim.losses.reshape(BATCHES, -1).mean(1))[1:]
         open_now = sum(1 for r in sim.requests if r.delivery < 0)
         longest = max((r.waiting for r in sim.requests), default=0.0)
+        late = sum(1 for r in sim.requests if r.waiting > bound)
         per_seed.append(loss)
         print(
             f"seed {seed}: loss/stage {loss:.4f} [{lo:.4f}, {hi:.4f}] "
             f"({100 * (loss / strategy.gain - 1):+.1f}% of the gain), "
             f"served {sum(1 for r in sim.requests if r.delivery >= 0)}, open {open_now}, "
-            f"longest wait {longest:.0f}, fmp_refused {sim.fmp_refused}, "
+            f"longest wait {longest:.0f} ({late} over the bound {bound:.0f}), "
+            f"fmp_refused {sim.fmp_refused}, "
             f"corrections {sim.corrections}, {time.perf_counter() - t0:.0f} s"
         )
     m, lo, hi = interval(np.asarray(per_seed))

@@ -24,13 +24,44 @@ from cellplan.schema import (
     StrictModel,
     Vec2,
 )
+from cellplan.strategies.model.spec import MAX_FMP_STAGES, ProblemSpec, config_dimension
+from cellplan.strategies.variants.conveyors import (
+    MAX_PERIOD,
+    MAX_PERIODIC_LAYERS,
+    BeltSpec,
+    Profile,
+)
+from cellplan.strategies.variants.failures import FailureSpec
+from cellplan.strategies.variants.noise import MAX_NOISE_OUTCOMES, NoiseOutcome, NoiseSpec
+from cellplan.strategies.variants.registry import VARIANTS, active_variants, variant_problems
+from cellplan.strategies.variants.simultaneous import MAX_PENDING, MAX_PENDING_MODES, mode_counts
 
 if TYPE_CHECKING:
     from cellplan.scenario import Scenario
 
 _SUM_TOL = 1e-9
+#: The variants a 3-D workcell refuses, in the order of their lines (by their first key).
+ARM3D_ORDER = ("time_varying", "noise", "failures", "simultaneous")
+#: Re-exported: the limits of the variants' keys, for the strategy file format.
+__all__ = [
+    "MAX_FMP_STAGES",
+    "MAX_NOISE_OUTCOMES",
+    "MAX_PENDING",
+    "MAX_PENDING_MODES",
+    "MAX_PERIOD",
+    "MAX_PERIODIC_LAYERS",
+    "BeltSpec",
+    "FailureSpec",
+    "NoiseOutcome",
+    "NoiseSpec",
+    "StrategySection",
+    "mode_counts",
+]
 
 MAX_REQUESTS = 1000
+#: The longest simulated run, in stages (``cellplan simulate``, ``cellplan.simulate`` and
+#: the planner's sample run).
+MAX_STAGES = 1_000_000
 #: Most active joints of a 3-D arm the strategy's grid holds (a grid of 4 joints at the
 #: paper's resolution would not fit in memory: 48^4 cells times 2R + 1 layers).
 MAX_ARM_JOINTS = 3
@@ -40,10 +71,6 @@ MAX_ARM_JOINTS = 3
 #: survive them (measured on strategies_tiny: 1e-9 solves, 1e-12 fails in the solver's
 #: least squares). A rate is checked by the probability it gives, ``1 - exp(-rate dt)``.
 MIN_ARRIVAL = math.sqrt(2.0**-52)
-#: Longest fine motion (and rework time, Section VI-3), in stages: ``t_f`` at any point of
-#: the workcell at most this many stage times (measured on strategies_tiny: 1e6 stages
-#: solve in a second, 1e9 in seconds, 1e12 no longer converges, 1e308 overflows).
-MAX_FMP_STAGES = 10**6
 #: Longest stage (time units) and largest urgency weight (Section VI-2). A stage's loss is
 #: at most ``stage_time x urgency x max_pending``, and a strategy file's values are held to
 #: ``live states x that loss / the rarest probability`` and to 1e150 (fileformat.py): with
@@ -128,105 +155,6 @@ class ActionSpec(StrictModel):
 
     headings: Annotated[int, Field(ge=3, le=64)] = Field(
         default=16, description="K, evenly spaced directions of a translating robot", examples=[8]
-    )
-
-
-class FailureSpec(StrictModel):
-    """A fine motion that can fail (Section VI-3 of the strategies paper).
-
-    Every FMP of a request that picks at (a source) or delivers to (a destination)
-    ``region``, for ``part`` (default: every part), fails with ``probability``. A failure
-    is retried in place after ``rework`` time units (``then: retry``), or the part is
-    rejected (``then: reject``): the robot carries it to ``reject_region`` (a destination)
-    and drops it there, after which it fetches a replacement from the same source
-    (``after_reject: fetch``) or a new request for the same part and destination arrives at
-    once, its source drawn by the request probabilities (``after_reject: request``). The
-    request waits throughout: every stage counts in the loss.
-    """
-
-    region: Name = Field(description="source or destination whose FMP can fail", examples=["D1"])
-    part: Name | None = Field(default=None, description="only for this part (default: every part)")
-    probability: Probability = Field(description="failure probability per FMP attempt")
-    then: Literal["retry", "reject"] = Field(
-        description="retry in place after the rework time, or reject the part"
-    )
-    rework: NonNegativeFloat | None = Field(
-        default=None, description="retry: time lost before the next attempt (default 0)"
-    )
-    reject_region: Name | None = Field(
-        default=None, description="reject: the destination where rejected parts are dropped"
-    )
-    after_reject: Literal["fetch", "request"] | None = Field(
-        default=None,
-        description="reject: fetch a replacement from the same source (default), or a new "
-        "request for the part arrives",
-    )
-
-    def applies(self, region: str, part: str) -> bool:
-        return self.region == region and self.part in (None, part)
-
-
-class NoiseOutcome(StrictModel):
-    """One place a move can land, relative to the commanded one (Section VI-4)."""
-
-    offset: list[float] = Field(
-        description="displacement from the commanded landing point: [along, across] the move "
-        "(frame: motion), or one value per C-space axis, angles in degrees (frame: world)",
-        examples=[[0, 1.5]],
-    )
-    probability: Probability = Field(description="probability of this outcome")
-
-
-MAX_NOISE_OUTCOMES = 16
-#: Most requests open at once (Section VI-2); the modes grow as C(R, k).
-MAX_PENDING = 8
-#: Most modes of a model with simultaneous requests (each is a layer of the grid).
-MAX_PENDING_MODES = 20_000
-
-
-#: Most stages in the period of a time-varying model (Section VI-1).
-MAX_PERIOD = 1000
-#: Most layers (modes times phases) of a time-varying model: each is a grid of values.
-MAX_PERIODIC_LAYERS = 20_000
-#: An arrival profile: a factor per phase of the period.
-Profile = Annotated[list[NonNegativeFloat], Field(max_length=MAX_PERIOD)]
-
-
-def mode_counts(R: int, k: int) -> tuple[int, int]:
-    """Modes of simultaneous requests (Section VI-2), ``(empty, carrying)``: the multisets of
-    at most ``k`` of ``R`` request types, ``C(R + k, k)``, and ``R`` times those of at most
-    ``k - 1``, ``R C(R + k - 1, k - 1)`` (:func:`cellplan.strategies.variants.pending.pending_modes`
-    lists them)."""
-    return math.comb(R + k, k), R * math.comb(R + k - 1, k - 1) if k > 0 else 0
-
-
-"""Most outcomes of the noise model (each is a stencil per move in the model's tables)."""
-
-
-class BeltSpec(StrictModel):
-    """A source or destination on a conveyor belt (Section VI-1, Fig. 16).
-
-    The region moves with constant ``velocity``: at phase ``t`` of the period it lies at
-    its scenario position plus ``velocity * t * stage_time``; at the end of each period the
-    next part comes in at the scenario position again (a part every ``period`` stages).
-    """
-
-    velocity: Vec2 = Field(
-        description="workcell units per unit time, [vx, vy]", examples=[[2.0, 0.0]]
-    )
-
-
-class NoiseSpec(StrictModel):
-    """Noisy motion, the first step of Section VI-4: each move lands at one of several
-    displacements around the commanded one with given probabilities."""
-
-    outcomes: Annotated[list[NoiseOutcome], Field(min_length=1, max_length=MAX_NOISE_OUTCOMES)] = (
-        Field(description="where a move lands, with probabilities summing to 1")
-    )
-    frame: Literal["motion", "world"] = Field(
-        default="motion",
-        description="offsets along and across each move (translating robots), or along the "
-        "C-space axes (any robot)",
     )
 
 
@@ -336,9 +264,24 @@ class StrategySection(StrictModel):
         description="sources and destinations that move on a conveyor belt (Section VI-1)",
     )
 
-    def time_varying(self) -> bool:
-        """Whether the model is periodic in time (Section VI-1)."""
-        return self.period > 1 or bool(self.belts) or self.arrival_profile is not None
+    def compile(self, scenario: Scenario) -> ProblemSpec:
+        """The problem specification of this (checked) section: the requests, the
+        per-stage probabilities of equation (4) and the active variants, read once."""
+        return ProblemSpec(
+            section=self,
+            requests=tuple(self.request_list(scenario)),
+            stage_time=float(self.stage_time),
+            arrival=self.arrival.per_stage(self.stage_time),
+            destination_change=(
+                self.destination_change.per_stage(self.stage_time)
+                if self.destination_change
+                else 0.0
+            ),
+            source_change=(
+                self.source_change.per_stage(self.stage_time) if self.source_change else 0.0
+            ),
+            variants=active_variants(self),
+        )
 
     def arrival_by_phase(self) -> list[float]:
         """The arrival probability per stage at each phase of the period (Section VI-1)."""
@@ -346,35 +289,18 @@ class StrategySection(StrictModel):
         profile = self.arrival_profile or [1.0] * self.period
         return [base * w for w in profile]
 
-    def simultaneous(self) -> bool:
-        """Whether the model is that of simultaneous requests (Section VI-2)."""
-        return self.max_pending > 1 or bool(self.urgency)
-
-    def reject_regions(self) -> set[str]:
-        """Destinations that serve as reject regions (left out of ``requests: all``)."""
-        return {f.reject_region for f in self.failures if f.reject_region is not None}
-
-    def failure_at(self, region: str, part: str) -> FailureSpec | None:
-        """The failure model of an FMP of ``part`` at ``region`` (None: it never fails)."""
-        for f in self.failures:
-            if f.applies(region, part) and f.probability > 0.0:
-                return f
-        return None
-
-    def reject_modes(self, requests: list[tuple[str, str, str, float]]) -> int:
-        """How many X modes (a rejected part carried to a reject region, Section VI-3) the
-        model of these requests has: one per (request, reject region, what follows)."""
-        keys = set()
-        for i, (p, s, d, _) in enumerate(requests):
-            for f in (self.failure_at(s, p), self.failure_at(d, p)):
-                if f is not None and f.then == "reject":
-                    keys.add((i, f.reject_region, f.after_reject or "fetch"))
-        return len(keys)
+    def reserved_regions(self) -> set[str]:
+        """Destinations an active variant reserves (reject regions, Section VI-3), left out
+        of ``requests: all``."""
+        reserved: set[str] = set()
+        for variant in VARIANTS.values():
+            reserved |= variant.reserved_regions(self)
+        return reserved
 
     def request_list(self, scenario: Scenario) -> list[tuple[str, str, str, float]]:
         """The requestable (part, source, destination, probability), in a fixed order."""
         if self.requests == "all":
-            bins = self.reject_regions()
+            bins = self.reserved_regions()
             triples = [
                 (p, s, d)
                 for p in scenario.parts
@@ -441,7 +367,7 @@ class StrategySection(StrictModel):
                         f"most {MAX_REQUESTS:,}: list the requests that occur",
                     )
                 )
-        dim = _dimension(robot)
+        dim = config_dimension(robot)
         if self.cells is not None and len(self.cells) != dim:
             problems.append(
                 Problem(
@@ -457,10 +383,7 @@ class StrategySection(StrictModel):
                 )
             )
         problems.extend(self._check_magnitudes(scenario))
-        problems.extend(self._check_failures(scenario))
-        problems.extend(self._check_noise(scenario))
-        problems.extend(self._check_pending(scenario))
-        problems.extend(self._check_time_varying(scenario))
+        problems.extend(variant_problems(self, scenario))
         if self.destination_change is not None and not problems:
             problems.extend(self._check_changes(scenario, "destination"))
         if self.source_change is not None and not problems:
@@ -502,143 +425,6 @@ class StrategySection(StrictModel):
                         field,
                         f"a fine motion of up to {t_f:.3g} time units; at most {MAX_FMP_STAGES:,} "
                         f"stages of {self.stage_time:g} ({longest:.3g})",
-                    )
-                )
-        for i, failure in enumerate(self.failures):
-            if failure.rework is not None and not failure.rework <= longest:
-                problems.append(
-                    Problem(
-                        f"strategy.failures.{i}.rework",
-                        f"{failure.rework:.3g} time units; at most {MAX_FMP_STAGES:,} stages "
-                        f"of {self.stage_time:g} ({longest:.3g})",
-                    )
-                )
-        return problems
-
-    @staticmethod
-    def _not_combined(model: str, given: dict[str, bool]) -> list[Problem]:
-        """One line per key given (True) that is not built together with ``model`` yet."""
-        return [
-            Problem(f"strategy.{key}", f"cannot be combined with {model} yet")
-            for key, on in given.items()
-            if on
-        ]
-
-    def _check_pending(self, scenario: Scenario) -> list[Problem]:
-        """One line per mistake in ``max_pending`` and ``urgency`` (Section VI-2)."""
-        problems = []
-        for part in self.urgency:
-            if part not in scenario.parts:
-                problems.append(Problem(f"strategy.urgency.{part}", "unknown part"))
-        if not self.simultaneous():
-            return problems
-        problems += self._not_combined(
-            "simultaneous requests (max_pending or urgency)",
-            {
-                "failures": bool(self.failures),
-                "destination_change": self.destination_change is not None,
-                "source_change": self.source_change is not None,
-            },
-        )
-        if scenario.parts and scenario.sources and scenario.destinations and not problems:
-            R = len(self.request_list(scenario))
-            M = sum(mode_counts(R, self.max_pending))
-            if M > MAX_PENDING_MODES:
-                problems.append(
-                    Problem(
-                        "strategy.max_pending",
-                        f"{self.max_pending} open requests of {R} types make {M:,} modes (at "
-                        f"most {MAX_PENDING_MODES:,}); lower it or list fewer requests",
-                    )
-                )
-        return problems
-
-    def _check_time_varying(self, scenario: Scenario) -> list[Problem]:
-        """One line per mistake in ``period``, ``arrival_profile`` and ``belts`` (Section VI-1)."""
-        if not self.time_varying():
-            return []
-        problems = []
-        T = self.period
-        if T < 2:
-            problems.append(
-                Problem(
-                    "strategy.period",
-                    "belts and arrival_profile need a period of at least 2 stages",
-                )
-            )
-        problems += self._not_combined(
-            "a time-varying model (period, belts, arrival_profile)",
-            {
-                "failures": bool(self.failures),
-                "noise": self.noise is not None,
-                "max_pending": self.simultaneous(),
-                "destination_change": self.destination_change is not None,
-                "source_change": self.source_change is not None,
-            },
-        )
-        for where, spec in [("fine_motion", self.fine_motion)] + [
-            (f"fine_motion_regions.{r}", f) for r, f in self.fine_motion_regions.items()
-        ]:
-            if spec.point is not None and spec.rate > 0:
-                problems.append(
-                    Problem(
-                        f"strategy.{where}",
-                        "a time-varying model needs a constant fine-motion time (no point and "
-                        "rate): an FMP advances the phase by its time",
-                    )
-                )
-        profile = self.arrival_profile
-        if profile is not None:
-            base = self.arrival.per_stage(self.stage_time)
-            if len(profile) != T:
-                problems.append(
-                    Problem(
-                        "strategy.arrival_profile",
-                        f"has {len(profile)} values; the period has {T} stages",
-                    )
-                )
-            elif not any(w * base > 0 for w in profile):
-                problems.append(
-                    Problem("strategy.arrival_profile", "no request ever arrives (all zero)")
-                )
-            for t, w in enumerate(profile):
-                if w * base > 1.0:
-                    problems.append(
-                        Problem(
-                            f"strategy.arrival_profile[{t}]",
-                            f"{w:g} times the arrival probability {base:g} is {w * base:g}, "
-                            "above 1",
-                        )
-                    )
-        b = scenario.workcell.bounds
-        for name, belt in self.belts.items():
-            where = f"strategy.belts.{name}"
-            region = scenario.sources.get(name) or scenario.destinations.get(name)
-            if region is None:
-                problems.append(Problem(where, f"unknown source or destination {name!r}"))
-                continue
-            x0, y0, x1, y1 = _components_box(region)
-            travel = (T - 1) * self.stage_time
-            dx, dy = belt.velocity[0] * travel, belt.velocity[1] * travel
-            lo_x, hi_x = x0 + min(dx, 0.0), x1 + max(dx, 0.0)
-            lo_y, hi_y = y0 + min(dy, 0.0), y1 + max(dy, 0.0)
-            if lo_x < b.xmin or hi_x > b.xmax or lo_y < b.ymin or hi_y > b.ymax:
-                problems.append(
-                    Problem(
-                        f"{where}.velocity",
-                        f"the belt carries {name} outside the workcell: over the period it "
-                        f"sweeps x {lo_x:g} to {hi_x:g}, y {lo_y:g} to {hi_y:g}; the workcell "
-                        f"is x {b.xmin:g} to {b.xmax:g}, y {b.ymin:g} to {b.ymax:g}",
-                    )
-                )
-        if scenario.parts and scenario.sources and scenario.destinations and not problems:
-            layers = T * (2 * len(self.request_list(scenario)) + 1)
-            if layers > MAX_PERIODIC_LAYERS:
-                problems.append(
-                    Problem(
-                        "strategy.period",
-                        f"{T} phases of {layers // T:,} modes make {layers:,} layers (at most "
-                        f"{MAX_PERIODIC_LAYERS:,}); shorten the period or list fewer requests",
                     )
                 )
         return problems
@@ -695,16 +481,15 @@ class StrategySection(StrictModel):
                     "a 3-D arm: list them and lock the others (robot.locked)",
                 )
             )
-        unsupported = {
-            "strategy.period": self.time_varying(),
-            "strategy.noise": self.noise is not None,
-            "strategy.failures": bool(self.failures),
-            "strategy.max_pending": self.simultaneous(),
-            "strategy.fine_motion.point": self.fine_motion.point is not None,
-        } | {
-            f"strategy.fine_motion_regions.{name}.point": spec.point is not None
-            for name, spec in self.fine_motion_regions.items()
-        }
+        active = {v.name for v in active_variants(self)}
+        unsupported = (
+            {f"strategy.{VARIANTS[name].keys[0]}": name in active for name in ARM3D_ORDER}
+            | {"strategy.fine_motion.point": self.fine_motion.point is not None}
+            | {
+                f"strategy.fine_motion_regions.{name}.point": spec.point is not None
+                for name, spec in self.fine_motion_regions.items()
+            }
+        )
         problems.extend(
             Problem(field, "is not available in a 3-D workcell yet (the Section V model is)")
             for field, used in unsupported.items()
@@ -747,117 +532,6 @@ class StrategySection(StrictModel):
                     )
         return problems
 
-    def _check_failures(self, scenario: Scenario) -> list[Problem]:
-        """One line per mistake in ``strategy.failures`` (Section VI-3)."""
-        problems: list[Problem] = []
-        if not self.failures:
-            return problems
-        requests = self.request_list(scenario)
-        if self.requests == "all" and not requests and scenario.destinations:
-            problems.append(
-                Problem(
-                    "strategy.requests",
-                    "'all' leaves no request: every destination is a reject region",
-                )
-            )
-        used = {(p, s) for p, s, _, _ in requests} | {(p, d) for p, _, d, _ in requests}
-        seen: dict[tuple[str, str | None], int] = {}
-        for i, f in enumerate(self.failures):
-            where = f"strategy.failures[{i}]"
-            if f.region not in scenario.sources and f.region not in scenario.destinations:
-                problems.append(
-                    Problem(f"{where}.region", f"unknown source or destination {f.region!r}")
-                )
-            elif f.part is not None and f.part not in scenario.parts:
-                problems.append(Problem(f"{where}.part", f"unknown part {f.part!r}"))
-            elif requests and not any(
-                r == f.region and (f.part is None or p == f.part) for p, r in used
-            ):
-                problems.append(
-                    Problem(
-                        f"{where}.region",
-                        f"no request picks or delivers at {f.region!r}"
-                        + (f" with part {f.part!r}" if f.part else ""),
-                    )
-                )
-            if f.probability >= 1.0:
-                problems.append(
-                    Problem(
-                        f"{where}.probability",
-                        "must be below 1 (an FMP that always fails never serves its request)",
-                    )
-                )
-            overlap = [
-                j
-                for (region, part), j in seen.items()
-                if region == f.region and (part is None or f.part is None or part == f.part)
-            ]
-            if overlap:
-                problems.append(
-                    Problem(
-                        where, f"overlaps strategy.failures[{overlap[0]}] (same region and part)"
-                    )
-                )
-            seen[(f.region, f.part)] = i
-            if f.then == "retry":
-                for name in ("reject_region", "after_reject"):
-                    if getattr(f, name) is not None:
-                        problems.append(Problem(f"{where}.{name}", "only with then: reject"))
-            else:
-                if f.rework is not None:
-                    problems.append(Problem(f"{where}.rework", "only with then: retry"))
-                if f.reject_region is None:
-                    problems.append(
-                        Problem(f"{where}.reject_region", "then: reject needs a reject region")
-                    )
-                elif f.reject_region not in scenario.destinations:
-                    problems.append(
-                        Problem(
-                            f"{where}.reject_region",
-                            f"unknown region {f.reject_region!r} (declare it under destinations)",
-                        )
-                    )
-                elif f.reject_region == f.region:
-                    problems.append(
-                        Problem(f"{where}.reject_region", "is the region whose FMP fails")
-                    )
-        return problems
-
-    def _check_noise(self, scenario: Scenario) -> list[Problem]:
-        """One line per mistake in ``strategy.noise`` (Section VI-4)."""
-        noise = self.noise
-        robot = scenario.robot
-        if noise is None or robot is None:
-            return []
-        problems: list[Problem] = []
-        total = sum(o.probability for o in noise.outcomes)
-        if abs(total - 1.0) > _SUM_TOL:
-            problems.append(
-                Problem("strategy.noise.outcomes", f"probabilities sum to {total:g}, not 1")
-            )
-        dim = _dimension(robot)
-        translating = robot.type in ("point", "translating")
-        if noise.frame == "motion" and not translating:
-            problems.append(
-                Problem(
-                    "strategy.noise.frame",
-                    f"'motion' (along, across a move) is for translating robots, not "
-                    f"{robot.type!r}; use 'world'",
-                )
-            )
-        want = 2 if noise.frame == "motion" else dim
-        b = scenario.workcell.bounds
-        reach = math.hypot(b.xmax - b.xmin, b.ymax - b.ymin)
-        for i, o in enumerate(noise.outcomes):
-            where = f"strategy.noise.outcomes[{i}].offset"
-            if len(o.offset) != want:
-                problems.append(Problem(where, f"has {len(o.offset)} values; expected {want}"))
-            elif not all(math.isfinite(v) and abs(v) <= reach for v in o.offset):
-                problems.append(
-                    Problem(where, f"values must be finite and at most {reach:.4g} in size")
-                )
-        return problems
-
     def _check_changes(self, scenario: Scenario, kind: str) -> list[Problem]:
         # A change needs somewhere to go: another requestable mode with the same part and
         # the same source (destination change) or destination (source change).
@@ -878,25 +552,3 @@ class StrategySection(StrictModel):
                 )
             ]
         return []
-
-
-def _components_box(region: object) -> tuple[float, float, float, float]:
-    """The bounding box of a region spec's components (workcell units)."""
-    boxes = [c.to_shapely().bounds for c in region.components]  # type: ignore[attr-defined]
-    return (
-        min(b[0] for b in boxes),
-        min(b[1] for b in boxes),
-        max(b[2] for b in boxes),
-        max(b[3] for b in boxes),
-    )
-
-
-def _dimension(robot: object) -> int:
-    kind = getattr(robot, "type", "")
-    if kind in ("point", "translating"):
-        return 2
-    if kind == "rotating":
-        return 3
-    if kind == "urdf":  # checked to list 1 to MAX_ARM_JOINTS joints before this is read
-        return len(getattr(robot, "joints", None) or [])
-    return len(getattr(robot, "links", []))
