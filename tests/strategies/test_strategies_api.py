@@ -59,7 +59,7 @@ def test_trajectory_is_the_sample_run_with_its_events(result, setup):
     assert traj.modes == tuple(m.label for m in result.solution.modes)
     kinds = {e.kind for e in traj.events}
     assert {"request", "pick", "place"} <= kinds
-    names = traj.mode_names()
+    names = traj.mode_names
     for e in traj.events_of("request"):
         assert names[e.index].endswith(",W>") and names[e.index - 1] == "NR"
     for e in traj.events_of("pick"):

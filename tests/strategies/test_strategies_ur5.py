@@ -178,7 +178,7 @@ def test_the_planner_solves_a_3d_cell_and_its_sample_run_is_collision_free():
 
     strategy = result.solution
     q = result.trajectory.q
-    modes = [strategy.mdp.modes[strategy.mode_index(m)] for m in result.trajectory.mode_names()]
+    modes = [strategy.mdp.modes[strategy.mode_index(m)] for m in result.trajectory.mode_names]
     cell = setup.workcell
     for k in range(len(q) - 1):
         part = carried_part(modes[k])
