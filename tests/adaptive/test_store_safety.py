@@ -218,6 +218,8 @@ def test_a_continued_run_has_the_types_of_a_fresh_one(sc: Scenario, tmp_path: Pa
     assert _comparable(continued) == _comparable(fresh)
 
 
+# slow: 21 s; test_adaptive_cli.py continues a CLI run from its store (the same code)
+@pytest.mark.slow
 def test_a_continued_cli_run_writes_the_same_tasks_csv(scenario_file: Path, tmp_path: Path) -> None:
     db = tmp_path / "exp.sqlite"
     first = _cellplan(

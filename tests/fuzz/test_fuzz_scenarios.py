@@ -65,7 +65,14 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("fuzz-scenarios")
 
 
-@pytest.mark.parametrize("name", SCENARIOS)
+HEAVY = ("strategies_ur5", "strategies_p6", "strategies_p5")
+"""Scenarios whose validation takes 10-13 s a run: their fast fuzzing is in the slow run
+(the other scenarios exercise the same validation code)."""
+
+
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n in HEAVY else n for n in SCENARIOS]
+)
 def test_validate_mutated_scenarios(name: str, work: Path) -> None:
     @fuzz_settings(FAST_EXAMPLES)
     @given(content=mutated_scenario(name))

@@ -151,6 +151,9 @@ def test_summarize_reports_each_check_before_it_runs():
     assert "assembly modes" in lines
 
 
+# slow: 28 s under tracemalloc; every conveyor solve in the fast tests runs the same estimate
+# first (planners.check_memory)
+@pytest.mark.slow
 def test_the_memory_estimate_counts_every_phase_of_a_time_varying_model(monkeypatch):
     """Section VI-1: the layers of every phase of the period, solved by policy iteration
     (whose LU fill grows with the grid over a period), against tracemalloc's peak."""

@@ -156,6 +156,9 @@ def test_noise_costs_time_and_the_simulator_draws_the_landings():
         assert abs(c - n * p) < 4 * np.sqrt(n * p * (1 - p)), counts
 
 
+# slow: 35 s; the noise model, its solve and its simulation are covered on small cells by this
+# file's other tests
+@pytest.mark.slow
 def test_bundled_noise_scenario_keeps_clear_of_the_walls_in_the_passages(tmp_path):
     # The behaviour of Section VI-4 asked for: with noise on, the moves that land in the
     # narrow passages (the wall with the opening, and the wide passage beside it) keep a

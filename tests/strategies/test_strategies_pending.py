@@ -149,6 +149,9 @@ def test_every_policy_of_a_seed_meets_the_same_requests():
         assert 0 <= m["mean_open"] <= 2
 
 
+# slow: 18 s; test_strategies_pending_lockup.py simulates the same model over many seeds against
+# the gain
+@pytest.mark.slow
 def test_the_simulated_loss_follows_the_gain():
     strategy = solved(*pending(2, 16))
     rules = Rules(strategy)
@@ -208,6 +211,9 @@ def test_quick_pending_experiment_reports_three_claims(tmp_path):
     assert all(c.n == 2 and c.reproduced is None for c in piece.claims)  # too few seeds
 
 
+# slow: 28 s; test_strategies_cli.py runs the same commands, test_strategies_pending_files.py
+# draws the pending frames and GIF
+@pytest.mark.slow
 def test_solve_simulate_and_gif_on_the_command_line(cellplan, tmp_path):
     import json
 
