@@ -81,3 +81,53 @@ def test_viewer_page_in_a_browser(tmp_path):
     middle = pixels[250:550, 400:880]
     grey = (np.ptp(middle, axis=2) < 12) & (middle.mean(axis=2) > 60) & (middle.mean(axis=2) < 140)
     assert grey.mean() > 0.1
+
+
+# The held part's position in the cell after seeking the paused animation to ``t`` seconds.
+PART_AT = """(t) => {
+    viewer.animator.pause();
+    viewer.animator.seek(t);
+    const node = viewer.scene_tree.find(["meshcat", "part", "P1"]);
+    const p = node.object.getWorldPosition(node.object.position.clone());
+    // in the cell's frame (z up): meshcat's root turns it into three.js' y-up world
+    const q = viewer.scene_tree.find(["meshcat"]).object.worldToLocal(p);
+    return [q.x, q.y, q.z];
+}"""
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium: run `make browser-test`")
+def test_view_page_carries_the_part_on_the_tool_between_pick_and_place(tmp_path, cellplan):
+    """`cellplan view ur5_cell --trajectory T`: the part's node exists and, frame by frame,
+    sits on the tool (its position by the arm's forward kinematics here) from the pick to
+    the place, and stays where it was put down after."""
+    from cellplan import arm as arms
+    from test_view3d_held import PICK, PLACE, SAMPLES, ur5_trajectory
+
+    sync_api = pytest.importorskip(
+        "playwright.sync_api", reason="no Playwright: pip install playwright"
+    )
+    cell, traj = ur5_trajectory()
+    saved = traj.save(tmp_path / "t.json")
+    page_file = tmp_path / "view.html"
+    r = cellplan("view", "ur5_cell", "--trajectory", str(saved), "-o", str(page_file))
+    assert r.returncode == 0, r.stderr
+    tool = arms.tool_pose(cell.robot.arm, traj.q)[:, :3, 3]
+    errors: list[str] = []
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 640, "height": 400})
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(page_file.as_uri())
+            page.wait_for_selector("#meshcat-pane canvas", timeout=20_000)
+            # 9 samples 0.5 s apart: a 4 s span is played in real time (clip time = t).
+            seen = np.array([page.evaluate(PART_AT, float(t)) for t in traj.t])
+        finally:
+            browser.close()
+    assert errors == []
+    assert len(seen) == SAMPLES
+    np.testing.assert_allclose(seen[PICK : PLACE + 1], tool[PICK : PLACE + 1], atol=1e-5)
+    assert np.ptp(seen[PICK : PLACE + 1], axis=0).max() > 0.05  # it moves with the tool
+    np.testing.assert_allclose(seen[:PICK], np.repeat(tool[[PICK]], PICK, 0), atol=1e-5)
+    np.testing.assert_allclose(seen[PLACE + 1 :], np.repeat(tool[[PLACE]], 2, 0), atol=1e-5)

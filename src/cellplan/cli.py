@@ -240,7 +240,7 @@ def view(
     """Write an interactive 3-D viewer page of a 3-D cell: one self-contained HTML file
     (no network), where the cell can be rotated and a trajectory played."""
     from cellplan.api import load
-    from cellplan.scene3d import cell_scene
+    from cellplan.scene3d import HOLD_ENDS, HOLD_STARTS, cell_scene, held_from_events
     from cellplan.trajectory import Trajectory
     from cellplan.view3d import write_viewer
     from cellplan.workcell3d import Workcell3D
@@ -263,8 +263,25 @@ def view(
                 f"has {traj.dim} columns; the robot has {cell.robot.dim} joints", "--trajectory"
             )
         unit = "s" if traj.time_unit == "s" else traj.time_unit
+        # The part held between pick and place events is drawn on the tool (the same
+        # reading as the viewer of `assemble --algorithm robot`).
+        unknown = sorted(
+            {e.part for e in traj.events if e.kind in HOLD_STARTS + HOLD_ENDS and e.part}
+            - set(cell.parts)
+        )
+        if unknown:
+            raise ArgumentError(
+                f"its pick/place events name parts the scenario lacks: {', '.join(unknown)} "
+                f"(known: {', '.join(cell.parts) or 'none'})",
+                "--trajectory",
+            )
         scene = cell_scene(
-            cell, traj.q, traj.t, title=f"{setup.name}: {trajectory.name}", time_label=f"t ({unit})"
+            cell,
+            traj.q,
+            traj.t,
+            carrying=held_from_events(traj.events, len(traj)),
+            title=f"{setup.name}: {trajectory.name}",
+            time_label=f"t ({unit})",
         )
     write_viewer(scene, output)
     written(as_json, {"page": output}, f"wrote {output}")

@@ -206,6 +206,7 @@ def test_the_trajectory_plays_in_the_viewer_with_the_part_on_the_tool(
     assert isinstance(cell, Workcell3D)
     held = held_parts(traj)
     first = traj.events_of("pick")[0]
-    assert held[first.index] is None and held[first.index + 1] == first.part
+    # held from the pick (the tool at the part) to the place
+    assert held[first.index - 1] is None and held[first.index] == first.part
     write_viewer(cell_scene(cell, traj.q, traj.t, carrying=held), tmp_path / "v.html")
     assert (tmp_path / "v.html").stat().st_size > 0

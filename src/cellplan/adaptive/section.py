@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import Field
 
 from cellplan.errors import Problem
-from cellplan.scenario3d import AnyShape, Vec3
+from cellplan.scenario3d import Angle, AnyShape, Vec3
 from cellplan.schema import Name, PositiveFloat, StrictModel, Vec2
 
 if TYPE_CHECKING:
@@ -92,10 +92,15 @@ class RotateObject(_Change):
     """change kind"""
     object: Name
     """name of the object rotated"""
-    degrees: float
-    """rotation, counter-clockwise, in degrees"""
-    about: Vec2 | None = Field(
-        default=None, description="centre of rotation (default: the object's centroid)"
+    degrees: float | None = None
+    """planar cells: rotation, counter-clockwise, in degrees"""
+    rpy: tuple[Angle, Angle, Angle] | None = None
+    """3-D cells: the turn's roll, pitch, yaw about fixed world axes, degrees
+    (R = Rz(yaw) Ry(pitch) Rx(roll)); attached subgoals turn with the object"""
+    about: Vec2 | Vec3 | None = Field(
+        default=None,
+        description="centre of rotation (default: the object's centroid; (x, y, z) metres "
+        "in a 3-D cell, where the default is the object's centre now)",
     )
 
 
@@ -236,8 +241,8 @@ class AdaptiveSection(StrictModel):
         return problems
 
     def _check_dimension(self, scenario: Scenario) -> list[Problem]:
-        """Points and translations have the workcell's dimension; 3-D cells move objects by
-        translation only (a tag keeps the tool's orientation, Section 2.3)."""
+        """Points and translations have the workcell's dimension; a turn is ``degrees``
+        in a planar cell and ``rpy`` in a 3-D one (Section 2.3: attached tags turn too)."""
         solid = scenario.robot is not None and scenario.robot.type == "urdf"
         want = 3 if solid else 2
         problems = []
@@ -247,13 +252,29 @@ class AdaptiveSection(StrictModel):
                 points.append((f"adaptive.changes[{i}].at", c.at))
             elif isinstance(c, MoveObject):
                 points.append((f"adaptive.changes[{i}].by", c.by))
-            elif isinstance(c, RotateObject) and solid:
-                problems.append(
-                    Problem(
-                        f"adaptive.changes[{i}].type",
-                        "a 3-D cell moves objects by translation only (move_object)",
+            elif isinstance(c, RotateObject):
+                where = f"adaptive.changes[{i}]"
+                if c.about is not None:
+                    points.append((f"{where}.about", c.about))
+                if solid and c.rpy is None:
+                    problems.append(
+                        Problem(
+                            f"{where}.rpy",
+                            "a 3-D cell turns an object by rpy: [roll, pitch, yaw] degrees",
+                        )
                     )
-                )
+                if solid and c.degrees is not None:
+                    problems.append(
+                        Problem(f"{where}.degrees", "is for planar cells; a 3-D turn is rpy")
+                    )
+                if not solid and c.degrees is None:
+                    problems.append(
+                        Problem(f"{where}.degrees", "a planar turn needs its angle in degrees")
+                    )
+                if not solid and c.rpy is not None:
+                    problems.append(
+                        Problem(f"{where}.rpy", "is for 3-D cells; a planar turn is degrees")
+                    )
             elif isinstance(c, AddObject) and solid != hasattr(c.shape, "pose"):
                 problems.append(
                     Problem(

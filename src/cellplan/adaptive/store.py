@@ -690,7 +690,7 @@ def _is_objects(value: Any) -> bool:
         if not (isinstance(obj, dict) and _numbers(obj.get("pose")) and len(obj["pose"]) == 3):
             return False
         if "solid" in obj:  # a 3-D cell's object (``World3D.objects_json``)
-            if not _is_solid(obj["solid"]):
+            if not _is_solid(obj["solid"]) or not _is_turn(obj.get("turn")):
                 return False
             continue
         shape = obj.get("shape")
@@ -740,6 +740,18 @@ def _is_solid(value: Any) -> bool:
 
 
 _SOLID_SIZES = {"box": 3, "cylinder": 2, "capsule": 2, "sphere": 1}
+
+
+def _is_turn(value: Any) -> bool:
+    """A 3-D object's turn (``World3D.objects_json``): absent (stores written before
+    objects could turn), or a row-major 3x3 rotation."""
+    if value is None:
+        return True
+    numbers = _numbers(value)
+    if numbers is None or len(numbers) != 9 or not all(math.isfinite(v) for v in numbers):
+        return False
+    m = np.array(numbers, float).reshape(3, 3)
+    return bool(np.allclose(m @ m.T, np.eye(3), atol=1e-6) and np.linalg.det(m) > 0)
 
 
 def _is_goals(value: Any) -> bool:

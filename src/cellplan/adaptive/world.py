@@ -367,7 +367,9 @@ class World(ChangingWorld[ObjectState, ShapeSet]):
             c = self.geometries()[change.object].centroid
             cx, cy = float(c.x), float(c.y)
         else:
-            cx, cy = change.about
+            cx, cy = float(change.about[0]), float(change.about[1])
+        # the section gives a planar turn its degrees (adaptive.section._check_dimension)
+        assert change.degrees is not None
         turn: Pose = (0.0, 0.0, units.radians(change.degrees))
         return compose((cx, cy, 0.0), compose(turn, compose((-cx, -cy, 0.0), st.pose)))
 

@@ -3,16 +3,19 @@
 The 3-D counterpart of :class:`~.world.World`, with the same methods, so that
 :class:`~.adapt.Adapter` and :class:`~.experience.ExperiencePlanner` run on either
 without asking which one they have. Objects are the solids of the cell; they are
-added, removed and *translated* (a pose here is an offset ``(x, y, z)`` in metres from
-where the scenario put the object).
+added, removed, translated and turned. An object's displacement from where the scenario
+put it is a rigid motion ``D``: a rotation ``turn`` about the solid's scenario centre
+``c``, then the offset ``pose = (x, y, z)`` in metres,
+``D(x) = turn (x - c) + c + pose``.
 
-Subgoals are attached to objects through the tool's pose (Chen, Section 2.3): a tag
-holds the tool position relative to the object's offset and the tool's orientation.
-Objects only translate, so the orientation relative to the object is the world
-orientation; a vertex of G keeps it implicitly in its configuration, a named goal
-explicitly (``rpy`` in the scenario). After an object moves, inverse kinematics
+Subgoals are attached to objects through the tool's full pose (Chen, Section 2.3): a tag
+holds the tool position in the object's frame, ``rel = D^-1(p)``, and a named goal also
+the tool's orientation relative to the object, ``turn^T R``. A vertex of G keeps its
+orientation in its configuration: when its object is displaced from ``D_old`` to
+``D_new``, the target tool pose is ``D_new D_old^-1`` applied to the vertex's old tool
+pose, so a turn of the object turns the attached tool pose with it. Inverse kinematics
 (:func:`cellplan.arm.ik`, damped least squares) seeded from the subgoal's old
-configuration brings the subgoal back onto the moved pose; the first attempt starts
+configuration then brings the subgoal back onto the moved pose; the first attempt starts
 there, so the solution stays on the same branch whenever one exists nearby.
 
 Validity for Reach (:meth:`World3D.is_free`) is certified: a configuration passes only
@@ -34,7 +37,13 @@ import numpy as np
 
 from cellplan import arm as arms
 from cellplan import solids, units
-from cellplan.adaptive.section import AdaptiveSection, GoalSpec, MoveObject, RotateObject
+from cellplan.adaptive.section import (
+    AdaptiveSection,
+    Change,
+    GoalSpec,
+    MoveObject,
+    RotateObject,
+)
 from cellplan.adaptive.space import FloatArray
 from cellplan.adaptive.tags import Tag
 from cellplan.adaptive.worldbase import ChangingWorld, checked_pose, validated_spec
@@ -51,21 +60,35 @@ DOWN = (1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0)
 IK_RESTARTS = 8
 """Random restarts of a goal's IK after the attempt from the seed configuration."""
 
+IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+"""No turn (a row-major 3x3 rotation)."""
+
 
 @dataclass
 class Object3D:
-    """A solid as the scenario placed it and its current offset (a translation)."""
+    """A solid as the scenario placed it, its current offset (a translation) and its
+    turn (a row-major 3x3 rotation about the solid's scenario centre)."""
 
     solid: solids.Solid
     pose: Offset = (0.0, 0.0, 0.0)
+    turn: tuple[float, ...] = IDENTITY
+
+    def frame(self) -> FloatArray:
+        """``D`` (``(4, 4)``): the object's displacement from where the scenario put it,
+        ``D(x) = turn (x - c) + c + pose`` with ``c`` the solid's scenario centre."""
+        rotation = np.asarray(self.turn, float).reshape(3, 3)
+        centre = self.solid.translation
+        out = np.eye(4)
+        out[:3, :3] = rotation
+        # pose + (c - R c): exactly the offset when there is no turn (c - I c = 0)
+        out[:3, 3] = np.asarray(self.pose, float) + (centre - rotation @ centre)
+        return out
 
     def placed(self) -> solids.Solid:
         """The solid in the world now."""
-        if self.pose == (0.0, 0.0, 0.0):
+        if self.pose == (0.0, 0.0, 0.0) and self.turn == IDENTITY:
             return self.solid
-        shift = np.eye(4)
-        shift[:3, 3] = self.pose
-        return self.solid.transformed(shift)
+        return self.solid.transformed(self.frame())
 
 
 def solid_from_spec(spec: Any, field: str) -> solids.Solid:
@@ -106,6 +129,9 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
         self.gen = 0
         self._cell: Workcell3D | None = None
         self._goal_cache: dict[tuple[str, int], FloatArray | None] = {}
+        # Each object's frame before its latest displacement: the vertices attached to it
+        # are followed (Adapter.follow_objects) right after each one, from this frame.
+        self._moved_from: dict[str, FloatArray] = {}
         if self.section is not None:
             self.attach_radius = self.section.attach_radius
             for name, goal in self.section.goals.items():
@@ -173,36 +199,55 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
         k = int(np.argmin(d))
         return names[k], float(d[k])
 
+    def frame_of(self, name: str | None) -> FloatArray:
+        """The displacement ``D`` (``(4, 4)``) of object ``name`` now (identity for the
+        world, ``None``, or an object no longer there)."""
+        if name is None or name not in self.objects:
+            return np.eye(4)
+        return self.objects[name].frame()
+
     def tag_of(self, q: FloatArray) -> Tag:
         """Attach a configuration to the nearest object (within ``attach_radius``), 2.3.
 
-        ``rel`` is the tool position relative to the object's offset; the orientation is
-        the configuration's own (objects only translate)."""
+        ``rel`` is the tool position in the object's frame, ``D^-1(p)``; the orientation
+        is the configuration's own (followed through ``D`` when the object is displaced,
+        :meth:`config_of`)."""
         p = np.array(self.tool(q))
         obj, dist = self.nearest_object(p)
         radius = self.attach_radius
         if obj is None or (radius is not None and dist > radius):
             return Tag(None, (float(p[0]), float(p[1]), float(p[2])), None)
-        rel = p - np.asarray(self.objects[obj].pose)
+        frame = self.frame_of(obj)
+        rel = frame[:3, :3].T @ (p - frame[:3, 3])
         return Tag(obj, (float(rel[0]), float(rel[1]), float(rel[2])), None)
 
     def tool_pose_of(self, tag: Tag) -> tuple[float, float, float]:
-        """World tool position of a tag in the current environment."""
-        if tag.obj is None or tag.obj not in self.objects:
-            return (float(tag.rel[0]), float(tag.rel[1]), float(tag.rel[2]))
-        off = self.objects[tag.obj].pose
-        return (tag.rel[0] + off[0], tag.rel[1] + off[1], tag.rel[2] + off[2])
+        """World tool position of a tag in the current environment, ``D(rel)``."""
+        frame = self.frame_of(tag.obj)
+        p = frame[:3, :3] @ np.asarray(tag.rel, float) + frame[:3, 3]
+        return (float(p[0]), float(p[1]), float(p[2]))
+
+    def tool_rotation_of(self, tag: Tag, seed: FloatArray) -> FloatArray:
+        """World tool orientation of a tag now (``(3, 3)``): a named goal's relative
+        orientation turned by its object, ``turn R_rel``; a vertex's (``rot`` None) is
+        its old configuration ``seed``'s, turned by its object's latest displacement
+        (``D_new D_old^-1``; none when the object has not been displaced)."""
+        frame = self.frame_of(tag.obj)
+        if tag.rot is not None:
+            return np.asarray(frame[:3, :3] @ np.asarray(tag.rot, float).reshape(3, 3))
+        rotation = self.robot.tool_pose(np.asarray(seed, float)[None, :])[0, :3, :3]
+        before = self._moved_from.get(tag.obj) if tag.obj is not None else None
+        if before is None:
+            return np.asarray(rotation)
+        return np.asarray(frame[:3, :3] @ before[:3, :3].T @ rotation)
 
     def config_of(self, tag: Tag, seed: FloatArray | None = None) -> FloatArray | None:
         """A configuration for a tag by IK from ``seed`` (the subgoal's old configuration);
-        ``None`` if no free solution is found. The orientation is the tag's, else the
-        seed's."""
+        ``None`` if no free solution is found. The target is the tag's full tool pose now
+        (:meth:`tool_pose_of`, :meth:`tool_rotation_of`)."""
         start = np.asarray(self.robot.start if seed is None else seed, float)
         target = np.eye(4)
-        if tag.rot is not None:
-            target[:3, :3] = np.asarray(tag.rot, float).reshape(3, 3)
-        else:
-            target[:3, :3] = self.robot.tool_pose(start[None, :])[0, :3, :3]
+        target[:3, :3] = self.tool_rotation_of(tag, start)
         target[:3, 3] = self.tool_pose_of(tag)
 
         def valid(q: FloatArray) -> bool:
@@ -250,12 +295,18 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
         return np.asarray(result.q, float)
 
     def _goal_tag(self, goal: GoalSpec) -> Tag:
-        at = tuple(float(v) for v in goal.at)
-        rot = _rotation(goal.rpy)
-        if goal.object is None:
-            return Tag(None, (at[0], at[1], at[2]), None, rot)
-        off = self.objects[goal.object].pose
-        return Tag(goal.object, (at[0] - off[0], at[1] - off[1], at[2] - off[2]), None, rot)
+        """A named goal's tag: ``at`` and ``rpy`` (world, now) in its object's frame."""
+        at = np.array([float(v) for v in goal.at])
+        rot = np.asarray(_rotation(goal.rpy), float).reshape(3, 3)
+        frame = self.frame_of(goal.object)
+        rel = frame[:3, :3].T @ (at - frame[:3, 3])
+        relative = frame[:3, :3].T @ rot
+        return Tag(
+            goal.object,
+            (float(rel[0]), float(rel[1]), float(rel[2])),
+            None,
+            tuple(float(v) for v in relative.ravel()),
+        )
 
     def goal_config(self, name: str) -> FloatArray | None:
         """A goal's configuration now (``None``: no free IK solution); cached per generation."""
@@ -287,17 +338,52 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
         return solid_from_spec(spec, "shape")
 
     def moved(self, change: MoveObject | RotateObject) -> Offset:
-        """The offset a scheduled move shifts its object to (the section refuses turns in
-        a 3-D cell: objects translate only)."""
+        """The offset a scheduled move shifts its object to, or a turn leaves it at
+        (:meth:`turned`)."""
         if isinstance(change, RotateObject):
-            raise ArgumentError("a 3-D cell moves objects by translation only", "type")
+            return self.turned(change)[0]
         p = self.objects[change.object].pose
         by = [float(v) for v in change.by]
         return (p[0] + by[0], p[1] + by[1], p[2] + by[2])
 
+    def turned(self, change: RotateObject) -> tuple[Offset, tuple[float, ...]]:
+        """Offset and turn after a scheduled ``rotate_object``: the rotation ``R_c`` of its
+        ``rpy`` (degrees, fixed world axes, ``R_c = Rz Ry Rx``) about ``about`` (metres;
+        default: the object's centre now). ``D_new = T(a) R_c T(-a) D_old``, so
+        ``turn_new = R_c turn_old`` and ``pose_new = R_c (c + pose_old - a) + a - c``."""
+        obj = self.objects[change.object]
+        spin = np.asarray(_rotation(change.rpy or (0.0, 0.0, 0.0)), float).reshape(3, 3)
+        centre = obj.solid.translation
+        offset = np.asarray(obj.pose, float)
+        about = centre + offset if change.about is None else np.asarray(change.about, float)
+        new = spin @ (centre + offset - about) + about - centre
+        turn = spin @ np.asarray(obj.turn, float).reshape(3, 3)
+        return (
+            (float(new[0]), float(new[1]), float(new[2])),
+            tuple(float(v) for v in turn.ravel()),
+        )
+
+    def apply(self, change: Change) -> set[str]:
+        """Apply one scheduled change (a turn sets the object's offset and turn)."""
+        if isinstance(change, RotateObject):
+            offset, turn = self.turned(change)
+            self._moved_from[change.object] = self.objects[change.object].frame()
+            obj = self.objects[change.object]
+            obj.pose, obj.turn = offset, turn
+            self._changed()
+            return {change.object}
+        return super().apply(change)
+
+    def set_pose(self, name: str, pose: Any) -> set[str]:
+        """Place object ``name`` at offset ``pose`` (its turn kept); its attached tags
+        follow from the frame it had before."""
+        self._moved_from[name] = self.objects[name].frame()
+        return super().set_pose(name, pose)
+
     def add_object(self, name: str, shape: solids.Solid, pose: Sequence[float] = (0, 0, 0)) -> None:
-        """Add a solid, shifted by ``pose = (x, y, z)``."""
+        """Add a solid, shifted by ``pose = (x, y, z)`` (its orientation is its solid's)."""
         self.objects[name] = Object3D(shape, _offset(pose))
+        self._moved_from.pop(name, None)
         self._changed()
 
     def shape(self, shape: Any) -> solids.Solid:
@@ -326,6 +412,7 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
                     "size": o.solid.size.tolist(),
                 },
                 "pose": list(o.pose),
+                "turn": list(o.turn),
             }
         return out
 
@@ -342,9 +429,11 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
             n: Object3D(
                 solids.Solid(o["solid"]["kind"], np.array(o["solid"]["pose"]), o["solid"]["size"]),
                 _offset(o["pose"]),
+                tuple(float(v) for v in o.get("turn", IDENTITY)),
             )
             for n, o in objects.items()
         }
+        self._moved_from = {}
         self.goals = {
             n: Tag(
                 g[0],
@@ -367,4 +456,4 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
 
 
 def _offset(pose: Sequence[float]) -> Offset:
-    return checked_pose(pose, "x, y, z", " in metres (3-D objects translate only)")
+    return checked_pose(pose, "x, y, z", " in metres (an offset; turns are rotate_object's)")

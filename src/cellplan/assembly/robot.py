@@ -50,6 +50,7 @@ from cellplan.assembly.robot_options import RobotAssemblyOptions
 from cellplan.assembly.sequential import SequentialResult, sequential_assembly
 from cellplan.core import Progress, Result, Status
 from cellplan.errors import ArgumentError, Problem, ScenarioError
+from cellplan.scene3d import held_from_events
 from cellplan.setup import Setup
 from cellplan.trajectory import Event, Trajectory
 from cellplan.workcell3d import Workcell3D
@@ -398,10 +399,10 @@ def plan_robot(setup: Setup, options: RobotAssemblyOptions, progress: Progress |
 
 
 def held_parts(trajectory: Trajectory) -> list[str | None]:
-    """The part held at each sample (``None``: empty), from the modes ``carrying <part>``;
-    what :func:`cellplan.scene3d.cell_scene` takes as ``carrying`` to draw it on the tool."""
-    prefix = "carrying "
-    return [m[len(prefix) :] if m.startswith(prefix) else None for m in trajectory.mode_names]
+    """The part held at each sample (``None``: empty), from the trajectory's pick and place
+    events (:func:`cellplan.scene3d.held_from_events`, the one reading ``cellplan view``
+    uses too); what :func:`cellplan.scene3d.cell_scene` takes as ``carrying``."""
+    return held_from_events(trajectory.events, len(trajectory))
 
 
 def _straight(template: Trajectory | None, q0: Array, q1: Array) -> Trajectory:
