@@ -550,7 +550,9 @@ def _raster_kernel(
                 by[1] = cy - hy
                 by[2] = cy + hy
                 by[3] = cy + hy
-                if _polygons_overlap(bx, by, 4, pv[m, :, 0], pv[m, :, 1], n):
+                # bx.shape[0], not the literal 4: a literal argument makes numba compile
+                # _polygons_overlap a second time, for no gain (issue 34, first run)
+                if _polygons_overlap(bx, by, bx.shape[0], pv[m, :, 0], pv[m, :, 1], n):
                     out[a, b] = True
     for k in range(dc.shape[0]):
         r = dr[k]

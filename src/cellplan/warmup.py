@@ -50,17 +50,9 @@ WARMUP_GROUPS: tuple[tuple[tuple[str, ...], ...], ...] = (
         ("validate", "strategies_p6"),
     ),
     (
-        ("assemble", "discs_seven", "--frames", "2", "-o", "{tmp}/gradient"),
-        (
-            "assemble",
-            "discs_seven",
-            "--algorithm",
-            "sequential",
-            "--frames",
-            "2",
-            "-o",
-            "{tmp}/sequential",
-        ),
+        # without --pictures: drawing compiles no kernel, and cost about 5 CPU s a command
+        ("assemble", "discs_seven", "-o", "{tmp}/gradient"),
+        ("assemble", "discs_seven", "--algorithm", "sequential", "-o", "{tmp}/sequential"),
         ("adapt", "adaptive_fig3", "--tasks", "3", "-o", "{tmp}/adapt"),
         ("validate", "ur5_cell"),
     ),

@@ -97,6 +97,10 @@ _REPAIR_HELP = (
 _SEED_HELP = f"--random: seed (default {_default(GeneratorSpec, 'seed')})"
 _RADIUS_HELP = f"--random: disc radius (default {_default(GeneratorSpec, 'radius'):g})"
 _FILL_HELP = f"--random: fraction of the workspace the discs cover (default {DEFAULT_FILL:g})"
+_PICTURES_HELP = (
+    "also draw sequence.png and assembly.gif (several times the planner's time on "
+    "15-50 discs, so off unless asked; --frames or --gif-size ask too)"
+)
 
 #: ``random_setup`` parameter -> the command-line option that sets it
 _RANDOM_FLAGS = {
@@ -159,16 +163,21 @@ def register(app: typer.Typer) -> None:
         hover: Annotated[float | None, typer.Option(help=_HOVER_HELP)] = None,
         lift: Annotated[float | None, typer.Option(help=_LIFT_HELP)] = None,
         repair: Annotated[str | None, typer.Option(help=_REPAIR_HELP)] = None,
+        pictures: Annotated[bool, typer.Option("--pictures", help=_PICTURES_HELP)] = False,
         frames: Annotated[
-            int, typer.Option(help=f"GIF frames, 2 to {MAX_FRAMES}")
-        ] = DEFAULT_FRAMES,
+            int | None,
+            typer.Option(
+                help=f"GIF frames, 2 to {MAX_FRAMES} (default {DEFAULT_FRAMES}); implies --pictures"
+            ),
+        ] = None,
         gif_size: GifSizeOpt = None,
         output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
             "assembly-out"
         ),
         as_json: JsonOpt = False,
     ) -> None:
-        """Plan a disc assembly (Whitcomb & Koditschek 1991): frames, GIF, trajectory, metrics."""
+        """Plan a disc assembly (Whitcomb & Koditschek 1991): trajectory, metrics, and with
+        --pictures the sequence and GIF."""
         from cellplan import api
         from cellplan.assembly.problems import random_setup
         from cellplan.assembly.run import write_outputs
@@ -202,8 +211,12 @@ def register(app: typer.Typer) -> None:
             problems.append(
                 Problem("--random", "--algorithm robot needs a scenario FILE with a URDF arm")
             )
-        if not 2 <= frames <= MAX_FRAMES:
+        # Drawing costs several times the planner (docs/benchmarks.md, "Drawing in
+        # assemble"), so it is asked for: --pictures, or a GIF option.
+        draw = pictures or frames is not None or gif_size is not None
+        if frames is not None and not 2 <= frames <= MAX_FRAMES:
             problems.append(Problem("--frames", f"must be in [2, {MAX_FRAMES}], got {frames}"))
+        frames = DEFAULT_FRAMES if frames is None else frames
         width = GIF_SIZE
         try:
             width = check_gif_size(GIF_SIZE if gif_size is None else gif_size)
@@ -265,7 +278,8 @@ def register(app: typer.Typer) -> None:
         with progress_bar(progress_enabled(as_json), name) as progress:
             result = api.plan(setup, name, progress=progress, **options)
             if progress is not None:
-                progress(1.0, 1.0, f"{result.status.value}; drawing {frames} frames")
+                drawing = f"; drawing {frames} frames" if draw else ""
+                progress(1.0, 1.0, f"{result.status.value}{drawing}")
             # Written into a staging folder, moved in whole: an error leaves --output as it was.
             keep = {"FILE": file} if (file := scenario_file(scenario)) else None
             # The pictures check the GIF's memory again, now that the plan holds its own.
@@ -273,7 +287,7 @@ def register(app: typer.Typer) -> None:
                 staged = (
                     _write_robot(result, setup, stage)
                     if algorithm == "robot"
-                    else write_outputs(result, stage, frames, width)
+                    else write_outputs(result, stage, frames, width, pictures=draw)
                 )
         files = {key: output / path.relative_to(stage) for key, path in staged.items()}
         summary = f"{result.message}; wrote {output}" if result.success else f"wrote {output}"

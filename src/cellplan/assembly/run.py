@@ -4,7 +4,9 @@ What ``cellplan assemble`` writes (and what a script can write after
 ``cellplan.plan(setup, "assembly.gradient")``): ``sequence.png`` (four moments, Figs. 1-2
 style), ``assembly.gif``, ``trajectory.csv`` (the :class:`~cellplan.trajectory.Trajectory`)
 and ``metrics.json`` (status, message, the parameters the run used, its statistics, and
-for the sequential algorithm the pick / move / release actions).
+for the sequential algorithm the pick / move / release actions). The command draws the two
+pictures only when asked (``--pictures``, ``--frames``, ``--gif-size``): they cost several
+times the planner (docs/benchmarks.md "Drawing in assemble").
 """
 
 from __future__ import annotations
@@ -51,13 +53,19 @@ def run_title(result: Result) -> str:
 
 
 def write_outputs(
-    result: Result, output: Path, frames: int = DEFAULT_FRAMES, gif_size: int | None = None
+    result: Result,
+    output: Path,
+    frames: int = DEFAULT_FRAMES,
+    gif_size: int | None = None,
+    pictures: bool = True,
 ) -> dict[str, Path]:
     """Write the run's files under ``output``; returns them by name.
 
     ``result`` is a result of one of the assembly planners (its ``solution`` carries the
     problem and the path); ``gif_size`` is the GIF's width in pixels (default
-    :data:`cellplan.plots.GIF_SIZE`).
+    :data:`cellplan.plots.GIF_SIZE`). ``pictures=False`` writes the trajectory and the
+    metrics alone (``cellplan assemble`` without ``--pictures``: drawing costs several
+    times the planner, docs/benchmarks.md "Drawing in assemble").
     """
     from cellplan.assembly import plots
 
@@ -69,9 +77,10 @@ def write_outputs(
     assert traj is not None and problem is not None
     output.mkdir(parents=True, exist_ok=True)
     title = run_title(result)
-    files = {
-        "sequence": plots.save_sequence(problem, run.path, output / "sequence.png", title),
-        "animation": plots.save_animation(
+    files: dict[str, Path] = {}
+    if pictures:
+        files["sequence"] = plots.save_sequence(problem, run.path, output / "sequence.png", title)
+        files["animation"] = plots.save_animation(
             problem,
             run.path,
             output / "assembly.gif",
@@ -79,9 +88,8 @@ def write_outputs(
             title,
             size=gif_size,
             trajectory=traj,
-        ),
-        "trajectory": traj.save(output / "trajectory.csv"),
-    }
+        )
+    files["trajectory"] = traj.save(output / "trajectory.csv")
     metrics: dict[str, Any] = {
         "status": result.status.value,
         "message": result.message,
