@@ -143,8 +143,11 @@ def test_every_named_tuple_has_annotations_the_api_reference_can_read():
         obj
         for path in sources()
         for obj in vars(importlib.import_module(module_name(path))).values()
-        if isinstance(obj, type) and issubclass(obj, tuple) and hasattr(obj, "_fields")
-        and obj.__module__ == module_name(path) and not obj.__name__.startswith("_")
+        if isinstance(obj, type)
+        and issubclass(obj, tuple)
+        and hasattr(obj, "_fields")
+        and obj.__module__ == module_name(path)
+        and not obj.__name__.startswith("_")
     ]  # fmt: skip  (pdoc renders the public ones)
     assert len(bundles) > 10
     unreadable = []
