@@ -21,6 +21,7 @@ import numpy as np
 from cellplan.api import load
 from cellplan.core import MIN_RUNS, mean_interval
 from cellplan.strategies.policy.strategy import Strategy
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.sim.simulate import wait_bound
 from cellplan.strategies.variants.pending_sim import simulate_pending
 
@@ -47,7 +48,9 @@ def main(argv: list[str]) -> int:
     print(f"gain {strategy.gain:.6f}; {stages:,} stages per seed; seeds {seeds}")
     for seed in seeds:
         t0 = time.perf_counter()
-        sim = simulate_pending(strategy, stages, seed, cell=setup.workcell, regions=regions)
+        sim = simulate_pending(
+            strategy, stages, seed, SimulationOptions(regions=regions), cell=setup.workcell
+        )
         # The gain is the long-run expected loss per stage of the model (a stage of motion
         # or one FMP), so the runs' figure is the mean loss over their stages.
         loss = float(sim.losses.mean())

@@ -12,10 +12,11 @@ The planning API::
 :func:`planners` lists every registered planner with its options; :func:`make` builds one
 without running it; :func:`draw` draws a scenario (what ``cellplan show`` writes). Each
 paper package registers its planners (:mod:`cellplan.strategies`, :mod:`cellplan.adaptive`,
-:mod:`cellplan.assembly`). Two conveniences are imported on
+:mod:`cellplan.assembly`). Three conveniences are imported on
 first use, so that ``import cellplan`` loads no numba kernel or OMPL:
 ``cellplan.simulate`` (:func:`cellplan.strategies.sim.simulate.simulate_result`) runs a solved
-strategy in the stochastic assembly process, and ``cellplan.ExperiencePlanner``
+strategy in the stochastic assembly process, with the run's ``cellplan.SimulationOptions``
+(:class:`cellplan.strategies.sim.options.SimulationOptions`), and ``cellplan.ExperiencePlanner``
 (:class:`cellplan.adaptive.ExperiencePlanner`) answers start-to-goal queries against an
 experience graph.
 """
@@ -34,6 +35,7 @@ from cellplan.trajectory import Event, Trajectory
 
 if TYPE_CHECKING:
     from cellplan.adaptive import ExperiencePlanner as ExperiencePlanner
+    from cellplan.strategies.sim.options import SimulationOptions as SimulationOptions
     from cellplan.strategies.sim.simulate import simulate_result
 
     simulate = simulate_result
@@ -49,6 +51,7 @@ __all__ = [
     "Result",
     "ScenarioError",
     "Setup",
+    "SimulationOptions",
     "Status",
     "Trajectory",
     "draw",
@@ -67,6 +70,7 @@ __version__ = "0.1.0"
 # does not load numba kernels or OMPL.
 _LAZY = {
     "simulate": ("cellplan.strategies.sim.simulate", "simulate_result"),
+    "SimulationOptions": ("cellplan.strategies.sim.options", "SimulationOptions"),
     "ExperiencePlanner": ("cellplan.adaptive", "ExperiencePlanner"),
 }
 

@@ -10,12 +10,15 @@ to stderr.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import inspect
 import logging
 import os
 import sys
-from collections.abc import Iterable, Iterator, Mapping
+import typing
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 import typer
 from numba.core import event
@@ -220,6 +223,46 @@ def folder_files(option: str, folder: Path, names: Iterable[str]) -> list[tuple[
 SHORT_HELP_WIDTH = 60
 """Most characters of a command's line in ``cellplan --help``: click cuts a longer one with
 "..." in an 80-column terminal (its width less the indent and the longest command name)."""
+
+
+_Args = TypeVar("_Args")
+
+
+def command_from(fields: type[_Args], run: Callable[[_Args], None]) -> Callable[..., None]:
+    """A CLI command whose options are the fields of a frozen dataclass.
+
+    A typer command needs one parameter per option; a command with many options takes
+    them as one dataclass instead, whose fields carry the typer ``Annotated`` metadata
+    and the defaults. The command returned has exactly those fields as its signature
+    (typer reads ``inspect.signature``, which honours ``__signature__``), ``run``'s name
+    and docstring (the command's help), and calls ``run(fields(...))``. A name that is
+    not a field is refused (``TypeError`` from Python; click's exit 2 on the command line).
+    """
+    hints = typing.get_type_hints(fields, include_extras=True)
+    signature = inspect.Signature(
+        [
+            inspect.Parameter(
+                f.name,
+                inspect.Parameter.POSITIONAL_OR_KEYWORD,
+                default=inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default,
+                annotation=hints[f.name],
+            )
+            for f in dataclasses.fields(fields)  # type: ignore[arg-type]  # a dataclass
+        ]
+    )
+
+    def command(*args: Any, **options: Any) -> None:
+        # bind() raises TypeError for a name not in the signature: nothing is swallowed.
+        bound = signature.bind(*args, **options)
+        bound.apply_defaults()
+        run(fields(**bound.arguments))
+
+    command.__signature__ = signature  # type: ignore[attr-defined]
+    command.__name__ = run.__name__
+    command.__qualname__ = run.__qualname__
+    command.__doc__ = run.__doc__
+    command.__module__ = run.__module__
+    return command
 
 
 def short_help(text: str) -> str:

@@ -12,6 +12,7 @@ import cellplan
 from cellplan.core import Status, check_stats
 from cellplan.errors import ArgumentError
 from cellplan.strategies.policy.strategy import FMP, STAY
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.sim.simulate import simulate_result, wait_bound
 from cellplan.trajectory import Trajectory
 
@@ -169,7 +170,7 @@ def test_simulation_result_matches_its_simulation(result, setup):
 
 
 def test_a_request_waiting_past_the_bound_fails_the_run(result):
-    run = simulate_result(result.solution, 400, 3, max_wait=2.0)
+    run = simulate_result(result.solution, 400, 3, SimulationOptions(max_wait=2.0))
     assert run.status is Status.FAILED
     assert "waited" in run.message and "> 2" in run.message
     assert run.trajectory is not None and len(run.trajectory) == 401
@@ -189,7 +190,7 @@ def test_bad_simulation_arguments(result, kwargs, named):
     args = {"stages": 10, "seed": 0, **kwargs}
     stages, seed = args.pop("stages"), args.pop("seed")
     with pytest.raises(ArgumentError) as info:
-        simulate_result(result.solution, stages, seed, **args)
+        simulate_result(result.solution, stages, seed, SimulationOptions(**args))
     assert info.value.problems[0].field == named
 
 

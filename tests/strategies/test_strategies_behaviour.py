@@ -7,10 +7,11 @@ import itertools
 import numpy as np
 import pytest
 
+from cellplan.scenario import loads_scenario
 from cellplan.strategies.experiments import behaviours
 from cellplan.strategies.experiments.behaviours import follow
 from cellplan.strategies.policy.strategy import FMP, STAY, solve_scenario
-from cellplan.workcell import load_workcell
+from cellplan.workcell import Workcell, load_workcell
 
 
 def crossing_x(path, y_line):
@@ -91,10 +92,67 @@ def test_p4_turns_toward_a_changed_destination_at_once():
     assert behaviours.turns_to_changed_destination(strategy, cell, rng, count=20) > 0.6
 
 
+# S1 split in two, one component above a wall and one below; D1 above it, D2 below. The
+# gap right of the wall (5 wide) lets the empty robot (2 wide) through but not the held
+# part (6 wide), so a part picked below can never reach D1 and one picked above never D2.
+SPLIT = """
+cellplan: 1
+name: split-source
+workcell:
+  bounds: {xmin: 0, ymin: 0, xmax: 30, ymax: 30}
+  obstacles:
+    wall: {type: box, min: [0, 14], max: [25, 16]}
+robot:
+  type: translating
+  shape: {type: box, min: [-1, -1], max: [1, 1]}
+  start: [15, 8]
+parts:
+  P1: {shape: {type: box, min: [-3, -0.5], max: [3, 0.5]}}
+sources:
+  S1:
+    components:
+      - {type: box, min: [2, 24], max: [7, 28]}
+      - {type: box, min: [2, 2], max: [7, 6]}
+destinations:
+  D1: {components: [{type: box, min: [13, 24], max: [18, 28]}]}
+  D2: {components: [{type: box, min: [13, 2], max: [18, 6]}]}
+strategy:
+  speed: 2.5
+  arrival: {probability: 0.1}
+  fine_motion: {time: 1.5}
+  cells: [16, 16]
+  actions: {headings: 8}
+"""
+
+
+def test_component_for_destination_where_only_one_component_can_serve_each():
+    # The fast test of the P6 measure (test_p6_picks_the_component_of_s1_that_suits_the_
+    # destination, slow, measures it on P6 itself): here the answer is known without
+    # solving, as every W policy for D1 must pick above and every one for D2 below, from
+    # any start, so the measure is exactly 1 (and -1 with the destinations swapped).
+    sc = loads_scenario(SPLIT)
+    cell = Workcell.from_scenario(sc)
+    strategy, result = solve_scenario(sc, cell)
+    assert result.converged
+    for seed in range(2):
+        rng = np.random.default_rng(seed)
+        assert behaviours.component_for_destination(strategy, cell, rng, count=12) == 1.0
+        rng = np.random.default_rng(seed)
+        swapped = ("D2", "D1")
+        measure = behaviours.component_for_destination(strategy, cell, rng, 12, "S1", swapped)
+        assert measure == -1.0
+    # Even from a start beside the lower component, D1's policy picks from the upper one.
+    path, u = follow(strategy, np.array([4.5, 9.0]), strategy.mode_index("P1,S1,D1,W"))
+    assert u == FMP and path[-1][1] > 16
+
+
 def _box_distance(p, lo, hi):
     return float(np.linalg.norm(np.maximum(np.maximum(np.asarray(lo) - p, p - np.asarray(hi)), 0)))
 
 
+# slow: 17 s (P6 solved at 48^3); test_component_for_destination_where_only_one_component_
+# can_serve_each tests the same measure on a split source solved in a second.
+@pytest.mark.slow
 def test_p6_picks_the_component_of_s1_that_suits_the_destination():
     # Fig. 15: with a request from S1 (two components, left of the arm, one above and one
     # below the left post) the arm picks from the upper or the lower component depending on

@@ -16,6 +16,9 @@ def scenario(tmp_path):
 
 
 def test_solve_simulate_plot(cellplan, scenario, tmp_path):
+    # A 12 x 12 grid and 10 stages: the GIF draws a frame per stage up to 40, and drawing
+    # them was most of this test's time; every command and file is the same.
+    scenario.write_text(TINY.replace("CELLS", "12"))
     npz = tmp_path / "s.npz"
     r = cellplan("solve", str(scenario), "-o", str(npz))
     assert r.returncode == 0, r.stderr
@@ -27,7 +30,7 @@ def test_solve_simulate_plot(cellplan, scenario, tmp_path):
         "--strategy",
         str(npz),
         "--stages",
-        "120",
+        "10",
         "--seed",
         "3",
         "-o",
@@ -35,7 +38,7 @@ def test_solve_simulate_plot(cellplan, scenario, tmp_path):
     )
     assert r.returncode == 0, r.stderr
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["metrics"]["stages"] == 120
+    assert metrics["metrics"]["stages"] == 10
     assert (out / "simulation.gif").stat().st_size > 0
     assert (out / "frames.png").exists() and not (out / "frame_001.png").exists()
     fig = tmp_path / "w.png"
@@ -288,3 +291,39 @@ def test_solve_json_keeps_counts_as_integers_and_flags_as_booleans(cellplan, sce
         assert type(stats[key]) is int, key
     assert type(stats["stable"]) is bool
     assert type(stats["gain"]) is float and type(stats["sim_loss_per_stage"]) is float
+
+
+@pytest.mark.parametrize(
+    ("command", "typo"), [("solve", "--sample-stagse"), ("simulate", "--stagse")]
+)
+def test_an_unknown_option_is_refused_with_exit_2(cellplan, scenario, tmp_path, command, typo):
+    # The commands take their options as one dataclass (cliutil.command_from); the
+    # signature typer reads is exactly its fields, so a typo is an error, not swallowed.
+    npz, out = tmp_path / "s.npz", tmp_path / "out"
+    given = ["-o", str(npz)] if command == "solve" else ["--strategy", str(npz), "-o", str(out)]
+    r = cellplan(command, str(scenario), *given, typo, "3")
+    assert r.returncode == 2 and f"No such option: {typo}" in r.stderr
+    assert not npz.exists() and not out.exists()
+
+
+def test_command_signatures_are_the_option_dataclasses():
+    import dataclasses
+    import inspect
+
+    from cellplan.strategies.commands import (
+        SimulateArgs,
+        SolveArgs,
+        simulate_command,
+        solve_command,
+    )
+
+    for command, args in ((solve_command, SolveArgs), (simulate_command, SimulateArgs)):
+        params = inspect.signature(command).parameters
+        fields = dataclasses.fields(args)
+        assert list(params) == [f.name for f in fields]
+        for f in fields:
+            default = f.default if f.default is not dataclasses.MISSING else params[f.name].empty
+            assert params[f.name].default == default
+        required = [p for p in params.values() if p.default is p.empty]
+        with pytest.raises(TypeError, match="stagse"):
+            command(*["x"] * len(required), stagse=3)

@@ -9,6 +9,7 @@ from strategies_helpers import tiny
 from cellplan.errors import ArgumentError
 from cellplan.strategies.policy.execution import Executor, default_depth
 from cellplan.strategies.policy.strategy import FMP, STAY, Strategy, solve_scenario
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.sim.simulate import Request, Simulation, simulate
 from cellplan.workcell import load_workcell
 
@@ -118,7 +119,7 @@ def test_mean_wait_with_and_without_open_requests():
 
 def test_every_stage_of_waiting_is_charged_to_a_request(solved):
     cell, strategy = solved
-    sim = simulate(strategy, 2000, seed=3, start=cell.robot.start, cell=cell)
+    sim = simulate(strategy, 2000, 3, SimulationOptions(start=cell.robot.start), cell=cell)
     m = sim.metrics()
     assert m["mean_wait_all"] * m["requests"] == pytest.approx(sim.losses.sum())
 
@@ -138,7 +139,9 @@ def test_rotating_robot_makes_progress_with_its_own_motions_only(p3):
     and lose per stage what the solve predicts.
     """
     cell, strategy = p3
-    sim = simulate(strategy, 6000, seed=0, start=np.array(strategy.meta["start"]), cell=cell)
+    sim = simulate(
+        strategy, 6000, 0, SimulationOptions(start=np.array(strategy.meta["start"])), cell=cell
+    )
     for k in range(len(sim.actions)):
         u, m = int(sim.actions[k]), int(sim.modes[k])
         expect = sim.q[k] if u < 0 else strategy.next_configuration(sim.q[k], m, u)
@@ -170,17 +173,7 @@ def test_no_snap_model_keeps_only_moves_that_land_among_free_cells(solved):
                 if not (old.valid[k, c] >> a) & 1:
                     continue
                 landing = strategy.next_configuration(q, int(np.flatnonzero(mdp.vcls == k)[0]), a)
-                n = stencil(
-                    landing,
-                    mdp.shape,
-                    mdp.lower,
-                    mdp.spacing,
-                    mdp.periodic,
-                    idx,
-                    w,
-                    np.empty(12, np.int64),
-                    np.empty(6),
-                )
+                n = stencil(landing, mdp.grid(), idx, w, np.empty(12, np.int64), np.empty(6))
                 touches = bool(np.any((w[:n] > 1e-12) & ~mdp.free[k, idx[:n]]))
                 assert bool((mdp.valid[k, c] >> a) & 1) == (not touches)
                 removed += touches

@@ -14,6 +14,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from cellplan.strategies.model.actions import ActionSet
+from cellplan.strategies.model.bundles import Grid
 from cellplan.strategies.model.interpolation import interp
 from cellplan.strategies.model.mdp import Geometry, LayeredMDP, assemble, grid_box
 from cellplan.strategies.model.spec import Motions, Process
@@ -176,9 +177,8 @@ def test_interpolation_is_the_renormalised_multilinear_mean(shape, periodic, see
     q = lower + rng.uniform(-1.0, shape_a + 1.0) * spacing
     idx = np.empty(1 << d, np.int64)
     w = np.empty(1 << d)
-    k = stencil(
-        q, shape_a, lower, spacing, per, idx, w, np.empty(2 * MAX_DIM, np.int64), np.empty(MAX_DIM)
-    )
+    grid = Grid(shape_a, lower, lower + shape_a * spacing, spacing, per)
+    k = stencil(q, grid, idx, w, np.empty(2 * MAX_DIM, np.int64), np.empty(MAX_DIM))
     ref = ref_stencil(q, shape_a, lower, spacing, per)
     got: dict[int, float] = {}
     for i, wt in zip(idx[:k], w[:k], strict=True):

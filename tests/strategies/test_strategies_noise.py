@@ -199,8 +199,7 @@ def test_a_landing_blocked_off_centre_stops_the_robot_and_counts_as_staying():
         q = centre + rng.uniform(-0.45, 0.45, 2) * mdp.spacing
         for a in range(na):
             rows = [na + a * J + j for j in range(J)]
-            free = [motion_ok(q, mdp.disp[k, r], mdp.free[k], mdp.shape, mdp.lower, mdp.upper,
-                              mdp.spacing, mdp.periodic, buf) for r in rows]  # fmt: skip
+            free = [motion_ok(q, mdp.disp[k, r], mdp.free[k], mdp.grid(), buf) for r in rows]
             if all(free) or not any(free):
                 continue
             j = free.index(False)

@@ -21,6 +21,7 @@ from cellplan.api import load
 from cellplan.strategies.model.mdp import build_model
 from cellplan.strategies.policy.strategy import Strategy
 from cellplan.strategies.section import mode_counts
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.solve.solver import solve
 from cellplan.strategies.variants.pending import pending_modes
 from cellplan.strategies.variants.pending_sim import (
@@ -137,7 +138,10 @@ def _with(sc, **update):
 def test_every_policy_of_a_seed_meets_the_same_requests():
     strategy = solved(*pending(2))
     rules = Rules(strategy, single_request_strategy(strategy))
-    runs = {p: simulate_pending(strategy, 3000, 5, policy=p, rules=rules) for p in PENDING_POLICIES}
+    runs = {
+        p: simulate_pending(strategy, 3000, 5, SimulationOptions(policy=p), rules=rules)
+        for p in PENDING_POLICIES
+    }
     drawn = {p: r.arrivals for p, r in runs.items()}
     assert len(set(drawn.values())) == 1 and drawn["optimal"] > 50
     for r in runs.values():
@@ -199,6 +203,10 @@ def test_too_many_modes_are_refused_before_building(cellplan, tmp_path):
     assert "error: strategy.max_pending: 8 open requests of 54 types make" in r.stderr, r.stderr
 
 
+# slow: 20 s, the bundled scenario solved at 50 x 50; test_strategies_experiments.py::
+# test_pending_experiment_on_two_tiny_request_types runs the same run() and report() with
+# the same checks on a tiny scenario.
+@pytest.mark.slow
 def test_quick_pending_experiment_reports_three_claims(tmp_path):
     from cellplan.strategies.experiments.pending_experiment import EXPERIMENT
 
@@ -246,7 +254,13 @@ def test_with_the_workcell_every_fmp_passes_the_exact_region_test():
     sc, cell = pending(2, 16)
     strategy = solved(sc, cell)
     for policy in ("optimal", "fcfs"):
-        sim = simulate(strategy, 1500, 3, policy=policy, cell=cell, regions="contact")
+        sim = simulate(
+            strategy,
+            1500,
+            3,
+            SimulationOptions(policy=policy, regions="contact"),
+            cell=cell,
+        )
         fmp = np.flatnonzero((sim.actions <= -2) & (sim.actions != -3))
         assert len(fmp) > 20
         for k in fmp:

@@ -19,6 +19,7 @@ from cellplan.core import Status
 from cellplan.strategies.model.stencils import fmp_option
 from cellplan.strategies.policy.execution import Executor
 from cellplan.strategies.policy.strategy import STAY, Strategy
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.sim.simulate import region_test, simulate_result, wait_bound
 from cellplan.strategies.variants.pending import mode_keys
 from cellplan.strategies.variants.pending_sim import simulate_pending
@@ -149,7 +150,9 @@ def test_no_seed_holds_a_request(strategy_and_cell):
     bound = wait_bound(strategy)
     losses = []
     for seed in range(12):
-        sim = simulate_pending(strategy, 3000, seed, cell=cell, regions="contact")
+        sim = simulate_pending(
+            strategy, 3000, seed, SimulationOptions(regions="contact"), cell=cell
+        )
         assert sum(r.delivery < 0 for r in sim.requests) <= 3
         assert max((r.waiting for r in sim.requests), default=0.0) <= bound, seed
         losses.append(sim.metrics()["loss_per_stage"])
@@ -188,7 +191,7 @@ def test_issue_35_reproducer_delivers_from_the_locked_points():
                 continue
             executor = Executor(strategy, option_test=test.option)
             assert run_until_fmp(strategy, executor, np.array(q0), m, test, 2000) >= 0
-    sim = simulate_pending(strategy, 20000, 1235, cell=cell, regions="contact")
+    sim = simulate_pending(strategy, 20000, 1235, SimulationOptions(regions="contact"), cell=cell)
     assert all(r.delivery >= 0 for r in sim.requests[:-3])
 
 

@@ -20,6 +20,7 @@ from cellplan.scenario import loads_scenario
 from cellplan.strategies.model.mdp import build_model
 from cellplan.strategies.policy.baselines import per_request_values
 from cellplan.strategies.policy.strategy import FMP, Strategy
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.sim.simulate import simulate
 from cellplan.strategies.solve.solver import solve
 from cellplan.strategies.variants.periodic import belt_offset, region_offset
@@ -130,7 +131,10 @@ def test_simulation_matches_the_gain_and_beats_the_reactive_robot(conveyor):
     setup, strategy, res = conveyor
     cell = setup.workcell
     runs = {
-        p: [simulate(strategy, 6000, s, policy=p, cell=cell).metrics() for s in range(2)]
+        p: [
+            simulate(strategy, 6000, s, SimulationOptions(policy=p), cell=cell).metrics()
+            for s in range(2)
+        ]
         for p in ("optimal", "reactive")
     }
     loss = {p: np.mean([m["loss_per_stage"] for m in ms]) for p, ms in runs.items()}
@@ -148,7 +152,13 @@ def test_the_robot_meets_the_part_where_it_will_be(conveyor):
     mdp = strategy.mdp
     w0 = mdp.layer(mdp.w_layer(0), 0)
     assert mdp.modes[w0].source == "S1"
-    sim = simulate(strategy, 40, 0, start=np.array([60.0, 40.0]), start_mode=w0, cell=cell)
+    sim = simulate(
+        strategy,
+        40,
+        0,
+        SimulationOptions(start=np.array([60.0, 40.0]), start_mode=w0),
+        cell=cell,
+    )
     k = int(np.flatnonzero(sim.actions == FMP)[0])
     layer = int(sim.modes[k])
     q = sim.q[k][None, :]
@@ -168,7 +178,13 @@ def test_an_idle_robot_moves_toward_the_sources_before_requests_arrive(conveyor)
     setup, strategy, _ = conveyor
     mdp = strategy.mdp
     start = np.array([50.0, 75.0])
-    sim = simulate(strategy, 16, 0, start=start, start_mode=mdp.layer(0, 4), cell=setup.workcell)
+    sim = simulate(
+        strategy,
+        16,
+        0,
+        SimulationOptions(start=start, start_mode=mdp.layer(0, 4)),
+        cell=setup.workcell,
+    )
     assert (sim.base_modes() == 0).all() and int(sim.modes[-1]) == mdp.layer(0, 0)
     sources = np.array([[8.0, 8.5], [62.0, 8.5]])  # S1 at phase 0 and S2 (centres)
 
@@ -204,6 +220,10 @@ def test_scenario_mistakes_are_one_line_each(cellplan, tmp_path, extra, expected
     assert_validate_names(cellplan, tmp_path, TINY.replace("CELLS", "12") + extra, expected)
 
 
+# slow: 23 s, the bundled conveyor solved at 40 x 40; test_strategies_experiments.py::
+# test_conveyor_experiment_on_a_tiny_belt runs the same run() and report() with the same
+# checks on a tiny scenario.
+@pytest.mark.slow
 def test_quick_conveyor_experiment_reports_three_claims(tmp_path):
     from cellplan.strategies.experiments.conveyor_experiment import EXPERIMENT
 

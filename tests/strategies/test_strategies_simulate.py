@@ -7,6 +7,7 @@ import pytest
 from strategies_helpers import tiny
 
 from cellplan.strategies.policy.strategy import solve_scenario
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.sim.simulate import compare_policies, simulate
 
 
@@ -19,7 +20,7 @@ def solved():
 
 def test_long_run_loss_per_stage_matches_the_gain(solved):
     cell, strategy = solved
-    sim = simulate(strategy, 30000, seed=4, start=cell.robot.start, cell=cell)
+    sim = simulate(strategy, 30000, 4, SimulationOptions(start=cell.robot.start), cell=cell)
     batches = sim.losses.reshape(30, -1).mean(axis=1)
     se = batches.std(ddof=1) / np.sqrt(len(batches))
     # The gain is the long-run expected loss per stage (average-cost optimality).
@@ -28,7 +29,7 @@ def test_long_run_loss_per_stage_matches_the_gain(solved):
 
 def test_request_bookkeeping(solved):
     cell, strategy = solved
-    sim = simulate(strategy, 3000, seed=1, start=cell.robot.start, cell=cell)
+    sim = simulate(strategy, 3000, 1, SimulationOptions(start=cell.robot.start), cell=cell)
     done = [r for r in sim.requests if r.delivery >= 0]
     assert done
     for r in done:
@@ -44,15 +45,15 @@ def test_request_bookkeeping(solved):
 
 def test_same_seed_same_run(solved):
     cell, strategy = solved
-    a = simulate(strategy, 500, seed=7, start=cell.robot.start)
-    b = simulate(strategy, 500, seed=7, start=cell.robot.start)
+    a = simulate(strategy, 500, 7, SimulationOptions(start=cell.robot.start))
+    b = simulate(strategy, 500, 7, SimulationOptions(start=cell.robot.start))
     np.testing.assert_array_equal(a.q, b.q)
     np.testing.assert_array_equal(a.modes, b.modes)
 
 
 def test_reactive_stays_still_while_idle(solved):
     cell, strategy = solved
-    sim = simulate(strategy, 400, seed=2, policy="reactive", start=cell.robot.start)
+    sim = simulate(strategy, 400, 2, SimulationOptions(policy="reactive", start=cell.robot.start))
     idle = np.flatnonzero(sim.modes[:-1] == 0)
     for k in idle:
         if sim.modes[k + 1] == 0:
@@ -63,7 +64,10 @@ def test_home_policy_returns_home(solved):
     _, strategy = solved
     home = np.array([15.0, 22.0])
     sim = simulate(
-        strategy, 60, seed=0, policy="home", start=np.array([4.0, 10.0]), home=home, start_mode=0
+        strategy,
+        60,
+        0,
+        SimulationOptions(policy="home", start=np.array([4.0, 10.0]), home=home, start_mode=0),
     )
     # Before any request arrives the robot walks to the home cell.
     first_request = next(
@@ -75,7 +79,7 @@ def test_home_policy_returns_home(solved):
 
 def test_anticipation_does_not_lose_to_baselines(solved):
     cell, strategy = solved
-    out = compare_policies(strategy, 4000, [0, 1, 2], start=cell.robot.start)
+    out = compare_policies(strategy, 4000, [0, 1, 2], SimulationOptions(start=cell.robot.start))
     mean = {p: np.mean([r["loss_per_stage"] for r in rows]) for p, rows in out.items()}
     assert mean["optimal"] <= mean["reactive"] + 0.02
     assert mean["optimal"] <= mean["home"] + 0.02

@@ -11,6 +11,7 @@ from strategies_helpers import empty, tiny
 
 from cellplan.core import Status
 from cellplan.strategies.model.mdp import build_model
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.solve.layers import Layers
 from cellplan.strategies.solve.nr import other_branches
 from cellplan.strategies.solve.solver import solve_general, solve_structured
@@ -302,7 +303,13 @@ def test_rotating_robot_matches_plain_sparse_rvi_and_serves_requests():
     assert abs(s.gain - g_ref) < 1e-6
     a, b = _same_ref(s.values, h_ref, mdp.live)
     assert np.nanmax(np.abs(a - b)) < 1e-6
-    sim = simulate(Strategy.from_solution(mdp, s, sc), 2000, 0, start=cell.robot.start, cell=cell)
+    sim = simulate(
+        Strategy.from_solution(mdp, s, sc),
+        2000,
+        0,
+        SimulationOptions(start=cell.robot.start),
+        cell=cell,
+    )
     assert sim.metrics()["served"] > 10
 
 

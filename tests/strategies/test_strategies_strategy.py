@@ -15,6 +15,7 @@ from cellplan.errors import ArgumentError, PersistenceError
 from cellplan.strategies.model.points import query
 from cellplan.strategies.policy.decisions import Action, Actions
 from cellplan.strategies.policy.strategy import FMP, STAY, Strategy, solve_scenario
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.sim.simulate import simulate_result
 
 
@@ -289,6 +290,48 @@ def test_no_action_outside_the_domain_the_simulator_refuses(solved):
                 strategy.action(q, m)
             if m == 0:
                 with pytest.raises(cellplan.ArgumentError, match="outside the strategy's domain"):
-                    simulate_result(strategy, 10, 0, start=q, start_mode=m)
+                    simulate_result(strategy, 10, 0, SimulationOptions(start=q, start_mode=m))
             checked += 1
     assert checked > 0
+
+
+def test_one_plan_compiles_the_strategy_section_once(monkeypatch):
+    # Issue 33: the memory check and the model build read one compiled specification.
+    from cellplan.strategies.section import StrategySection
+
+    calls = []
+    compile_section = StrategySection.compile
+
+    def counting(self, scenario):
+        calls.append(scenario)
+        return compile_section(self, scenario)
+
+    monkeypatch.setattr(StrategySection, "compile", counting)
+    result = cellplan.plan(cellplan.load("strategies_tiny"), "strategies")
+    assert result.success
+    assert len(calls) == 1
+
+
+def test_a_batch_is_the_single_queries_in_every_mode_with_the_exact_region_test():
+    # The batch runs one compiled loop and confirms its FMPs in one region-test call: the
+    # same actions, field by field and dtype by dtype, as the single queries.
+    sc, cell = tiny(cells=16)
+    strategy, _ = solve_scenario(sc, cell)
+    strategy.attach(cell)
+    mdp = strategy.mdp
+    rng = np.random.default_rng(5)
+    kinds = set()
+    for m in range(mdp.n_modes):
+        cells = np.flatnonzero(mdp.live[m])
+        index = np.array(np.unravel_index(cells, tuple(mdp.shape))).T
+        qs = mdp.lower + (index + rng.uniform(0.02, 0.98, index.shape)) * mdp.spacing
+        qs = np.array([q for q in qs if strategy.in_domain(q, m)])
+        batch = strategy.action(qs, m)
+        one = Actions.of([strategy.action(q, m) for q in qs], len(mdp.shape))
+        for field in ("kind", "code", "move", "step", "region", "option"):
+            got, want = getattr(batch, field), getattr(one, field)
+            assert got.dtype == want.dtype and np.array_equal(got, want), field
+        kinds |= set(batch.kind.tolist())
+        with pytest.raises(cellplan.ArgumentError, match="NaN or infinite"):
+            strategy.action(np.vstack([qs[:2], [np.nan] * len(mdp.shape)]), m)
+    assert {"move", "pick", "drop"} <= kinds

@@ -10,6 +10,7 @@ are ``None`` here and passed on only when given, so the CLI holds no default of 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -23,6 +24,7 @@ from cellplan.cliutil import (
     as_flags,
     check_inputs_kept,
     check_output,
+    command_from,
     finish,
     folder_files,
     print_json,
@@ -39,6 +41,7 @@ from cellplan.strategies.planners import (
     SIMULATE_STAGES,
     StrategiesOptions,
 )
+from cellplan.strategies.sim.options import SimulationOptions
 
 if TYPE_CHECKING:
     from cellplan.setup import Setup
@@ -103,18 +106,22 @@ def _load_strategy(path: Path, setup: Setup) -> Strategy:
     return Strategy.load(path, setup.scenario).attach(setup.workcell)
 
 
-def solve_command(
-    scenario: ScenarioArg,
+@dataclass(frozen=True)
+class SolveArgs:
+    """The options of ``cellplan solve``, one field each
+    (:func:`~cellplan.cliutil.command_from`)."""
+
+    scenario: ScenarioArg
     output: Annotated[Path, typer.Option("-o", "--output", help="strategy file (.npz)")] = Path(
         "strategy.npz"
-    ),
+    )
     cells: Annotated[
         str | None, typer.Option(help="grid cells per axis, e.g. 100,100 (default: the scenario's)")
-    ] = None,
+    ] = None
     method: Annotated[
         str | None,
         typer.Option(help="auto, structured, policy or general (default: strategy.solver.method)"),
-    ] = None,
+    ] = None
     snap: Annotated[
         bool | None,
         typer.Option(
@@ -123,37 +130,40 @@ def solve_command(
             "(stricter model, docs/strategies.md)",
             show_default=False,
         ),
-    ] = None,
+    ] = None
     sample_stages: Annotated[
         int | None,
         typer.Option(
             help=f"stages of the sample run in the result (default {_default('sample_stages')})"
         ),
-    ] = None,
+    ] = None
     seed: Annotated[
         int | None, typer.Option(help=f"seed of the sample run (default {_default('seed')})")
-    ] = None,
+    ] = None
     save_unconverged: Annotated[
         bool, typer.Option(help="save the strategy even if the solve did not converge")
-    ] = False,
-    as_json: JsonOpt = False,
-) -> None:
+    ] = False
+    as_json: JsonOpt = False
+
+
+def solve(args: SolveArgs) -> None:
     """Compute the optimal strategy of a scenario (Section IV) and save it as .npz."""
     from cellplan.api import plan
     from cellplan.core import Status
 
+    output = args.output
     _check_suffix(output, (".npz",), "--output")
-    check_inputs_kept([("--output", output)], {"SCENARIO": scenario_file(scenario)})
+    check_inputs_kept([("--output", output)], {"SCENARIO": scenario_file(args.scenario)})
     given: dict[str, Any] = {
-        "cells": _cells(cells),
-        "method": method,
-        "snap": snap,
-        "sample_stages": sample_stages,
-        "seed": seed,
+        "cells": _cells(args.cells),
+        "method": args.method,
+        "snap": args.snap,
+        "sample_stages": args.sample_stages,
+        "seed": args.seed,
     }
     options = {k: v for k, v in given.items() if v is not None}
-    setup = _load(scenario)
-    with as_flags(), progress_bar(progress_enabled(as_json), "solving") as progress:
+    setup = _load(args.scenario)
+    with as_flags(), progress_bar(progress_enabled(args.as_json), "solving") as progress:
         result = plan(setup, "strategies", progress=progress, **options)
     s = result.stats
     summary = (
@@ -164,13 +174,16 @@ def solve_command(
         + ("stable" if s["stable"] else f"changes at {int(s['policy_changes'])} states")
     )
     outputs: dict[str, Path] = {}
-    if result.status is not Status.NOT_CONVERGED or save_unconverged:
+    if result.status is not Status.NOT_CONVERGED or args.save_unconverged:
         result.solution.save(output)
         outputs["strategy"] = output
         summary += f"; wrote {output}"
     else:
         summary += "; nothing saved (use --save-unconverged to keep it)"
-    finish(result, as_json, summary, outputs)
+    finish(result, args.as_json, summary, outputs)
+
+
+solve_command = command_from(SolveArgs, solve)
 
 
 def write_motion_viewer(strategy: Strategy, setup: Setup, sim: Any, path: Path) -> Path:
@@ -195,67 +208,75 @@ def write_motion_viewer(strategy: Strategy, setup: Setup, sim: Any, path: Path) 
     return path
 
 
-def simulate_command(
-    scenario: ScenarioArg,
-    strategy: StrategyOpt,
+@dataclass(frozen=True)
+class SimulateArgs:
+    """The options of ``cellplan simulate``, one field each
+    (:func:`~cellplan.cliutil.command_from`)."""
+
+    scenario: ScenarioArg
+    strategy: StrategyOpt
     stages: Annotated[
         int | None,
         typer.Option(help=f"number of stages, 1 to {MAX_STAGES:,} (default {SIMULATE_STAGES})"),
-    ] = None,
-    seed: Annotated[int | None, typer.Option(help=f"random seed (default {SIMULATE_SEED})")] = None,
+    ] = None
+    seed: Annotated[int | None, typer.Option(help=f"random seed (default {SIMULATE_SEED})")] = None
     output: Annotated[Path, typer.Option("-o", "--output", help="output folder")] = Path(
         "simulation"
-    ),
+    )
     policy: Annotated[
         str | None,
         typer.Option(
             help="optimal, reactive or home (default optimal); with simultaneous requests "
             "optimal, fcfs, nearest or reactive"
         ),
-    ] = None,
+    ] = None
     max_wait: Annotated[
         float | None,
         typer.Option(
             help="longest acceptable wait of a request, in time units (default: ten crossings "
             "of the C-space box, docs/strategies.md)"
         ),
-    ] = None,
-    gif: Annotated[bool, typer.Option(help="write an animated GIF")] = True,
-    gif_size: GifSizeOpt = None,
+    ] = None
+    gif: Annotated[bool, typer.Option(help="write an animated GIF")] = True
+    gif_size: GifSizeOpt = None
     frame_files: Annotated[
         bool,
         typer.Option(
             help="also write each mode segment as its own frame_NNN.png (frames.png always "
             "holds them all)"
         ),
-    ] = False,
-    as_json: JsonOpt = False,
-) -> None:
+    ] = False
+    as_json: JsonOpt = False
+
+
+def simulate(args: SimulateArgs) -> None:
     """Simulate the assembly process under a strategy: trajectory.csv, frames, GIF, metrics
     (in a 3-D cell, viewer.html, where the arm's motion plays, instead of frames and GIF)."""
     from cellplan.plots import GIF_SIZE, check_gif_size
     from cellplan.strategies.sim.simulate import simulate_result
 
-    if gif_size is not None and not gif:
+    output = args.output
+    if args.gif_size is not None and not args.gif:
         raise ArgumentError("only with --gif (the default)", "--gif-size")
-    width = check_gif_size(GIF_SIZE if gif_size is None else gif_size)
+    width = check_gif_size(GIF_SIZE if args.gif_size is None else args.gif_size)
     check_output(output, "--output", folder=True)
-    inputs = {"SCENARIO": scenario_file(scenario), "--strategy": strategy}
+    inputs = {"SCENARIO": scenario_file(args.scenario), "--strategy": args.strategy}
     check_inputs_kept(folder_files("--output", output, SIMULATE_FILES), inputs)
-    setup = _load(scenario)
-    strat = _load_strategy(strategy, setup)
-    given: dict[str, Any] = {"policy": policy, "max_wait": max_wait}
-    bar = progress_bar(progress_enabled(as_json), "simulating", counts=True)
+    setup = _load(args.scenario)
+    strat = _load_strategy(args.strategy, setup)
+    given: dict[str, Any] = {"policy": args.policy, "max_wait": args.max_wait}
+    options = SimulationOptions(**{k: v for k, v in given.items() if v is not None})
+    bar = progress_bar(progress_enabled(args.as_json), "simulating", counts=True)
     with bar as progress:
         with as_flags():
             result = simulate_result(
                 strat,
-                SIMULATE_STAGES if stages is None else stages,
-                SIMULATE_SEED if seed is None else seed,
+                SIMULATE_STAGES if args.stages is None else args.stages,
+                SIMULATE_SEED if args.seed is None else args.seed,
+                options,
                 cell=setup.workcell,
                 progress=progress,
                 robot_spec=setup.scenario.robot,  # seconds at the scenario's robot.speed
-                **{k: v for k, v in given.items() if v is not None},
             )
         sim = result.solution
         assert result.trajectory is not None
@@ -273,7 +294,10 @@ def simulate_command(
             staged_folder(output, keep=_existing(inputs)) as stage,
         ):
             names = _write_simulation(
-                stage, (strat, setup, result, metrics), width if gif else None, frame_files
+                stage,
+                (strat, setup, result, metrics),
+                width if args.gif else None,
+                args.frame_files,
             )
     outputs = {key: output / name for key, name in names.items()}
     m = metrics
@@ -288,7 +312,10 @@ def simulate_command(
             f", {m['mean_open']:.2f} requests open on average, {int(m['turned_away'])} turned away"
         )
     summary += f"; wrote {output}"
-    finish(result, as_json, summary, outputs)
+    finish(result, args.as_json, summary, outputs)
+
+
+simulate_command = command_from(SimulateArgs, simulate)
 
 
 def _write_simulation(

@@ -24,12 +24,14 @@ from cellplan.core import Options, Progress, Result, Status
 from cellplan.errors import ArgumentError, Problem
 from cellplan.schema import Cells
 from cellplan.strategies.section import MAX_STAGES, SolverMethod, SolverSpec
+from cellplan.strategies.sim.options import SimulationOptions
 
 #: Re-exported: the longest run, a limit of the section.
 __all__ = ["MAX_STAGES", "StrategiesOptions", "run_strategies", "solver_settings"]
 
 if TYPE_CHECKING:
     from cellplan.setup import Setup
+    from cellplan.strategies.model.spec import ProblemSpec
 
 Method = SolverMethod
 
@@ -110,11 +112,17 @@ solve spend; the solve's sweeps come on top, with a progress bar). Measured with
 18-21 us on the shared 2-core machine (load about 4)."""
 
 
-def check_memory(setup: Setup, cells: Sequence[int] | None, method: str | None = None) -> None:
+def check_memory(
+    setup: Setup,
+    cells: Sequence[int] | None,
+    method: str | None = None,
+    spec: ProblemSpec | None = None,
+) -> None:
     """Refuse a grid whose model and solve cannot fit in memory, before allocating it.
 
     The estimate is :func:`~cellplan.strategies.model.memory.estimate_memory` (the arrays the
     model and the solver allocate); the refusal names the cells and where they came from.
+    ``spec`` is the scenario's compiled section when the caller has it (else compiled here).
     """
     from cellplan import budget
     from cellplan.errors import ScenarioError
@@ -123,7 +131,7 @@ def check_memory(setup: Setup, cells: Sequence[int] | None, method: str | None =
 
     scenario, cell = setup.scenario, setup.workcell
     shape = grid_shape(scenario, cell, cells)
-    est = estimate_memory(scenario, cell, cells, method)
+    est = estimate_memory(spec if spec is not None else scenario, cell, cells, method)
     where = "cells" if cells is not None else "strategy.cells"
     error = ArgumentError if cells is not None else ScenarioError
     budget.require(
@@ -160,14 +168,15 @@ def run_strategies(
     cell = setup.workcell
     check_cells(options.cells, cell.robot.dim)
     settings = solver_settings(options, section.solver)
-    check_memory(setup, options.cells, settings.method)
+    spec = section.compile(setup.scenario)  # once: the memory check and the build read it
+    check_memory(setup, options.cells, settings.method, spec)
 
     def report(sweep: int, residual: float, gain: float) -> None:
         assert progress is not None
         progress(float(sweep), None, f"sweep {sweep}  residual {residual:.3g}  gain {gain:.6f}")
 
     strategy, solved = solve_scenario(
-        setup.scenario,
+        spec,
         cell,
         cells=list(options.cells) if options.cells is not None else None,
         method=options.method,
@@ -186,8 +195,8 @@ def run_strategies(
         strategy,
         options.sample_stages,
         options.seed,
+        SimulationOptions(regions=section.regions),
         cell=cell,
-        regions=section.regions,
         robot_spec=setup.scenario.robot,  # seconds at the scenario's robot.speed
     )
     stats = dict(solved.stats())

@@ -55,11 +55,13 @@ def describe(setup: Setup) -> Sequence[Fact]:
     import numpy as np
 
     from cellplan.strategies.model.mdp import build_model
+    from cellplan.strategies.model.spec import compiled
     from cellplan.strategies.planners import check_memory
 
     sc, cell = setup.scenario, setup.workcell
-    check_memory(setup, None)  # before allocating, as the planner does
-    mdp = build_model(sc, cell, start=cell.robot.start)
+    spec = compiled(sc)  # once, for the memory check and the build
+    check_memory(setup, None, spec=spec)  # before allocating, as the planner does
+    mdp = build_model(spec, cell, start=cell.robot.start)
     shape = " x ".join(str(int(n)) for n in mdp.shape)
     free_nr = float(np.mean(mdp.free[mdp.vcls[0]]))
     live_nr = float(np.mean(mdp.live[0]))

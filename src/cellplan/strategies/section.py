@@ -281,6 +281,7 @@ class StrategySection(StrictModel):
                 self.source_change.per_stage(self.stage_time) if self.source_change else 0.0
             ),
             variants=active_variants(self),
+            scenario=scenario,
         )
 
     def arrival_by_phase(self) -> list[float]:

@@ -33,7 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from cellplan.strategies.experiments.behaviours import FOLLOW_LIMIT, live_starts
+from cellplan.strategies.experiments.behaviours import (
+    FOLLOW_LIMIT,
+    fraction,
+    idle_moves,
+    live_starts,
+)
 from cellplan.strategies.policy.decisions import FMP, STAY
 from cellplan.strategies.policy.execution import Executor
 from cellplan.strategies.policy.strategy import Strategy
@@ -117,16 +122,13 @@ def idle_near_pick_points(
     """
     targets = pick_points(strategy, cell)
     hits = []
-    for q in live_starts(strategy, [0], count, rng):
-        path, u = execute(strategy, cell, q, 0)
-        if u is None:
+    for q, stop in idle_moves(strategy, lambda q, m: execute(strategy, cell, q, m), count, rng):
+        if stop is None:  # a policy that does not settle is a miss
             hits.append(False)
             continue
-        if u != STAY or np.all(np.abs(path[-1] - q) <= strategy.mdp.spacing):
-            continue
-        near = _nearest(np.asarray(cell.tool_position(np.stack([q, path[-1]]))), targets)
+        near = _nearest(np.asarray(cell.tool_position(np.stack([q, stop]))), targets)
         hits.append(bool(near[1] < near[0]))
-    return float(np.mean(hits)) if hits else float("nan")
+    return fraction(hits)
 
 
 def component_by_destination(
@@ -171,7 +173,7 @@ def component_by_destination(
                 for k in range(components)
             ]
             hits.append(inside[nearer] and sum(inside) == 1)
-    return float(np.mean(hits)) if hits else float("nan")
+    return fraction(hits)
 
 
 def pick_points_by_component(strategy: Strategy, cell: Any, source: str) -> list[np.ndarray]:
@@ -281,4 +283,4 @@ def detour_fraction(
     when no start lies on the destination's side."""
     p, s, d = request
     seen = detour_where_empty_fits(strategy, cell, rng, count, (p, s, d), gate)
-    return float(np.mean([x.shown for x in seen])) if seen else float("nan")
+    return fraction([x.shown for x in seen])

@@ -25,7 +25,7 @@ paper's figures do between mode changes.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from itertools import pairwise
 from typing import Any
 
@@ -56,6 +56,12 @@ def follow(
     return np.array(path), None
 
 
+def fraction(hits: Sequence[bool]) -> float:
+    """The fraction of ``hits`` that hold: a behaviour's measure over the starts judged
+    (NaN when none was, so that the interval over seeds drops it)."""
+    return float(np.mean(hits)) if len(hits) else float("nan")
+
+
 def live_starts(
     strategy: Strategy, modes: Sequence[int], count: int, rng: np.random.Generator
 ) -> np.ndarray:
@@ -67,6 +73,27 @@ def live_starts(
     chosen = rng.choice(cells, min(count, len(cells)), replace=False)
     idx = np.array(np.unravel_index(chosen, tuple(mdp.shape))).T
     return np.asarray(mdp.lower + (idx + 0.5) * mdp.spacing)
+
+
+Drive = Callable[[np.ndarray, int], tuple[np.ndarray, "int | None"]]
+"""Follows a mode's policy from a configuration: ``(path, last action)`` as :func:`follow`."""
+
+
+def idle_moves(
+    strategy: Strategy, drive: Drive, count: int, rng: np.random.Generator
+) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """``(start, stop)`` for each random start from which the no-request policy, followed
+    by ``drive``, moves: starts it stops within one cell of are left out (there is no
+    motion to judge), and ``stop`` is None where it does not settle within the limit (the
+    caller says whether that is a miss)."""
+    out: list[tuple[np.ndarray, np.ndarray | None]] = []
+    for q in live_starts(strategy, [0], count, rng):
+        path, u = drive(q, 0)
+        if u is None:
+            out.append((q, None))
+        elif u == STAY and not np.all(np.abs(path[-1] - q) <= strategy.mdp.spacing):
+            out.append((q, path[-1]))
+    return out
 
 
 def _point(cell: Any, q: np.ndarray) -> np.ndarray:
@@ -89,13 +116,14 @@ def idle_near_sources(
     no motion to judge). NaN when every start is.
     """
     sources = [g for r in cell.sources.values() for g in r.geometries]
-    hits = []
-    for q in live_starts(strategy, [0], count, rng):
-        path, u = follow(strategy, q, 0)
-        if u != STAY or np.all(np.abs(path[-1] - q) <= strategy.mdp.spacing):
-            continue
-        hits.append(_distance(cell, path[-1], sources) < _distance(cell, q, sources))
-    return float(np.mean(hits)) if hits else float("nan")
+    moves = idle_moves(strategy, lambda q, m: follow(strategy, q, m), count, rng)
+    return fraction(
+        [
+            _distance(cell, stop, sources) < _distance(cell, q, sources)
+            for q, stop in moves
+            if stop is not None  # not settling within the limit is not judged here
+        ]
+    )
 
 
 def _crossing(path: np.ndarray, y: float) -> float | None:
@@ -152,7 +180,7 @@ def opening_and_detour(
             )
         if len(hits) == count:
             break
-    return float(np.mean(hits)) if hits else float("nan")
+    return fraction(hits)
 
 
 def nearer_component(
@@ -187,7 +215,7 @@ def nearer_component(
         p = Point(*_point(cell, q))
         nearest = int(np.argmin([g.distance(p) for g in comps]))
         hits.append(reached[nearest] and sum(reached) == 1)
-    return float(np.mean(hits)) if hits else float("nan")
+    return fraction(hits)
 
 
 def turns_to_changed_destination(
@@ -224,7 +252,7 @@ def turns_to_changed_destination(
             hits.append(
                 float(moved @ (nearest - here)) > 0 and not np.allclose(steps[new], steps[old])
             )
-    return float(np.mean(hits)) if hits else float("nan")
+    return fraction(hits)
 
 
 def component_for_destination(

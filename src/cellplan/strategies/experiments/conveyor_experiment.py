@@ -14,14 +14,25 @@ waits less than the reactive one; and it is nearer the part when the request arr
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, mean_interval
-from cellplan.strategies.experiments.common import agreement_claim, ci_text, column, reduction_claim
+from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
+from cellplan.strategies.experiments.common import (
+    agreement_claim,
+    ci_column,
+    column,
+    interval_bar,
+    paired_columns,
+    per_policy_piece,
+    reduction_claim,
+    seeds_text,
+    solved_bundled,
+    values_text,
+)
+from cellplan.strategies.sim.options import SimulationOptions
 
 PROBLEM = "strategies_conveyor"
 CELLS = "40,40"
@@ -32,18 +43,6 @@ POLICY_NAMES = {
     "reactive": "reactive (idle in place)",
     "home": "return home",
 }
-
-
-@functools.lru_cache(maxsize=1)
-def _solved(cells: str) -> Any:
-    """The bundled scenario's strategy and workcell (solved once per process)."""
-    # Deferred for start-up time: the experiment list loads without these.
-    from cellplan.api import load, plan
-
-    setup = load(PROBLEM)
-    grid = [int(v) for v in cells.split(",")]
-    strategy = plan(setup, "strategies", cells=grid, sample_stages=1).solution
-    return strategy, setup.workcell
 
 
 def make_runs(runs: int, quick: bool) -> list[RunSpec]:
@@ -82,7 +81,7 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
     from cellplan.strategies.sim.simulate import simulate
 
     cells, stages = str(spec.params["cells"]), int(spec.params["stages"])
-    strategy, cell = _solved(cells)
+    strategy, cell, _ = solved_bundled(PROBLEM, cells)
     row: dict[str, Scalar] = {
         "seed": spec.seed,
         "gain": strategy.gain,
@@ -91,7 +90,7 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
         "period": strategy.mdp.period,
     }
     for policy in POLICIES:
-        sim = simulate(strategy, stages, spec.seed, policy=policy, cell=cell)
+        sim = simulate(strategy, stages, spec.seed, SimulationOptions(policy=policy), cell=cell)
         m = sim.metrics()
         for key in ("loss_per_stage", "mean_wait_all", "requests"):
             row[f"{policy}_{key}"] = m[key]
@@ -103,10 +102,8 @@ def _paired_claim(
     rows: list[dict[str, Scalar]], key: str, claim: str, paper: str, what: str
 ) -> Claim:
     """The optimal value of ``key`` is below the reactive one's, paired by seed."""
-
     return reduction_claim(
-        column(rows, f"optimal_{key}"),
-        column(rows, f"reactive_{key}"),
+        *paired_columns(rows, key, "reactive"),
         claim=claim,
         paper=paper,
         ours=f"{what} than the reactive robot",
@@ -123,12 +120,6 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
 
     outdir = Path(outdir)
 
-    def col(key: str) -> np.ndarray:
-        return column(rows, key)
-
-    def ci(key: str, fmt: str = ".3f") -> str:
-        return ci_text(col(key), fmt)
-
     n = len(rows)
     gain = float(rows[0]["gain"])
     claims = [
@@ -136,7 +127,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             "conveyor",
             "Sec. VI-1: the periodic model, solved over (configuration, mode, phase)",
             gain,
-            col("optimal_loss_per_stage"),
+            column(rows, "optimal_loss_per_stage"),
             EXPLANATION,
         ),
         _paired_claim(
@@ -157,10 +148,10 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     table: list[dict[str, Scalar]] = [
         {
             "policy": POLICY_NAMES[p],
-            "loss per stage": ci(f"{p}_loss_per_stage"),
-            "mean wait per request (stages)": ci(f"{p}_mean_wait_all", ".1f"),
-            "distance to the part at arrival (units)": ci(f"{p}_distance", ".1f"),
-            "requests": f"{int(col(f'{p}_requests').sum()):,}",
+            "loss per stage": ci_column(rows, f"{p}_loss_per_stage"),
+            "mean wait per request (stages)": ci_column(rows, f"{p}_mean_wait_all", ".1f"),
+            "distance to the part at arrival (units)": ci_column(rows, f"{p}_distance", ".1f"),
+            "requests": f"{int(column(rows, f'{p}_requests').sum()):,}",
         }
         for p in POLICIES
     ]
@@ -170,23 +161,21 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
         (axes[0, 1], "distance", "distance to the part at arrival (workcell units)"),
     ):
         for i, p in enumerate(POLICIES):
-            m, h = mean_interval(col(f"{p}_{key}"))
-            ax.bar(i, m, yerr=0.0 if not np.isfinite(h) else h, capsize=4, label=POLICY_NAMES[p])
+            interval_bar(ax, i, column(rows, f"{p}_{key}"), label=POLICY_NAMES[p])
         ax.set_xticks(range(len(POLICIES)), list(POLICIES))
         ax.set_ylabel(label)
     axes[0, 0].axhline(gain, color="#444444", lw=1, ls="--", label=f"gain g = {gain:.3f}")
     axes[0, 0].legend(fontsize=8)
     figure = base.save_figure(fig, outdir / "strategies_conveyor.png")
-    stages = sorted({int(r["stages"]) for r in rows if "stages" in r})
     caption = (
         f"Left: loss per stage of each policy (dashed: the optimal strategy's gain). Right: "
         f"mean distance from the gripper to the part to fetch when its request arrives (on "
-        f"the belt, where the part is then). Bars: mean and 95% interval over {n} seed"
-        f"{'s' if n != 1 else ''}; runs of {', '.join(map(str, stages))} stages, period "
+        f"the belt, where the part is then). Bars: mean and 95% interval over {seeds_text(n)}; "
+        f"runs of {values_text(rows, 'stages')} stages, period "
         f"{int(rows[0]['period'])} stages, {int(rows[0]['layers'])} layers (modes x phases), "
         f"{int(rows[0]['states']):,} states."
     )
-    return ReportPiece(
+    return per_policy_piece(
         title="Strategies with a conveyor belt and periodic arrivals (Section VI-1)",
         text=(
             "Part P1 rides a belt and requests come only early in each 20-stage cycle. The "
@@ -194,9 +183,9 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             "be and moves toward the sources before the requests come; the reactive robot "
             "idles where its last delivery left it."
         ),
-        figures=[figure],
-        captions={figure.name: caption},
-        tables=[("per policy (mean ± 95% interval over seeds)", table)],
+        figure=figure,
+        caption=caption,
+        table=table,
         claims=claims,
         command="cellplan solve strategies_conveyor -o c.npz && "
         "cellplan simulate strategies_conveyor --strategy c.npz --policy reactive",

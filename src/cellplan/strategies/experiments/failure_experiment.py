@@ -26,7 +26,16 @@ from cellplan.core import (
     Scalar,
     mean_interval,
 )
-from cellplan.strategies.experiments.common import agreement_claim, beats_reactive_claim
+from cellplan.strategies.experiments.common import (
+    agreement_claim,
+    beats_reactive_claim,
+    grids_text,
+    half,
+    plan_on_grid,
+    seeds_text,
+    values_text,
+)
+from cellplan.strategies.sim.options import SimulationOptions
 
 PROBLEMS = {"strategies_failures": "100,100", "strategies_failures_arm": "64,64"}
 QUICK = {"strategies_failures_arm": "64,64"}
@@ -52,11 +61,7 @@ def scaled(problem: str, scale: float) -> Any:
 @functools.lru_cache(maxsize=8)
 def _solved(problem: str, cells: str, scale: float) -> Any:
     """The strategy of a scaled failure scenario (``cellplan.plan(..., "strategies")``)."""
-    # Deferred for start-up time: the experiment list loads without these.
-    from cellplan.api import plan
-
-    grid = [int(v) for v in cells.split(",")]
-    return plan(scaled(problem, scale), "strategies", cells=grid, sample_stages=1).solution
+    return plan_on_grid(scaled(problem, scale), cells)
 
 
 def make_runs(runs: int, quick: bool) -> list[RunSpec]:
@@ -91,7 +96,9 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
         "states": int(strategy.mdp.live.sum()),
     }
     for policy in POLICIES:
-        sim = simulate_result(strategy, int(spec.params["stages"]), spec.seed, policy=policy)
+        sim = simulate_result(
+            strategy, int(spec.params["stages"]), spec.seed, SimulationOptions(policy=policy)
+        )
         m = sim.solution.metrics()
         for key in ("loss_per_stage", "mean_wait_all", "served", "fmp_failures"):
             row[f"{policy}_{key}"] = m[key]
@@ -145,7 +152,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
                 ax.errorbar(
                     [s + 0.04 * (j - 0.5) for s, *_ in sims],
                     [m for m, _ in ci],
-                    yerr=[h if np.isfinite(h) else 0.0 for _, h in ci],
+                    yerr=[half(h) for _, h in ci],
                     fmt="s",
                     color=color,
                     capsize=3,
@@ -160,16 +167,11 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             claims.append(_growth_claim(p, gains, sims))
     figure = base.save_figure(fig, outdir / "strategies_failures.png")
     seeds = len({int(r["seed"]) for r in rows})
-    stages = sorted({int(r["stages"]) for r in rows if "stages" in r})
-    grids = ", ".join(
-        f"{str(p).removeprefix('strategies_')} {' x '.join(str(c).split(','))}"
-        for p, c in sorted({(r["problem"], r["cells"]) for r in rows if "cells" in r})
-    )
     caption = (
         "Loss per stage against the scale of the failure probabilities (0: no failures, 1: as "
         "in the scenario): the solved gain, and the simulated optimal and reactive policies "
-        f"with 95% intervals over {seeds} seed{'s' if seeds != 1 else ''} of "
-        f"{', '.join(map(str, stages))} stages (grids: {grids})."
+        f"with 95% intervals over {seeds_text(seeds)} of "
+        f"{values_text(rows, 'stages')} stages (grids: {grids_text(rows)})."
     )
     return ReportPiece(
         title="Strategies with failure modes (Section VI-3)",

@@ -29,7 +29,16 @@ from cellplan.core import (
     decide_interval,
     mean_interval,
 )
-from cellplan.strategies.experiments.common import agreement_claim, beats_reactive_claim
+from cellplan.strategies.experiments.common import (
+    agreement_claim,
+    beats_reactive_claim,
+    column,
+    interval_bar,
+    plan_on_grid,
+    seeds_text,
+    values_text,
+)
+from cellplan.strategies.sim.options import SimulationOptions
 
 PROBLEM = "strategies_noise"
 CELLS = "100,100"
@@ -45,14 +54,13 @@ EXPLANATION = "docs/strategies.md#noisy-motion-section-vi-4"
 def _solved(cells: str, noisy: bool) -> Any:
     """The noise scenario's strategy, with its noise model or without any."""
     # Deferred for start-up time: the experiment list loads without these.
-    from cellplan.api import load, plan
+    from cellplan.api import load
 
     scenario = load(PROBLEM).scenario
     if not noisy:
         sec = scenario.strategy.model_copy(update={"noise": None})
         scenario = scenario.model_copy(update={"strategy": sec})
-    grid = [int(v) for v in cells.split(",")]
-    return plan(scenario, "strategies", cells=grid, sample_stages=1).solution
+    return plan_on_grid(scenario, cells)
 
 
 def make_runs(runs: int, quick: bool) -> list[RunSpec]:
@@ -82,7 +90,9 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
         row[f"{tag}_gain"] = strategy.gain
         row[f"{tag}_states"] = int(strategy.mdp.live.sum())
         for policy in ("optimal", "reactive") if noisy else ("optimal",):
-            res = simulate_result(strategy, stages, spec.seed, policy=policy, cell=cell)
+            res = simulate_result(
+                strategy, stages, spec.seed, SimulationOptions(policy=policy), cell=cell
+            )
             m = res.solution.metrics()
             for key in ("loss_per_stage", "mean_wait_all"):
                 row[f"{tag}_{policy}_{key}"] = m[key]
@@ -104,11 +114,11 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
 
     outdir = Path(outdir)
 
-    def col(key: str) -> np.ndarray:
-        return np.array([float(r[key]) for r in rows])
-
     n = len(rows)
-    noisy_c, exact_c = col("noisy_passage_clearance"), col("exact_passage_clearance")
+    noisy_c, exact_c = (
+        column(rows, "noisy_passage_clearance"),
+        column(rows, "exact_passage_clearance"),
+    )
     diff = noisy_c - exact_c
     m, h = mean_interval(diff)
     clearance = Claim(
@@ -125,8 +135,8 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     )
     gain = float(rows[0]["noisy_gain"])
     wait = {
-        "optimal": col("noisy_optimal_mean_wait_all"),
-        "reactive": col("noisy_reactive_mean_wait_all"),
+        "optimal": column(rows, "noisy_optimal_mean_wait_all"),
+        "reactive": column(rows, "noisy_reactive_mean_wait_all"),
     }
     claims = [
         clearance,
@@ -134,7 +144,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             "noise",
             "Sec. VI-4: a distribution over the next configuration; (9) takes its expectation",
             gain,
-            col("noisy_optimal_loss_per_stage"),
+            column(rows, "noisy_optimal_loss_per_stage"),
             EXPLANATION,
         ),
         beats_reactive_claim(
@@ -148,26 +158,23 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     fig, axes = base.new_figure(ncols=2, size=4.2)
     ax = axes[0, 0]
     for i, (vals, label) in enumerate(((exact_c, "exact motion"), (noisy_c, "noisy motion"))):
-        mm, hh = mean_interval(vals)
-        ax.bar(i, mm, yerr=0.0 if not np.isfinite(hh) else hh, capsize=4, label=label)
+        interval_bar(ax, i, vals, label=label)
         ax.plot(np.full(n, i) + 0.15, vals, ".", color="#444444", ms=4)
     ax.set_xticks([0, 1], ["exact", "noisy"])
     ax.set_ylabel("clearance in the passages (workcell units)")
     ax.set_title("moves landing in the passages", fontsize=9)
     ax = axes[0, 1]
     for i, k in enumerate(("optimal", "reactive")):
-        mm, hh = mean_interval(wait[k])
-        ax.bar(i, mm, yerr=0.0 if not np.isfinite(hh) else hh, capsize=4)
+        interval_bar(ax, i, wait[k])
     ax.set_xticks([0, 1], ["optimal", "reactive"])
     ax.set_ylabel("mean waiting per request (stages)")
     ax.set_title("under noisy motion", fontsize=9)
     figure = base.save_figure(fig, outdir / "strategies_noise.png")
     cells = sorted({str(r["cells"]) for r in rows if "cells" in r})
-    stages = sorted({int(r["stages"]) for r in rows if "stages" in r})
     caption = (
         f"Left: mean clearance of the moves landing in the narrow passages, exact and noisy "
-        f"motion (bars: mean and 95% interval over {n} seed{'s' if n != 1 else ''}; dots: "
-        f"seeds). Right: waiting per request under noise. Runs of {', '.join(map(str, stages))} "
+        f"motion (bars: mean and 95% interval over {seeds_text(n)}; dots: "
+        f"seeds). Right: waiting per request under noise. Runs of {values_text(rows, 'stages')} "
         f"stages on {', '.join(c.replace(',', ' x ') for c in cells)} grids."
     )
     table: list[dict[str, Scalar]] = [

@@ -18,7 +18,6 @@ second and says the others were not run.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,6 +41,18 @@ from cellplan.strategies.experiments import (
     pending_experiment,
     ur5_experiment,
 )
+from cellplan.strategies.experiments.common import (
+    Threshold,
+    finite_column,
+    grids_text,
+    half,
+    interval_rows,
+    seeds_text,
+    solved_bundled,
+    threshold_claim,
+    values_text,
+)
+from cellplan.strategies.sim.options import SimulationOptions
 
 PROBLEMS = {  # bundled scenario -> grid used here (coarser than the bundled one where slow)
     "strategies_p1": "100,100",
@@ -55,16 +66,6 @@ PROBLEMS = {  # bundled scenario -> grid used here (coarser than the bundled one
 }
 QUICK = {"strategies_tiny": "12,12"}
 POLICIES = ("optimal", "reactive", "home")
-
-
-@functools.lru_cache(maxsize=8)
-def _solved(problem: str, cells: str) -> Any:
-    """The strategy of a bundled problem on a grid (``cellplan.plan(..., "strategies")``)."""
-    # Deferred for start-up time: the experiment list loads without these.
-    from cellplan.api import load, plan
-
-    grid = [int(v) for v in cells.split(",")]
-    return plan(load(problem), "strategies", cells=grid, sample_stages=1).solution
 
 
 def make_runs(runs: int, quick: bool) -> list[RunSpec]:
@@ -83,7 +84,7 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
     # Deferred for start-up time: the experiment list loads without these.
     from cellplan.strategies.sim.simulate import simulate_result
 
-    strategy = _solved(str(spec.params["problem"]), str(spec.params["cells"]))
+    strategy = solved_bundled(str(spec.params["problem"]), str(spec.params["cells"]))[0]
     row: dict[str, Scalar] = {
         "problem": str(spec.params["problem"]),
         "seed": spec.seed,
@@ -91,7 +92,9 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
     }
     for policy in POLICIES:
         # From the robot's start, each policy's idle rule going home to the strategy's home.
-        sim = simulate_result(strategy, int(spec.params["stages"]), spec.seed, policy=policy)
+        sim = simulate_result(
+            strategy, int(spec.params["stages"]), spec.seed, SimulationOptions(policy=policy)
+        )
         m = sim.solution.metrics()  # NaN where a policy served nothing (stats drop those)
         for key in ("mean_wait", "mean_wait_all", "loss_per_stage", "served", "idle_fraction"):
             row[f"{policy}_{key}"] = m[key]
@@ -154,7 +157,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             vals = np.array([float(r[f"{pol}_mean_wait_all"]) for r in rows if r["problem"] == p])
             m, h = mean_interval(vals)
             means.append(m)
-            halves.append(0.0 if not np.isfinite(h) else h)
+            halves.append(half(h))
         ax.bar(
             np.arange(len(problems)) + (i - 1) * width,
             means,
@@ -169,16 +172,10 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     ax.set_title("anticipation vs reactive vs return-home", fontsize=9)
     figure = base.save_figure(fig, outdir / "strategies_anticipation.png")
     seeds = len({int(r["seed"]) for r in rows})
-    stages = sorted({int(r["stages"]) for r in rows if "stages" in r})
-    grids = ", ".join(
-        f"{str(p).removeprefix('strategies_')} {_grid(str(c))}"
-        for p, c in sorted({(r["problem"], r["cells"]) for r in rows if "cells" in r})
-    )
     caption = (
         "Mean waiting time per request (stages; open requests at their age) of the optimal, "
-        f"reactive and return-home policies, with 95% intervals over {seeds} "
-        f"seed{'s' if seeds != 1 else ''} of {', '.join(map(str, stages))} stages each "
-        f"(grids: {grids})."
+        f"reactive and return-home policies, with 95% intervals over {seeds_text(seeds)} "
+        f"of {values_text(rows, 'stages')} stages each (grids: {grids_text(rows)})."
     )
     return ReportPiece(
         title="Strategies: what anticipation buys (Section V-C)",
@@ -215,6 +212,11 @@ class Behaviour:
     quantity: str
     above: float
     null: str
+
+    @property
+    def threshold(self) -> Threshold:
+        """The claim's words and bar (:func:`~.common.threshold_claim` decides it)."""
+        return Threshold(self.claim, self.paper, self.quantity, self.above, self.null)
 
 
 BEHAVIOURS = (
@@ -315,12 +317,10 @@ def make_behaviour_runs(runs: int, quick: bool) -> list[RunSpec]:
 def run_behaviours(spec: RunSpec) -> dict[str, Scalar]:
     """Each behaviour of the run's problem, measured from the seed's random starts."""
     # Deferred for start-up time: the experiment list loads without these.
-    from cellplan.api import load
     from cellplan.strategies.experiments import behaviours
 
     problem = str(spec.params["problem"])
-    strategy = _solved(problem, str(spec.params["cells"]))
-    cell = load(problem).workcell
+    strategy, cell, _ = solved_bundled(problem, str(spec.params["cells"]))
     row: dict[str, Scalar] = {"problem": problem, "seed": spec.seed}
     for i, b in enumerate(x for x in BEHAVIOURS if x.problem == problem):
         rng = np.random.default_rng([spec.seed, i])
@@ -329,47 +329,19 @@ def run_behaviours(spec: RunSpec) -> dict[str, Scalar]:
     return row
 
 
-def _grid(cells: str) -> str:
-    return " x ".join(cells.split(","))
-
-
 def behaviour_claims(rows: list[dict[str, Scalar]]) -> list[Claim]:
     """One claim per behaviour of :data:`BEHAVIOURS`, decided by its 95% interval."""
-    claims = []
-    for b in BEHAVIOURS:
-        values = np.array([float(r[b.key]) for r in rows if b.key in r], dtype=float)
-        values = values[np.isfinite(values)]
-        rule = f"95% interval of the mean over seeds above {b.above:g} ({b.null}); at least 5 seeds"
-        if not len(values):
-            claims.append(
-                Claim(
-                    b.claim,
-                    b.paper,
-                    f"not measured in this run ({b.problem} is measured by the full "
-                    "cellplan reproduce strategies)",
-                    None,
-                    "not run",
-                    n=0,
-                    rule=rule,
-                    explanation=EXPLANATION,
-                )
-            )
-            continue
-        m, h = mean_interval(values)
-        low, high = (m - h, m + h) if np.isfinite(h) else (m, m)
-        claims.append(
-            Claim(
-                b.claim,
-                b.paper,
-                f"{m:.2f} ± {h:.2f}: {b.quantity}",
-                decide_interval(m - h, m + h, len(values), above=b.above),
-                f"interval [{low:.2f}, {high:.2f}] against {b.above:g}",
-                n=len(values),
-                rule=rule,
-                explanation=EXPLANATION,
-            )
+    return [
+        threshold_claim(
+            finite_column(rows, b.key),
+            b.threshold,
+            f"not measured in this run ({b.problem} is measured by the full "
+            "cellplan reproduce strategies)",
+            "",
+            EXPLANATION,
         )
-    return claims
+        for b in BEHAVIOURS
+    ]
 
 
 def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
@@ -383,20 +355,8 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
     fig, axes = base.new_figure(size=4.5)
     fig.set_size_inches(7.5, 0.55 * len(BEHAVIOURS) + 1.5)
     ax = axes[0, 0]
-    for y, b in enumerate(BEHAVIOURS):
-        values = np.array([float(r[b.key]) for r in rows if b.key in r], dtype=float)
-        values = values[np.isfinite(values)]
-        ax.plot([b.above] * 2, [y - 0.4, y + 0.4], ls="--", color="grey", lw=1)
-        if len(values):
-            m, h = mean_interval(values)
-            ax.plot(values, np.full(len(values), y + 0.15), ".", color="#8c959f", ms=4)
-            ax.errorbar(
-                [m], [y], xerr=[[0.0 if not np.isfinite(h) else h]], fmt="o", color="#1f77b4"
-            )
-        else:
-            ax.text(b.above, y, "  not measured in this run", va="center", fontsize=8)
-    ax.set_yticks(range(len(BEHAVIOURS)), [b.key for b in BEHAVIOURS])
-    ax.invert_yaxis()
+    series = [(b.key, finite_column(rows, b.key), b.above) for b in BEHAVIOURS]
+    interval_rows(ax, series, "  not measured in this run")
     ax.set_xlabel("measured fraction (P6: difference of fractions)")
     # Deferred for start-up time: the experiment list loads without these.
     from matplotlib.lines import Line2D
@@ -413,14 +373,9 @@ def report_behaviours(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece
     )
     figure = base.save_figure(fig, outdir / "strategies_behaviours.png")
     seeds = len({int(r["seed"]) for r in rows})
-    starts = sorted({int(r["starts"]) for r in rows if "starts" in r})
-    grids = ", ".join(
-        f"{str(p).removeprefix('strategies_').upper()} {_grid(str(c))}"
-        for p, c in sorted({(r["problem"], r["cells"]) for r in rows if "cells" in r})
-    )
     caption = (
-        f"Each behaviour's measure over {seeds} seed{'s' if seeds != 1 else ''} "
-        f"({', '.join(map(str, starts))} random starts each; grids {grids}): grey dots are "
+        f"Each behaviour's measure over {seeds_text(seeds)} ({values_text(rows, 'starts')} "
+        f"random starts each; grids {grids_text(rows, upper=True)}): grey dots are "
         "seeds, blue the mean with its 95% interval, dashed the threshold the claim must "
         "clear."
     )

@@ -20,7 +20,20 @@ from typing import Any
 import numpy as np
 
 from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar, mean_interval
-from cellplan.strategies.experiments.common import agreement_claim, ci_text, column, reduction_claim
+from cellplan.strategies.experiments.common import (
+    agreement_claim,
+    ci_column,
+    column,
+    half,
+    interval_bar,
+    paired_columns,
+    per_policy_piece,
+    reduction_claim,
+    seeds_text,
+    solved_bundled,
+    values_text,
+)
+from cellplan.strategies.sim.options import SimulationOptions
 
 PROBLEM = "strategies_pending"
 CELLS = "60,60"
@@ -38,11 +51,9 @@ POLICY_NAMES = {
 def _solved(cells: str) -> Any:
     """The bundled scenario's strategy and the baselines' rules (built once per process)."""
     # Deferred for start-up time: the experiment list loads without these.
-    from cellplan.api import load, plan
     from cellplan.strategies.variants.pending_sim import Rules, single_request_strategy
 
-    grid = [int(v) for v in cells.split(",")]
-    strategy = plan(load(PROBLEM), "strategies", cells=grid, sample_stages=1).solution
+    strategy = solved_bundled(PROBLEM, cells)[0]
     return strategy, Rules(strategy, single_request_strategy(strategy))
 
 
@@ -79,7 +90,9 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
     }
     parts = sorted({m.part for m in strategy.mdp.modes if m.part})
     for policy in PENDING_POLICIES:
-        sim = simulate_pending(strategy, stages, spec.seed, policy=policy, rules=rules)
+        sim = simulate_pending(
+            strategy, stages, spec.seed, SimulationOptions(policy=policy), rules=rules
+        )
         m = sim.metrics()
         for key in ("loss_per_stage", "mean_wait", "mean_open", "turned_away", "arrivals"):
             row[f"{policy}_{key}"] = m[key]
@@ -91,10 +104,8 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
 
 def _beats_claim(rows: list[dict[str, Scalar]], baseline: str) -> Claim:
     """The optimal strategy's loss per stage is below ``baseline``'s, paired by seed."""
-
     return reduction_claim(
-        column(rows, "optimal_loss_per_stage"),
-        column(rows, f"{baseline}_loss_per_stage"),
+        *paired_columns(rows, "loss_per_stage", baseline),
         claim=f"simultaneous requests: the optimal strategy has a lower loss than "
         f"{POLICY_NAMES[baseline]}",
         paper="Sec. VI-2: the robot chooses the order of service; loss = open requests",
@@ -113,12 +124,6 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
 
     outdir = Path(outdir)
 
-    def col(key: str) -> np.ndarray:
-        return column(rows, key)
-
-    def ci(key: str, fmt: str = ".3f") -> str:
-        return ci_text(col(key), fmt)
-
     n = len(rows)
     parts = sorted(k.rsplit("_", 1)[1] for k in rows[0] if k.startswith("optimal_wait_"))
     gain = float(rows[0]["gain"])
@@ -127,7 +132,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
             "simultaneous requests",
             "Sec. VI-2: the same model, solved over (configuration, open requests, carried)",
             gain,
-            col("optimal_loss_per_stage"),
+            column(rows, "optimal_loss_per_stage"),
             EXPLANATION,
         ),
         _beats_claim(rows, "fcfs"),
@@ -137,20 +142,21 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     for policy in PENDING_POLICIES:
         entry: dict[str, Scalar] = {
             "policy": POLICY_NAMES[policy],
-            "loss per stage": ci(f"{policy}_loss_per_stage"),
-            "mean wait (stages)": ci(f"{policy}_mean_wait", ".1f"),
+            "loss per stage": ci_column(rows, f"{policy}_loss_per_stage"),
+            "mean wait (stages)": ci_column(rows, f"{policy}_mean_wait", ".1f"),
         }
         for part in parts:
-            entry[f"wait of {part}"] = ci(f"{policy}_wait_{part}", ".1f")
-        entry["open requests (time average)"] = ci(f"{policy}_mean_open")
-        arrivals = col(f"{policy}_arrivals").sum()
-        entry["turned away"] = f"{100 * col(f'{policy}_turned_away').sum() / arrivals:.1f}%"
+            entry[f"wait of {part}"] = ci_column(rows, f"{policy}_wait_{part}", ".1f")
+        entry["open requests (time average)"] = ci_column(rows, f"{policy}_mean_open")
+        arrivals = column(rows, f"{policy}_arrivals").sum()
+        entry["turned away"] = (
+            f"{100 * column(rows, f'{policy}_turned_away').sum() / arrivals:.1f}%"
+        )
         table.append(entry)
     fig, axes = base.new_figure(ncols=2, size=4.2)
     ax = axes[0, 0]
     for i, policy in enumerate(PENDING_POLICIES):
-        m, h = mean_interval(col(f"{policy}_loss_per_stage"))
-        ax.bar(i, m, yerr=0.0 if not np.isfinite(h) else h, capsize=4)
+        interval_bar(ax, i, column(rows, f"{policy}_loss_per_stage"))
     ax.axhline(gain, color="#444444", lw=1, ls="--", label=f"gain g = {gain:.3f}")
     ax.set_xticks(range(len(PENDING_POLICIES)), list(PENDING_POLICIES))
     ax.set_ylabel("loss per stage (weighted open requests)")
@@ -161,9 +167,9 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     for j, part in enumerate(parts):
         means, halves = [], []
         for policy in PENDING_POLICIES:
-            m, h = mean_interval(col(f"{policy}_wait_{part}"))
+            m, h = mean_interval(column(rows, f"{policy}_wait_{part}"))
             means.append(m)
-            halves.append(0.0 if not np.isfinite(h) else h)
+            halves.append(half(h))
         x = np.arange(len(PENDING_POLICIES)) + (j - (len(parts) - 1) / 2) * width
         weight = urgency.get(part, 1.0)
         ax.bar(x, means, width, yerr=halves, capsize=3, label=f"part {part} (urgency {weight:g})")
@@ -172,25 +178,24 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     ax.legend(fontsize=8)
     figure = base.save_figure(fig, outdir / "strategies_pending.png")
     cells = sorted({str(r["cells"]).replace(",", " x ") for r in rows if "cells" in r})
-    stages = sorted({int(r["stages"]) for r in rows if "stages" in r})
     caption = (
         f"Left: loss per stage of each policy (the weighted number of open requests, which "
         f"the optimal strategy minimises; dashed: its gain). Right: mean wait of the "
-        f"delivered requests per part. Bars: mean and 95% interval over {n} seed"
-        f"{'s' if n != 1 else ''}, every policy on the same requests; runs of "
-        f"{', '.join(map(str, stages))} stages on {', '.join(cells)} "
+        f"delivered requests per part. Bars: mean and 95% interval over {seeds_text(n)}, "
+        f"every policy on the same requests; runs of "
+        f"{values_text(rows, 'stages')} stages on {', '.join(cells)} "
         f"grids, {int(rows[0]['modes'])} modes, {int(rows[0]['states']):,} states."
     )
-    return ReportPiece(
+    return per_policy_piece(
         title="Strategies with simultaneous requests (Section VI-2)",
         text=(
             "Requests keep arriving while the robot serves one (up to three open; part P2 "
             "three times as urgent). The optimal strategy chooses which waiting request to "
             "serve; the baselines serve one at a time in arrival order or nearest first."
         ),
-        figures=[figure],
-        captions={figure.name: caption},
-        tables=[("per policy (mean ± 95% interval over seeds)", table)],
+        figure=figure,
+        caption=caption,
+        table=table,
         claims=claims,
         command="cellplan solve strategies_pending -o q.npz && "
         "cellplan simulate strategies_pending --strategy q.npz --policy fcfs",

@@ -21,23 +21,23 @@ version measures each seed from 10 starts.
 
 from __future__ import annotations
 
-import functools
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cellplan.core import (
-    Claim,
-    Experiment,
-    ReportPiece,
-    RunSpec,
-    Scalar,
-    decide_interval,
-    mean_interval,
+from cellplan.core import Claim, Experiment, ReportPiece, RunSpec, Scalar
+from cellplan.strategies.experiments.common import (
+    Threshold,
+    ci_text,
+    column,
+    finite_column,
+    interval_rows,
+    seeds_text,
+    solved_bundled,
+    threshold_claim,
+    values_text,
 )
-from cellplan.strategies.experiments.common import ci_text, column
 
 PROBLEM = "strategies_ur5"
 CELLS = "48,48,48"
@@ -51,20 +51,6 @@ DETOUR_REQUEST = ("P1", "S1", "D2")
 GATE = (0, 0.0)
 """The gate as a joint-space line: shoulder pan (axis 0) at 0 radians, the base's x axis,
 where the gate stands."""
-
-
-@functools.lru_cache(maxsize=1)
-def _solved(cells: str) -> tuple[Any, Any, float]:
-    """The bundled scenario's strategy, its workcell and the seconds its planner took
-    (solved once per process)."""
-    # Deferred for start-up time: the experiment list loads without these.
-    from cellplan.api import load, plan
-
-    setup = load(PROBLEM)
-    grid = [int(v) for v in cells.split(",")]
-    t0 = time.perf_counter()
-    strategy = plan(setup, "strategies", cells=grid, sample_stages=1).solution
-    return strategy, setup.workcell, time.perf_counter() - t0
 
 
 def make_runs(runs: int, quick: bool) -> list[RunSpec]:
@@ -82,7 +68,7 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
     # Deferred for start-up time: the experiment list loads without these.
     from cellplan.strategies.experiments import arm_behaviours as b
 
-    strategy, cell, seconds = _solved(str(spec.params["cells"]))
+    strategy, cell, seconds = solved_bundled(PROBLEM, str(spec.params["cells"]))
     count = int(spec.params["starts"])
 
     def rng(i: int) -> np.random.Generator:
@@ -97,73 +83,61 @@ def run(spec: RunSpec) -> dict[str, Scalar]:
         "plan_seconds": seconds,
         "idle": b.idle_near_pick_points(strategy, cell, rng(0), count),
         "component": b.component_by_destination(strategy, cell, rng(1), count, "S2"),
-        "detour": float(np.mean([d.shown for d in detours])) if detours else float("nan"),
+        "detour": b.fraction([d.shown for d in detours]),
         "empty_stages": float(np.mean([d.empty_stages for d in detours])),
         "loaded_stages": float(np.mean([d.loaded_stages for d in detours])),
     }
 
 
+THRESHOLD = 0.5
 BEHAVIOURS = (
     (
         "idle",
-        "UR5: with no request pending, the arm moves to wait near the sources",
-        "Sec. V-A, Problems 1 and 3, Fig. 9(a): in NR the robot moves near the sources",
-        "fraction of random starts from which the no-request policy stops with the tool "
-        "nearer the pick places",
-        "a policy that ignores where requests come from ends nearer as often as farther",
+        Threshold(
+            "UR5: with no request pending, the arm moves to wait near the sources",
+            "Sec. V-A, Problems 1 and 3, Fig. 9(a): in NR the robot moves near the sources",
+            "fraction of random starts from which the no-request policy stops with the tool "
+            "nearer the pick places",
+            THRESHOLD,
+            "a policy that ignores where requests come from ends nearer as often as farther",
+        ),
     ),
     (
         "component",
-        "UR5: the destination decides which component of the split source S2 the arm picks from",
-        "Sec. V-B, Problem 6, Fig. 15: the component of S1 that suits the destination",
-        "fraction of (random start, destination) pairs picking from S2's component nearer "
-        "the destination",
-        "a choice that ignores the destination is right half the time",
+        Threshold(
+            "UR5: the destination decides which component of the split source S2 the arm "
+            "picks from",
+            "Sec. V-B, Problem 6, Fig. 15: the component of S1 that suits the destination",
+            "fraction of (random start, destination) pairs picking from S2's component "
+            "nearer the destination",
+            THRESHOLD,
+            "a choice that ignores the destination is right half the time",
+        ),
     ),
     (
         "detour",
-        "UR5: carrying, the arm detours; empty, it passes under the gate",
-        "Sec. V-A, Problem 1, Fig. 9(b)-(d): through the narrow opening empty, the longer "
-        "route carrying",
-        "fraction of random starts on D2's side crossing the gate empty where the loaded "
-        "arm has no free cell, then taking more stages back loaded",
-        "the behaviour holds from at most half the starts",
+        Threshold(
+            "UR5: carrying, the arm detours; empty, it passes under the gate",
+            "Sec. V-A, Problem 1, Fig. 9(b)-(d): through the narrow opening empty, the longer "
+            "route carrying",
+            "fraction of random starts on D2's side crossing the gate empty where the loaded "
+            "arm has no free cell, then taking more stages back loaded",
+            THRESHOLD,
+            "the behaviour holds from at most half the starts",
+        ),
     ),
 )
-THRESHOLD = 0.5
+"""Each behaviour's column of the runs and its claim's words and bar."""
 
 
 def claims(rows: list[dict[str, Scalar]]) -> list[Claim]:
     """One claim per behaviour: reproduced when the 95% interval of the mean over seeds
     lies above :data:`THRESHOLD` (at least 5 seeds)."""
-
-    out = []
-    for key, claim, paper, quantity, null in BEHAVIOURS:
-        values = np.array([float(r[key]) for r in rows], dtype=float)
-        values = values[np.isfinite(values)]
-        starts = sorted({int(r["starts"]) for r in rows})
-        rule = f"95% interval of the mean over seeds above {THRESHOLD:g} ({null}); at least 5 seeds"
-        if not len(values):
-            out.append(
-                Claim(claim, paper, "no start measured", None, "not run", 0, rule, EXPLANATION)
-            )
-            continue
-        m, h = mean_interval(values)
-        low, high = (m - h, m + h) if np.isfinite(h) else (m, m)
-        out.append(
-            Claim(
-                claim=claim,
-                paper=paper,
-                ours=f"{m:.2f} ± {0.0 if not np.isfinite(h) else h:.2f}: {quantity}",
-                reproduced=decide_interval(low, high, len(values), above=THRESHOLD),
-                detail=f"interval [{low:.2f}, {high:.2f}] against {THRESHOLD:g}; "
-                f"{', '.join(map(str, starts))} random starts per seed",
-                n=len(values),
-                rule=rule,
-                explanation=EXPLANATION,
-            )
-        )
-    return out
+    starts = f"; {values_text(rows, 'starts')} random starts per seed"
+    return [
+        threshold_claim(finite_column(rows, key), t, "no start measured", starts, EXPLANATION)
+        for key, t in BEHAVIOURS
+    ]
 
 
 def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
@@ -176,21 +150,11 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
     fig, axes = base.new_figure(size=4.5)
     fig.set_size_inches(7.0, 2.8)
     ax = axes[0, 0]
-    for y, (key, *_) in enumerate(BEHAVIOURS):
-        values = column(rows, key)
-        values = values[np.isfinite(values)]
-        ax.plot([THRESHOLD] * 2, [y - 0.4, y + 0.4], ls="--", color="grey", lw=1)
-        if len(values):
-            m, h = mean_interval(values)
-            ax.plot(values, np.full(len(values), y + 0.15), ".", color="#8c959f", ms=4)
-            ax.errorbar([m], [y], xerr=[[0.0 if not np.isfinite(h) else h]], fmt="o")
-    ax.set_yticks(range(len(BEHAVIOURS)), [key for key, *_ in BEHAVIOURS])
-    ax.invert_yaxis()
+    interval_rows(ax, [(key, finite_column(rows, key), t.above) for key, t in BEHAVIOURS])
     ax.set_xlim(0.0, 1.05)
     ax.set_xlabel("fraction of random starts showing the behaviour")
     figure = base.save_figure(fig, outdir / "strategies_ur5.png")
-    seeds = len(rows)
-    starts = ", ".join(str(s) for s in sorted({int(r["starts"]) for r in rows}))
+    starts = values_text(rows, "starts")
     table: list[dict[str, Scalar]] = [
         {
             "seed": int(r["seed"]),
@@ -218,7 +182,7 @@ def report(rows: list[dict[str, Scalar]], outdir: Any) -> ReportPiece:
         ),
         figures=[figure],
         captions={
-            figure.name: f"Each behaviour over {seeds} seed{'s' if seeds != 1 else ''} "
+            figure.name: f"Each behaviour over {seeds_text(len(rows))} "
             f"({starts} random starts each): grey dots are seeds, blue the mean with its "
             "95% interval, dashed the threshold of the claim."
         },

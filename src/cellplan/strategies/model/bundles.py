@@ -87,6 +87,37 @@ class Model(NamedTuple):
     layers: Layers
 
 
+class Probe(NamedTuple):
+    """Scratch space of a point query (:mod:`.points`): the ``2^d`` corners and weights of
+    a stencil and the integer and float work space of :func:`.stencils.stencil` and
+    :func:`.motion.motion_ok`."""
+
+    idx: np.ndarray  # (2^d,) int64 corners
+    w: np.ndarray  # (2^d,) their weights
+    ibuf: np.ndarray  # (2 MAX_DIM,) int64, the stencil's work space
+    frac: np.ndarray  # (MAX_DIM,) float, the stencil's fractions
+    mbuf: np.ndarray  # (3 MAX_DIM,) int64, the swept check's work space
+
+
+class Search(NamedTuple):
+    """The settings and buffers of one lookahead (:func:`.points.lookahead`).
+
+    Sequences of up to ``depth`` motions are scored with ``offset`` (the gain) taken off
+    per stage; FMP at the root only with ``fmp_root``. The FMP region test away from the
+    root takes two calls: with ``collect`` the configurations where the grid allows FMP
+    are written to ``nodes``, without it ``fmp_ok[i]`` says whether FMP is possible at the
+    i-th of them. ``seq`` receives the best sequence.
+    """
+
+    depth: int
+    offset: float
+    fmp_root: bool
+    collect: bool
+    nodes: np.ndarray  # (n, d) float
+    fmp_ok: np.ndarray  # (n,) bool
+    seq: np.ndarray  # (depth + 1,) int64
+
+
 class Outcomes(NamedTuple):
     """The outcomes of each FMP option when they are not the Section V ones.
 

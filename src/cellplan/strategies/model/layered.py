@@ -157,6 +157,13 @@ class LayeredMDP:
         return 1 + self.n_requests + r
 
     @property
+    def has_options(self) -> bool:
+        """Whether an FMP chooses among options (their table ``opt_ptr`` was built).
+
+        A property of the model's shape, asked by the queries that take one option at a time."""
+        return self.opt_ptr is not None
+
+    @property
     def options(self) -> np.ndarray:
         """``(M + 1,)``: the FMP options of mode ``m`` are ``options[m]:options[m+1]``."""
         if self.opt_ptr is not None:

@@ -47,7 +47,14 @@ from cellplan.strategies.model.layered import (
 )
 from cellplan.strategies.model.live import compute_live, live_problems, start_problems
 from cellplan.strategies.model.motion import valid_moves
-from cellplan.strategies.model.spec import Build, ModeTables, Motions, ProblemSpec, Process
+from cellplan.strategies.model.spec import (
+    Build,
+    ModeTables,
+    Motions,
+    ProblemSpec,
+    Process,
+    compiled,
+)
 from cellplan.strategies.model.tables import corner_tables, stencil_tables, table_rows
 
 #: Re-exported: the model's types and checks are reached through this module.
@@ -358,15 +365,16 @@ def fine_motion_field(spec: Any, tool_xy: np.ndarray) -> np.ndarray:
 
 
 def build_model(
-    scenario: Any,
+    problem: Any,
     cell: Any,
     cells: Sequence[int] | None = None,
     start: Sequence[float] | np.ndarray | None = None,
 ) -> LayeredMDP:
     """The layered MDP of a scenario with a ``strategy:`` section.
 
-    The section is compiled once (``scenario.strategy.compile``, a
-    :class:`~cellplan.strategies.model.spec.ProblemSpec`); the model is the Section V one
+    ``problem`` is the scenario or its compiled section (a
+    :class:`~cellplan.strategies.model.spec.ProblemSpec`, :func:`~.spec.compiled`: a
+    caller that compiled it already hands it on); the model is the Section V one
     unless an active variant of the specification assembles its own or extends it
     (:class:`~cellplan.strategies.variants.base.Variant`). With ``start`` (the robot's
     start, as the planner passes it), also checks that a run can begin there
@@ -380,10 +388,8 @@ def build_model(
         that cannot be carried anywhere, an unreachable destination), one problem each,
         or the start is outside the strategy's domain.
     """
-    sec = scenario.strategy
-    if sec is None:
-        raise ScenarioError([Problem("strategy", "the scenario has no strategy section")])
-    spec = sec.compile(scenario)
+    spec = compiled(problem)
+    scenario = spec.scenario
     robot = cell.robot
     shape = grid_shape(scenario, cell, cells)
     if len(shape) != robot.dim:

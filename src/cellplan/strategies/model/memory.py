@@ -68,7 +68,7 @@ import numpy as np
 from cellplan.cspace import Grid
 from cellplan.cspace import estimate_memory as bitmap_memory
 from cellplan.strategies.model.mdp import action_sets, grid_shape
-from cellplan.strategies.model.spec import LayerCounts
+from cellplan.strategies.model.spec import LayerCounts, compiled
 
 
 def _bitmap_peak(cell: Any, shape: tuple[int, ...], parts: Sequence[str]) -> int:
@@ -115,15 +115,17 @@ class MemoryEstimate:
 
 
 def estimate_memory(
-    scenario: Any, cell: Any, cells: Sequence[int] | None = None, method: str | None = None
+    problem: Any, cell: Any, cells: Sequence[int] | None = None, method: str | None = None
 ) -> MemoryEstimate:
     """The memory of :func:`~.mdp.build_model` and the solver on this grid, before
     allocating: the counts of the module docstring, with the sizes of the compiled
     problem after every active variant's ``layers`` hook (``method`` defaults to
-    ``strategy.solver.method``).
+    ``strategy.solver.method``). ``problem`` is the scenario or its compiled section
+    (:func:`~.spec.compiled`).
     """
-    sec = scenario.strategy
-    spec = sec.compile(scenario)
+    spec = compiled(problem)
+    scenario = spec.scenario
+    sec = spec.section
     robot = cell.robot
     shape = grid_shape(scenario, cell, cells)
     d = len(shape)

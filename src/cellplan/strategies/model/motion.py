@@ -18,13 +18,18 @@ from cellplan.strategies.model.stencils import MAX_DIM, centre, displacement
 
 
 @njit(cache=True)
-def motion_ok(q, dq, free, shape, lower, upper, spacing, periodic, ibuf):  # pragma: no cover
+def motion_ok(q, dq, free, grid, ibuf):  # pragma: no cover - numba
     """Swept check of the segment ``q -> q + dq`` against the bitmap ``free`` (1-D, flat).
 
-    The grid's arrays come one by one: a low-level helper called per action, where a
-    bundle argument cost more than the check itself;
-    ``ibuf`` is int scratch of length ``3 * MAX_DIM``.
+    ``grid`` is the :class:`~.bundles.Grid` bundle (a plain, non-inlined call: its five
+    arrays travel as five arguments, no reference is counted); ``ibuf`` is int scratch of
+    length ``3 * MAX_DIM``.
     """
+    shape = grid.shape
+    lower = grid.lower
+    upper = grid.upper
+    spacing = grid.spacing
+    periodic = grid.periodic
     d = shape.shape[0]
     nsub = 1
     for j in range(d):
@@ -92,9 +97,7 @@ def valid_moves(free, disp, heading_axis, grid):  # pragma: no cover - numba
         bits = 0
         for a in range(nact):
             displacement(q, disp[a], heading_axis, dq)
-            if motion_ok(
-                q, dq, free, shape, grid.lower, grid.upper, grid.spacing, grid.periodic, mbuf
-            ):
+            if motion_ok(q, dq, free, grid, mbuf):
                 bits |= 1 << a
         out[c] = bits
     return out

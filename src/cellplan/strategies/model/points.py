@@ -25,6 +25,7 @@ import numba
 import numpy as np
 from numba import njit
 
+from cellplan.strategies.model.bundles import Probe
 from cellplan.strategies.model.interpolation import interp
 from cellplan.strategies.model.motion import motion_ok
 from cellplan.strategies.model.stencils import (
@@ -56,6 +57,57 @@ def outcomes_at(opt, h, live, lay, idx, w, n):  # pragma: no cover - numba
 
 
 @njit(cache=True)
+def probe(d):  # pragma: no cover - numba
+    """A :class:`~.bundles.Probe` (scratch of a point query) for a ``d``-dimensional grid."""
+    return Probe(
+        np.empty(1 << d, np.int64),
+        np.empty(1 << d),
+        np.empty(2 * MAX_DIM, np.int64),
+        np.empty(MAX_DIM),
+        np.empty(3 * MAX_DIM, np.int64),
+    )
+
+
+@njit(cache=True)
+def fmp_outcomes(q, m, h, live, model, pr):  # pragma: no cover - numba
+    """:func:`outcomes_at` of mode ``m``'s (first) FMP option at ``q`` (the caller adds
+    ``t_f`` and checks that the cell allows FMP); ``pr`` is the
+    :class:`~.bundles.Probe` scratch."""
+    n = stencil(q, model.grid, pr.idx, pr.w, pr.ibuf, pr.frac)
+    lay = model.layers
+    return outcomes_at(lay.opt_ptr[m], h, live, lay, pr.idx, pr.w, n)
+
+
+@njit(cache=True)
+def branches_at(start, m, h, live, lay, idx, w, n):  # pragma: no cover - numba
+    """``start + sum_b P_b H_{L_b}`` over mode ``m``'s branches at the stencil ``idx, w``
+    (``n`` corners); NaN where a branch has no live corner."""
+    val = start
+    for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
+        L = lay.branch_layer[b]
+        v = interp(h[L], live[L], idx, w, n)
+        if np.isnan(v):
+            return np.nan
+        val += lay.branch_prob[b] * v
+    return val
+
+
+@njit(cache=True)
+def moved_to(q, dq, k, a, model, pr, qn):  # pragma: no cover - numba
+    """``qn = q + dq`` (wrapped) for move ``a`` of class ``k``, its displacement written to
+    ``dq``; False (``qn`` untouched) where the swept motion is not free."""
+    moves = model.moves
+    grid = model.grid
+    displacement(q, moves.disp[k, a], moves.heading_axis, dq)
+    if not motion_ok(q, dq, moves.free[k], grid, pr.mbuf):
+        return False
+    for j in range(q.shape[0]):
+        qn[j] = q[j] + dq[j]
+    wrap(qn, grid.lower, grid.upper, grid.periodic)
+    return True
+
+
+@njit(cache=True)
 def action_values_at(q, m, h, live, tf_here, fmp_allowed, model, out):  # pragma: no cover
     """Right-hand side of equation (9) at a real configuration ``q`` in mode ``m``.
 
@@ -64,66 +116,36 @@ def action_values_at(q, m, h, live, tf_here, fmp_allowed, model, out):  # pragma
     the swept motion, outside the MDP, FMP outside the region).
     """
     moves = model.moves
-    grid = model.grid
     lay = model.layers
-    shape = grid.shape
-    d = shape.shape[0]
+    d = model.grid.shape.shape[0]
     qn = np.empty(d)
     dq = np.empty(d)
-    idx = np.empty(1 << d, np.int64)
-    w = np.empty(1 << d)
-    ibuf = np.empty(3 * MAX_DIM, np.int64)
-    fbuf = np.empty(MAX_DIM)
-    mbuf = np.empty(3 * MAX_DIM, np.int64)
+    pr = probe(d)
     k = lay.vcls[m]
     na = moves.nact[k]
     for i in range(out.shape[0]):
         out[i] = np.nan
     nxt = lay.fmp_next[m]
     if nxt >= 0 and fmp_allowed:
-        n = stencil(q, shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, fbuf)
-        v = outcomes_at(lay.opt_ptr[m], h, live, lay, idx, w, n)
+        n = stencil(q, model.grid, pr.idx, pr.w, pr.ibuf, pr.frac)
+        v = outcomes_at(lay.opt_ptr[m], h, live, lay, pr.idx, pr.w, n)
         if not np.isnan(v):
             out[0] = tf_here + v
     noisy = moves.noise_prob.shape[0] > 1
     for a in range(-1, na):
         if a >= 0 and noisy:  # Section VI-4: the expectation over the landings
-            v = noisy_value_at(q, m, a, h, live, model, (idx, w, ibuf, fbuf, mbuf))
+            v = noisy_value_at(q, m, a, h, live, model, pr)
             if not np.isnan(v):
                 out[2 + a] = lay.cost[m] + v
             continue
         if a >= 0:
-            displacement(q, moves.disp[k, a], moves.heading_axis, dq)
-            if not motion_ok(
-                q,
-                dq,
-                moves.free[k],
-                shape,
-                grid.lower,
-                grid.upper,
-                grid.spacing,
-                grid.periodic,
-                mbuf,
-            ):
+            if not moved_to(q, dq, k, a, model, pr, qn):
                 continue
-            for j in range(d):
-                qn[j] = q[j] + dq[j]
-            wrap(qn, grid.lower, grid.upper, grid.periodic)
         else:
             for j in range(d):
                 qn[j] = q[j]
-        n = stencil(qn, shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, fbuf)
-        val = lay.cost[m]
-        ok = True
-        for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
-            L = lay.branch_layer[b]
-            v = interp(h[L], live[L], idx, w, n)
-            if np.isnan(v):
-                ok = False
-                break
-            val += lay.branch_prob[b] * v
-        if ok:
-            out[2 + a] = val
+        n = stencil(qn, model.grid, pr.idx, pr.w, pr.ibuf, pr.frac)
+        out[2 + a] = branches_at(lay.cost[m], m, h, live, lay, pr.idx, pr.w, n)
     # While a request waits, stay is dominated in the MDP (it costs a stage and changes
     # nothing), but at an off-grid state the interpolated cost-to-go can make it look best
     # and the robot would wait for ever; offer it only when no motion is possible.
@@ -172,79 +194,88 @@ def query(q, m, h, live, forbid_fmp, model, out):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def after_motion(q, m, h, live, model, idx, w, ibuf, frac):  # pragma: no cover - numba
-    """Expected interpolated cost-to-go ``sum_b P_b H_{L_b}(q)`` after a motion (NaN: none)."""
-    grid = model.grid
-    lay = model.layers
-    n = stencil(q, grid.shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, frac)
-    val = 0.0
-    for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
-        L = lay.branch_layer[b]
-        v = interp(h[L], live[L], idx, w, n)
-        if np.isnan(v):
-            return np.nan
-        val += lay.branch_prob[b] * v
-    return val
+def queries(qs, m, h, live, forbid_fmp, model, codes, steps):  # pragma: no cover - numba
+    """:func:`query` at each row of ``qs`` (``(n, d)``, finite: the caller checks), all in
+    layer ``m``: ``codes[i]`` the action code, ``steps[i]`` a move's C-space displacement
+    from ``qs[i]`` (zero for any other code)."""
+    out = np.empty(2 + model.moves.disp.shape[1])
+    moves = model.moves
+    k = model.layers.vcls[m]
+    for i in range(qs.shape[0]):
+        u = query(qs[i], m, h, live, forbid_fmp, model, out)
+        codes[i] = u
+        if u >= 0:
+            displacement(qs[i], moves.disp[k, u], moves.heading_axis, steps[i])
+        else:
+            steps[i, :] = 0.0
 
 
 @njit(cache=True)
-def lookahead(
-    q, m, depth, h, live, model, fmp_root, offset, collect, nodes, fmp_ok, seq
-):  # pragma: no cover - numba
-    """The best motion sequence of up to ``depth`` stages from ``q`` (a lookahead on (9)).
+def after_motion(q, m, h, live, model, pr):  # pragma: no cover - numba
+    """Expected interpolated cost-to-go ``sum_b P_b H_{L_b}(q)`` after a motion (NaN: none);
+    leaves ``q``'s stencil in the :class:`~.bundles.Probe` ``pr``."""
+    n = stencil(q, model.grid, pr.idx, pr.w, pr.ibuf, pr.frac)
+    return branches_at(0.0, m, h, live, model.layers, pr.idx, pr.w, n)
 
-    The value of a sequence is its stage losses less ``offset`` per stage (the gain, as in
-    the average-cost form of (9)) plus the interpolated cost-to-go where it ends: after
-    ``depth`` motions, or by FMP at a configuration whose cell allows it (at ``q`` itself
-    only if ``fmp_root``). Every motion must pass the swept check and end in a cell that is
-    a live state of layer ``m`` (inside the strategy's domain). A motion followed by its
-    inverse is skipped (it returns to the same configuration). Returns
-    ``(value, length, count)``: the best sequence is ``seq[:length]`` (move indices, -2
-    for FMP, which ends it; length 0 when no sequence qualifies) and ``count`` the
-    configurations after the root whose cell allows FMP.
+
+@njit(cache=True)
+def undoes(disp_k, a, prev):  # pragma: no cover - numba
+    """Whether move ``a`` is the inverse of move ``prev`` (``disp_k``: the class's
+    displacements): the pair returns to the same configuration."""
+    for j in range(disp_k.shape[1]):
+        if abs(disp_k[a, j] + disp_k[prev, j]) > 1e-12:
+            return False
+    return True
+
+
+@njit(cache=True)
+def lookahead(q, m, h, live, model, search):  # pragma: no cover - numba
+    """The best motion sequence of up to ``search.depth`` stages from ``q`` (a lookahead on
+    (9)); ``search`` is the :class:`~.bundles.Search` bundle.
+
+    The value of a sequence is its stage losses less ``search.offset`` per stage (the gain,
+    as in the average-cost form of (9)) plus the interpolated cost-to-go where it ends:
+    after ``depth`` motions, or by FMP at a configuration whose cell allows it (at ``q``
+    itself only if ``search.fmp_root``). Every motion must pass the swept check and end in
+    a cell that is a live state of layer ``m`` (inside the strategy's domain). A motion
+    followed by its inverse is skipped (it returns to the same configuration). Returns
+    ``(value, length, count)``: the best sequence is ``search.seq[:length]`` (move
+    indices, -2 for FMP, which ends it; length 0 when no sequence qualifies) and ``count``
+    the configurations after the root whose cell allows FMP.
 
     The exact region test is not available in compiled code, so FMP away from the root
-    takes two calls: with ``collect`` the count configurations are written to ``nodes``
-    (and FMP is not offered there); without it ``fmp_ok[i]`` says whether FMP is possible
-    at the i-th of them, in the same order.
+    takes two calls: with ``search.collect`` the count configurations are written to
+    ``search.nodes`` (and FMP is not offered there); without it ``search.fmp_ok[i]`` says
+    whether FMP is possible at the i-th of them, in the same order.
     """
-    moves = model.moves
     grid = model.grid
     lay = model.layers
-    shape = grid.shape
-    lower = grid.lower
-    spacing = grid.spacing
-    periodic = grid.periodic
-    tf = lay.tf
-    disp = moves.disp
-    d = shape.shape[0]
+    depth = search.depth
+    offset = search.offset
+    seq = search.seq
+    d = grid.shape.shape[0]
     k = lay.vcls[m]
-    na = moves.nact[k]
-    nxt = lay.fmp_next[m]
+    na = model.moves.nact[k]
     step = lay.cost[m] - offset
     qd = np.empty((depth + 1, d))
     dq = np.empty(d)
     acc = np.zeros(depth + 1)
     choice = np.full(depth + 1, -1, np.int64)
-    idx = np.empty(1 << d, np.int64)
-    w = np.empty(1 << d)
-    ibuf = np.empty(2 * MAX_DIM, np.int64)
-    frac = np.empty(MAX_DIM)
-    mbuf = np.empty(3 * MAX_DIM, np.int64)
+    pr = probe(d)
     best = np.inf
     count = 0
     length = 0
     for j in range(d):
         qd[0, j] = q[j]
-    if nxt >= 0 and fmp_root:
-        c = cell_containing(q, shape, lower, spacing, periodic)
-        if tf[lay.opt_ptr[m], c] < np.inf:
-            n = stencil(q, shape, lower, spacing, periodic, idx, w, ibuf, frac)
-            v = outcomes_at(lay.opt_ptr[m], h, live, lay, idx, w, n)
-            if not np.isnan(v):
-                best = tf[lay.opt_ptr[m], c] - offset + v
-                seq[0] = FMP_CODE
-                length = 1
+    can_fmp = lay.fmp_next[m] >= 0
+    if can_fmp and search.fmp_root:
+        c = cell_containing(q, grid.shape, grid.lower, grid.spacing, grid.periodic)
+        tf = lay.tf[lay.opt_ptr[m], c]
+        v = tf - offset + fmp_outcomes(q, m, h, live, model, pr) if tf < np.inf else np.nan
+        if not np.isnan(v):
+            best = v
+            seq[0] = FMP_CODE
+            length = 1
     level = 0
     while level >= 0:
         choice[level] += 1
@@ -253,49 +284,36 @@ def lookahead(
             choice[level] = -1
             level -= 1
             continue
-        if level > 0:
-            inverse = True
-            prev = choice[level - 1]
-            for j in range(d):
-                if abs(disp[k, a, j] + disp[k, prev, j]) > 1e-12:
-                    inverse = False
-                    break
-            if inverse:
-                continue
-        displacement(qd[level], disp[k, a], moves.heading_axis, dq)
-        if not motion_ok(
-            qd[level], dq, moves.free[k], shape, lower, grid.upper, spacing, periodic, mbuf
-        ):
+        if level > 0 and undoes(model.moves.disp[k], a, choice[level - 1]):
             continue
-        for j in range(d):
-            qd[level + 1, j] = qd[level, j] + dq[j]
-        wrap(qd[level + 1], lower, grid.upper, periodic)
-        c = cell_containing(qd[level + 1], shape, lower, spacing, periodic)
+        if not moved_to(qd[level], dq, k, a, model, pr, qd[level + 1]):
+            continue
+        c = cell_containing(qd[level + 1], grid.shape, grid.lower, grid.spacing, grid.periodic)
         if not live[m, c]:
             continue
         acc[level + 1] = acc[level] + step
         fmp_here = False
-        if nxt >= 0 and tf[lay.opt_ptr[m], c] < np.inf:
-            if collect:
-                if count < nodes.shape[0]:
+        if can_fmp and lay.tf[lay.opt_ptr[m], c] < np.inf:
+            if search.collect:
+                if count < search.nodes.shape[0]:
                     for j in range(d):
-                        nodes[count, j] = qd[level + 1, j]
+                        search.nodes[count, j] = qd[level + 1, j]
             else:
-                fmp_here = count < fmp_ok.shape[0] and fmp_ok[count]
+                fmp_here = count < search.fmp_ok.shape[0] and search.fmp_ok[count]
             count += 1
         if fmp_here:
-            n = stencil(qd[level + 1], shape, lower, spacing, periodic, idx, w, ibuf, frac)
-            v = outcomes_at(lay.opt_ptr[m], h, live, lay, idx, w, n)
-            if not np.isnan(v) and acc[level + 1] + tf[lay.opt_ptr[m], c] - offset + v < best:
-                best = acc[level + 1] + tf[lay.opt_ptr[m], c] - offset + v
+            tf = lay.tf[lay.opt_ptr[m], c]
+            v = acc[level + 1] + tf - offset + fmp_outcomes(qd[level + 1], m, h, live, model, pr)
+            if not np.isnan(v) and v < best:
+                best = v
                 for i in range(level + 1):
                     seq[i] = choice[i]
                 seq[level + 1] = FMP_CODE
                 length = level + 2
         if level + 1 == depth:
-            v = after_motion(qd[level + 1], m, h, live, model, idx, w, ibuf, frac)
-            if not np.isnan(v) and acc[level + 1] + v < best:
-                best = acc[level + 1] + v
+            v = acc[level + 1] + after_motion(qd[level + 1], m, h, live, model, pr)
+            if not np.isnan(v) and v < best:
+                best = v
                 for i in range(level + 1):
                     seq[i] = choice[i]
                 length = level + 1
@@ -318,10 +336,8 @@ def fmp_options_at(q, m, h, live, allowed, model):  # pragma: no cover - numba
     d = grid.shape.shape[0]
     idx = np.empty(1 << d, np.int64)
     w = np.empty(1 << d)
-    ibuf = np.empty(3 * MAX_DIM, np.int64)
-    fbuf = np.empty(MAX_DIM)
     c = cell_containing(q, grid.shape, grid.lower, grid.spacing, grid.periodic)
-    n = stencil(q, grid.shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, fbuf)
+    n = stencil(q, grid, idx, w, np.empty(2 * MAX_DIM, np.int64), np.empty(MAX_DIM))
     best = np.inf
     arg = -1
     o0 = lay.opt_ptr[m]

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from cellplan.errors import Problem
+from cellplan.errors import Problem, ScenarioError
 from cellplan.strategies.model.actions import ActionSet
 
 if TYPE_CHECKING:
@@ -130,6 +130,8 @@ class ProblemSpec:
     destination_change: float
     source_change: float
     variants: tuple[ModelRules, ...]
+    # The scenario it was compiled from (its workcell-side fields: grid, robot, regions).
+    scenario: Any = None
 
     @property
     def parts(self) -> list[str]:
@@ -145,6 +147,25 @@ class ProblemSpec:
 
     def variant_names(self) -> tuple[str, ...]:
         return tuple(v.name for v in self.variants)
+
+
+def compiled(problem: Any) -> ProblemSpec:
+    """``problem`` itself when it is a :class:`ProblemSpec`, else the compiled ``strategy:``
+    section of the scenario ``problem``: the model build, the memory estimate and the
+    planner take either, so that one solve compiles the section once and hands it on.
+
+    Raises
+    ------
+    ScenarioError
+        When the scenario has no ``strategy:`` section.
+    """
+    if isinstance(problem, ProblemSpec):
+        return problem
+    section = problem.strategy
+    if section is None:
+        raise ScenarioError([Problem("strategy", "the scenario has no strategy section")])
+    spec: ProblemSpec = section.compile(problem)
+    return spec
 
 
 @dataclass(frozen=True)

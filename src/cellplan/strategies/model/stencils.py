@@ -59,11 +59,16 @@ def wrap(q, lower, upper, periodic):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def stencil(q, shape, lower, spacing, periodic, idx, w, ibuf, frac):  # pragma: no cover - numba
+def stencil(q, grid, idx, w, ibuf, frac):  # pragma: no cover - numba
     """Multilinear stencil of ``q``: ``2^d`` flat indices and weights (some may be 0).
 
-    ``ibuf`` (int, ``2 * MAX_DIM``) and ``frac`` (float, ``MAX_DIM``) are scratch space.
+    ``grid`` is the :class:`~.bundles.Grid` bundle; ``ibuf`` (int, ``2 * MAX_DIM``) and
+    ``frac`` (float, ``MAX_DIM``) are scratch space.
     """
+    shape = grid.shape
+    lower = grid.lower
+    spacing = grid.spacing
+    periodic = grid.periodic
     d = shape.shape[0]
     base = ibuf[:MAX_DIM]
     nxt = ibuf[MAX_DIM:]

@@ -61,7 +61,7 @@ def snap_free_moves(moves, grid):  # pragma: no cover - numba
                 for j in range(d):
                     dq[j] += q[j]
                 stencils.wrap(dq, lower, upper, periodic)
-                n = stencils.stencil(dq, shape, lower, spacing, periodic, idx, w, ibuf, frac)
+                n = stencils.stencil(dq, grid, idx, w, ibuf, frac)
                 for kk in range(n):
                     if w[kk] > stencils.EPS_W and not free[k, idx[kk]]:
                         out[k, c] &= ~(1 << a)

@@ -60,9 +60,7 @@ def per_request_values(mdp: LayeredMDP, tol: float = 1e-9, max_sweeps: int = 100
             if kernels.sweep_layer(m, s % (1 << d), work, D, 0.0, False, False, args) < tol:
                 break
         h[m] = np.where(mdp.live[m], work[m], np.nan)
-    if not mdp.is_simple():
-        h = _with_failures(mdp, h, tol, max_sweeps)
-    return h
+    return _with_failures(mdp, h, tol, max_sweeps)
 
 
 def _over_phases(mdp: LayeredMDP, tol: float, max_passes: int) -> np.ndarray:
@@ -103,7 +101,8 @@ def _request_layers(mdp: LayeredMDP) -> list[int]:
 
 
 def _with_failures(mdp: LayeredMDP, h: np.ndarray, tol: float, max_sweeps: int) -> np.ndarray:
-    """The time-to-finish values when FMPs can fail (Section VI-3).
+    """The time-to-finish values when FMPs can fail (Section VI-3); ``h`` itself where
+    every FMP has one outcome (the model's outcome table says so, whichever variant built it).
 
     The layer sweeps above follow each FMP's success only. Passes then re-solve every
     layer with its FMP's other outcomes (a retry, a rejection) valued at the last pass's
@@ -112,10 +111,12 @@ def _with_failures(mdp: LayeredMDP, h: np.ndarray, tol: float, max_sweeps: int) 
     failure probability per pass (a failure is the only way back into a solved layer).
     """
     out = mdp.fmp_outcomes()
-    args_of = success_only(mdp).kernel_args  # the other outcomes are folded into t_f
-    d = len(mdp.shape)
     order = _request_layers(mdp)
     failing = [m for m in order if out.ptr[m + 1] - out.ptr[m] > 1]
+    if not failing:  # every FMP has its one certain outcome: the layer sweeps were exact
+        return h
+    args_of = success_only(mdp).kernel_args  # the other outcomes are folded into t_f
+    d = len(mdp.shape)
     D = np.zeros(h.shape)
     work = np.where(mdp.live, h, 0.0)
     for _ in range(max_sweeps):

@@ -156,11 +156,31 @@ def typed(code: int, mode: Mode, step: np.ndarray) -> Action:
     if option >= 0:
         region, part = fmp_target(mode, option)
         kind: ActionKind = "drop" if part is not None else "pick"
-        zero = tuple(0.0 for _ in step)
-        return Action(kind, int(code), step=zero, region=region, option=option)
+        return Action(kind, int(code), step=(0.0,) * len(step), region=region, option=option)
     if code == STAY:
-        return Action("stay", STAY, step=tuple(0.0 for _ in step))
-    return Action("move", int(code), move=int(code), step=tuple(float(v) for v in step))
+        return Action("stay", STAY, step=(0.0,) * len(step))
+    return Action("move", int(code), move=int(code), step=tuple(step.tolist()))
+
+
+def actions_of(codes: np.ndarray, steps: np.ndarray, mode: Mode) -> Actions:
+    """The :class:`Actions` of the action ``codes`` (int64, ``(n,)``) in ``mode``, as
+    :func:`typed` makes each: ``steps`` ``(n, dim)`` the moves' displacements (zero rows
+    for every other code)."""
+    option = np.where(codes == FMP, 0, np.where(codes < OUTSIDE_CODE, OUTSIDE_CODE - codes, -1))
+    kind = np.where(codes >= 0, "move", "stay").astype("<U4")
+    targets = {int(j): fmp_target(mode, int(j)) for j in np.unique(option[option >= 0])}
+    region = np.full(len(codes), "", dtype=f"<U{max([1, *(len(r) for r, _ in targets.values())])}")
+    for j, (name, part) in targets.items():
+        kind[option == j] = "drop" if part is not None else "pick"
+        region[option == j] = name
+    return Actions(
+        kind=kind,
+        code=codes.astype(np.int64),
+        move=np.where(codes >= 0, codes, -1).astype(np.int64),
+        step=np.asarray(steps, dtype=float),
+        region=region,
+        option=option.astype(np.int64),
+    )
 
 
 def option_or_motion(

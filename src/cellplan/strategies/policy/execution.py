@@ -46,12 +46,14 @@ from collections.abc import Callable
 import numpy as np
 
 from cellplan.strategies.model import stencils
+from cellplan.strategies.model.bundles import Probe, Search
 from cellplan.strategies.model.interpolation import interp
 from cellplan.strategies.model.mdp import LayeredMDP
 from cellplan.strategies.model.points import action_values_at, after_motion, lookahead
 from cellplan.strategies.policy.baselines import motions_leave_layers
 from cellplan.strategies.policy.decisions import FMP, best_action, option_or_motion
 from cellplan.strategies.policy.strategy import Strategy, checked_state
+from cellplan.strategies.variants.registry import model_variants
 
 # Fraction of one stage's progress (:meth:`Executor._progress`, ``l - g`` in Section V's
 # W and C layers) below which an inconsistency is left alone.
@@ -68,10 +70,13 @@ def default_depth(mdp: LayeredMDP, budget: int = LEAF_BUDGET) -> int:
     ``A (A - 1)^(D - 1)`` sequences of ``D`` stages: 5 stages for the rotating robot's 4
     motions, 2 for 16 headings, 3 for an arm's 6 joint steps. With noisy motion (Section
     VI-4) it is 1: rule (9) with the expectation over the landings; so it is in a
-    time-varying model (Section VI-1), whose every motion leads to the next phase's layer.
+    time-varying model (Section VI-1), whose every motion leads to the next phase's layer,
+    and with FMP options (Section VI-2). A variant sets its limit
+    (:meth:`~cellplan.strategies.variants.base.Variant.lookahead`).
     """
-    if len(mdp.noise_prob) > 1:
-        return 1  # the lookahead follows commanded landings; noisy moves land elsewhere
+    limits = [d for v in model_variants(mdp) if (d := v.lookahead(mdp)) is not None]
+    if limits:
+        return min(limits)  # a variant's own (noisy motion, FMP options: 1)
     if motions_leave_layers(mdp):
         return 1  # the lookahead stays in one layer; a time-varying model's next is the next phase
     na = int(mdp.nact.max())
@@ -133,7 +138,7 @@ class Executor:
         self.depth = default_depth(mdp) if depth is None else int(depth)
         self.fmp_test = fmp_test
         self.option_test = option_test
-        self.options = mdp.opt_ptr is not None
+        self.options = any(v.fmp_options() for v in model_variants(mdp))
         if self.options:
             self.depth = 1  # the lookahead follows one FMP per mode, not a choice of them
         na = int(mdp.nact.max())
@@ -152,6 +157,9 @@ class Executor:
         self._ibuf = np.empty(2 * stencils.MAX_DIM, np.int64)
         self._frac = np.empty(stencils.MAX_DIM)
         self._model = mdp.kernel_args()
+        # The point queries' scratch: the stencil of the last query stays in _idx, _w.
+        mbuf = np.empty(3 * stencils.MAX_DIM, np.int64)
+        self._probe = Probe(self._idx, self._w, self._ibuf, self._frac, mbuf)
         self._here = float("nan")  # H(q) of the last _progress call
 
     def action_values(
@@ -188,18 +196,7 @@ class Executor:
         return self._value(q, mode)
 
     def _value(self, q: np.ndarray, mode: int) -> float:
-        mdp = self.strategy.mdp
-        n = stencils.stencil(
-            q,
-            mdp.shape,
-            mdp.lower,
-            mdp.spacing,
-            mdp.periodic,
-            self._idx,
-            self._w,
-            self._ibuf,
-            self._frac,
-        )
+        n = stencils.stencil(q, self._model.grid, self._idx, self._w, self._ibuf, self._frac)
         return float(interp(self.h[mode], self.live[mode], self._idx, self._w, n))
 
     def correct(self, q: np.ndarray, mode: int, target: float) -> float:
@@ -252,9 +249,7 @@ class Executor:
         """
         mdp = self.strategy.mdp
         self._here = self._value(q, mode)
-        after = after_motion(
-            q, mode, self.h, self.live, self._model, self._idx, self._w, self._ibuf, self._frac
-        )
+        after = after_motion(q, mode, self.h, self.live, self._model, self._probe)
         stage = float(mdp.cost[mode]) - self.offset
         delay = stage + float(after) - self._here
         positive = [v for v in (stage, delay) if v > 0.0]
@@ -319,17 +314,5 @@ class Executor:
     def _call(
         self, q: np.ndarray, mode: int, fmp_root: bool, collect: bool, flags: np.ndarray
     ) -> tuple[float, int, int]:
-        return lookahead(
-            q,
-            mode,
-            self.depth,
-            self.h,
-            self.live,
-            self._model,
-            fmp_root,
-            self.offset,
-            collect,
-            self._nodes,
-            flags,
-            self._seq,
-        )
+        search = Search(self.depth, self.offset, fmp_root, collect, self._nodes, flags, self._seq)
+        return lookahead(q, mode, self.h, self.live, self._model, search)

@@ -16,7 +16,7 @@ import numpy as np
 
 from cellplan.strategies.model.mdp import LayeredMDP
 from cellplan.strategies.policy.decisions import fmp_target
-from cellplan.strategies.variants.periodic import region_offset
+from cellplan.strategies.variants.registry import model_variants
 
 
 def region_test(strategy: Any, cell: Any, regions: str) -> RegionTest:
@@ -49,7 +49,11 @@ class RegionTest:
         of the carried request, or while empty the pick of the ``j``-th waiting request
         type in the order of the model's options."""
         region, part = fmp_target(self.mdp.modes[m], j)
-        offset = region_offset(self.mdp, region, m)
+        offset = None  # where the scenario puts it, unless a variant moves it
+        for variant in model_variants(self.mdp):
+            moved = variant.region_offset(self.mdp, region, m)
+            if moved != (0.0, 0.0):
+                offset = moved
         return np.asarray(
             self.cell.in_region(points, region, self.regions, None, part, offset), dtype=bool
         )

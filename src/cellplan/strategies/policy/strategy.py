@@ -15,8 +15,7 @@ scenario whose digest differs raises :class:`~cellplan.errors.PersistenceError`.
 from __future__ import annotations
 
 import operator
-import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -27,7 +26,8 @@ from cellplan.errors import ArgumentError, PersistenceError, Problem, ScenarioEr
 from cellplan.strategies.model.bundles import Model
 from cellplan.strategies.model.mdp import LayeredMDP, Mode, build_model
 from cellplan.strategies.model.motion import motion_ok
-from cellplan.strategies.model.points import action_values_at, compiled_for, query
+from cellplan.strategies.model.points import action_values_at, compiled_for, queries, query
+from cellplan.strategies.model.spec import compiled
 from cellplan.strategies.model.stencils import (
     MAX_DIM,
     NO_ACTION_CODE,
@@ -42,10 +42,12 @@ from cellplan.strategies.policy.decisions import (
     STAY,
     Action,
     Actions,
+    actions_of,
     option_or_motion,
     typed,
 )
 from cellplan.strategies.policy.fileformat import FORMAT, VERSION
+from cellplan.strategies.policy.modenames import mode_index
 from cellplan.strategies.policy.persist import read_model, write_strategy
 from cellplan.strategies.policy.regions import region_test
 from cellplan.strategies.solve.solver import SolveResult, method_problem, solve
@@ -61,6 +63,7 @@ class _QueryArgs(NamedTuple):
     live: np.ndarray
     out: np.ndarray  # the kernel's scratch row of action values
     kernel: Any  # points.query compiled for these arguments' types
+    batch: Any  # points.queries compiled likewise, for C-ordered (n, d) batches
 
 
 @dataclass
@@ -131,106 +134,9 @@ class Strategy:
         return self.mdp.live
 
     def mode_index(self, text: str, phase: int | None = None) -> int:
-        """A mode from ``NR``, ``"1,1,1,W"`` (1-based indices in the scenario file's order,
-        the paper's notation) or ``"<P1,S1,D1,W>"`` (names, as mode labels print; the X
-        modes of failures, Section VI-3, by their labels such as ``<P1,S1,D1,X:R1>``).
-
-        With simultaneous requests (Section VI-2) a mode is named by its label as it
-        prints, ``"{P1,S1,D1; P1,S2,D1} + <P1,S1,D2>"`` (the waiting requests, then the
-        carried one); spaces, and the order of the waiting requests, do not matter.
-
-        In a time-varying model (Section VI-1) a mode is a layer ``(mode, phase)``: the
-        phase follows an ``@`` (``"<P1,S1,D1,W>@3"``, ``"NR@5"``, ``"1,1,1,W@3"``, as the
-        labels print) or is given as ``phase`` (the CLI's ``--phase``); without either it
-        is 0. A stationary model has phase 0 only. Returns the layer's index.
-        """
-        text = text.strip()
-        named, at, tail = text.rpartition("@")
-        if at:
-            if not tail.strip().isdigit():
-                raise PersistenceError(
-                    [Problem("--mode", f"expected a phase number after '@', got {text!r}")]
-                )
-            if phase is not None and phase != int(tail):
-                raise PersistenceError(
-                    [Problem("--phase", f"{phase} differs from the phase {int(tail)} of {text!r}")]
-                )
-            text, phase, field = named.strip(), int(tail), "--mode"
-        else:
-            field = "--phase"
-        mdp = self.mdp
-        phase = 0 if phase is None else phase
-        if not 0 <= phase < mdp.period:
-            if mdp.period == 1:
-                message = f"{phase}: this strategy is stationary (no period); its one phase is 0"
-            else:
-                message = f"{phase} is outside the period (phases 0 to {mdp.period - 1})"
-            raise PersistenceError([Problem(field, message)])
-        return mdp.layer(self._base_index(text), phase)
-
-    def _base_index(self, text: str) -> int:
-        """The index among the modes of one phase (all modes of a stationary model)."""
-        modes = [replace(m, phase=-1) for m in self.modes[: self.mdp.modes_per_phase]]
-        if text.upper() == "NR":
-            return 0
-        for i, m in enumerate(modes):
-            if m.label == text or m.label == f"<{text}>":
-                return i  # every label, the X modes of failures included
-        if text.startswith("{"):
-            return self._pending_index(text, modes)
-        items = [t.strip() for t in text.strip("<>").split(",")]
-        if len(items) != 4 or items[3].upper() not in ("W", "C"):
-            expected = (
-                "NR or a mode label such as '{P1,S1,D1} + <P1,S2,D1>'"
-                if any(m.kind == "Q" for m in modes)
-                else "NR or 'p,s,d,W|C'"
-            )
-            raise PersistenceError([Problem("--mode", f"expected {expected}, got {text!r}")])
-        # The modes follow the scenario's request list, so first appearance is file order.
-        parts = list(dict.fromkeys(m.part for m in modes[1:]))
-        sources = list(dict.fromkeys(m.source for m in modes[1:]))
-        dests = list(dict.fromkeys(m.destination for m in modes[1:]))
-        names = []
-        for item, pool in zip(items[:3], (parts, sources, dests), strict=True):
-            if item.isdigit() and 1 <= int(item) <= len(pool):
-                names.append(pool[int(item) - 1])
-            else:
-                names.append(item)
-        for i, m in enumerate(modes):
-            if (m.part, m.source, m.destination, m.kind) == (*names, items[3].upper()):
-                return i
-        raise self._no_mode(text, modes)
-
-    def _pending_index(self, text: str, modes: list[Mode]) -> int:
-        """A Q mode (simultaneous requests) from its label, spaces and order free."""
-        found = re.fullmatch(r"\{([^{}<>]*)\}(?:\+<([^{}<>]*)>)?", "".join(text.split()))
-        if found is None:
-            raise PersistenceError(
-                [
-                    Problem(
-                        "--mode",
-                        f"expected a mode label such as '{{P1,S1,D1}} + <P1,S2,D1>', got {text!r}",
-                    )
-                ]
-            )
-        key = (tuple(sorted(w for w in found.group(1).split(";") if w)), found.group(2) or "")
-        for i, m in enumerate(modes):
-            carried = f"{m.part},{m.source},{m.destination}" if m.part else ""
-            if m.kind in ("NR", "Q") and (tuple(sorted(m.waiting)), carried) == key:
-                return i
-        raise self._no_mode(text, modes)
-
-    def _no_mode(self, text: str, modes: list[Mode], shown: int = 12) -> PersistenceError:
-        labels = [m.label for m in modes]
-        known = ", ".join(labels[:shown])
-        if len(labels) > shown:
-            known += f", ... ({len(labels)} modes)"
-        phases = self.mdp.n_modes // self.mdp.modes_per_phase  # layers per mode
-        if phases > 1:
-            known += f"; at phases 0 to {phases - 1}, e.g. {labels[-1]}@1"
-        return PersistenceError(
-            [Problem("--mode", f"no mode {text!r} in this strategy (modes: {known})")]
-        )
+        """A layer's index from a mode's name (:func:`~.modenames.mode_index`: ``NR``,
+        ``"1,1,1,W"``, ``"<P1,S1,D1,W>"``, a Q or X label, ``"...@phase"`` ...)."""
+        return mode_index(self.mdp, text, phase)
 
     def cell_of(self, q: np.ndarray) -> int:
         """Flat index of the grid cell containing ``q`` (clamped to the grid on bounded axes)."""
@@ -321,7 +227,10 @@ class Strategy:
             out = np.empty(2 + mdp.disp.shape[1])
             q = np.zeros(len(mdp.shape))
             kernel = compiled_for(query, (q, 0, h0, live, False, model, out))
-            cached = _QueryArgs(mdp, self.values, model, h0, live, out, kernel)
+            rows = np.zeros((1, len(q)))
+            codes = np.zeros(1, np.int64)
+            batch = compiled_for(queries, (rows, 0, h0, live, False, model, codes, rows))
+            cached = _QueryArgs(mdp, self.values, model, h0, live, out, kernel, batch)
             self.__dict__["_query_cache"] = cached
         return cached
 
@@ -360,21 +269,55 @@ class Strategy:
         and ``ValueError`` when a configuration is outside the strategy's domain
         (:meth:`in_domain`; the simulator refuses such a start by the same rule).
         """
-        d = len(self.mdp.shape)
-        if np.ndim(q) == 2 and np.shape(q)[1] == d and np.shape(q)[0] > 0:
-            rows = [checked_state(self.mdp, row, mode) for row in np.asarray(q)]
-            return Actions.of([self._typed(row, m) for row, m in rows], d)
-        row, m = checked_state(self.mdp, q, mode)
-        return self._typed(row, m)
+        mdp = self.mdp
+        shape = q.shape if isinstance(q, np.ndarray) else np.shape(q)  # an array: no copy
+        if len(shape) == 2 and shape[1] == len(mdp.shape) and shape[0] > 0:
+            return self._actions(q, mode)
+        # The query kernel tests q for NaN and infinities (as action_code does).
+        row, m = checked_state(mdp, q, mode, finite=mdp.has_options)
+        code = self._code(row, m, False)
+        if code < 0:
+            return typed(code, mdp.modes[m], row)  # the step is zero: row gives its length
+        disp = mdp.disp[mdp.vcls[m], code]
+        if mdp.heading_axis >= 0:  # robot-frame moves (problem 3): the step turns with q
+            step = np.empty(len(row))
+            displacement(row, disp, mdp.heading_axis, step)
+            return typed(code, mdp.modes[m], step)
+        return typed(code, mdp.modes[m], disp)
 
-    def _typed(self, q: np.ndarray, mode: int) -> Action:
-        """:meth:`action` at one checked state."""
-        code = self.action_code(q, mode)
-        step = np.zeros(len(q))
-        if code >= 0:
-            k = self.mdp.vcls[mode]
-            displacement(q, self.mdp.disp[k, code], self.mdp.heading_axis, step)
-        return typed(code, self.mdp.modes[mode], step)
+    def _actions(self, q: Any, mode: int | str) -> Actions:
+        """:meth:`action` for a batch of configurations ``(n, dim)``: one compiled loop over
+        the rows (:func:`~cellplan.strategies.model.points.queries`), the FMPs confirmed by
+        the attached region test in one call, the answers assembled as arrays."""
+        mdp = self.mdp
+        try:
+            arr = np.ascontiguousarray(q, dtype=float)
+        except (TypeError, ValueError):
+            raise ArgumentError([Problem("q", "expected an array of numbers")]) from None
+        _, m = checked_state(mdp, arr[0], mode, finite=False)
+        if not np.isfinite(arr).all():
+            raise ArgumentError([Problem("q", "contains NaN or infinite values")])
+        if mdp.has_options:  # FMP options (Section VI-2): one row at a time
+            rows = [self._code(row, m, False) for row in arr]
+            return actions_of(np.array(rows, np.int64), np.zeros(arr.shape), mdp.modes[m])
+        codes, steps = self._codes(arr, m, False)
+        test = self.__dict__.get("_fmp_test")
+        fmp = np.flatnonzero(codes == FMP)
+        if test is not None and len(fmp):
+            refused = fmp[~np.asarray(test(arr[fmp], m), dtype=bool)]
+            if len(refused):
+                codes[refused], steps[refused] = self._codes(arr[refused], m, True)
+        if (codes == NO_ACTION_CODE).any():
+            raise ValueError(OUTSIDE)
+        return actions_of(codes, steps, mdp.modes[m])
+
+    def _codes(self, arr: np.ndarray, m: int, forbid_fmp: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The kernel's codes and move steps of the rows of ``arr`` (checked) in layer ``m``."""
+        args = self._query_args()
+        codes = np.empty(len(arr), np.int64)
+        steps = np.empty(arr.shape)
+        args.batch(arr, m, args.h0, args.live, forbid_fmp, args.model, codes, steps)
+        return codes, steps
 
     def action_code(self, q: np.ndarray, mode: int | str, forbid_fmp: bool = False) -> int:
         """:meth:`action` at one configuration as its integer code: ``FMP`` (-2), ``STAY``
@@ -386,9 +329,14 @@ class Strategy:
         simulators and the experiments step through it. ``forbid_fmp`` leaves the FMP out.
         Raises as :meth:`action`.
         """
-        q, mode = checked_state(self.mdp, q, mode, finite=self.mdp.opt_ptr is not None)
+        q, mode = checked_state(self.mdp, q, mode, finite=self.mdp.has_options)
+        return self._code(q, mode, forbid_fmp)
+
+    def _code(self, q: np.ndarray, mode: int, forbid_fmp: bool) -> int:
+        """:meth:`action_code` at a state checked by :func:`checked_state` (finiteness is
+        the kernel's test)."""
         args = self._query_args()
-        if self.mdp.opt_ptr is not None:
+        if self.mdp.has_options:
             if not self.mdp.live[mode, self._cell_of(q)]:
                 raise ValueError(OUTSIDE)  # the query kernel's rule (in_domain)
             return self._best_option_or_motion(q, mode, args.out, forbid_fmp)
@@ -401,7 +349,7 @@ class Strategy:
         if u == FMP and test is not None:
             point = np.asarray(q, dtype=float)[None, :]
             if not test(point, mode)[0]:
-                return self.action_code(q, mode, forbid_fmp=True)
+                return self._code(q, mode, True)
         return int(u)
 
     def _best_option_or_motion(
@@ -464,15 +412,7 @@ class Strategy:
         dq = np.empty(len(q))
         displacement(q, mdp.disp[k, row], mdp.heading_axis, dq)
         if row != action and not motion_ok(
-            q,
-            dq,
-            mdp.free[k],
-            mdp.shape,
-            mdp.lower,
-            mdp.upper,
-            mdp.spacing,
-            mdp.periodic,
-            np.empty(3 * MAX_DIM, np.int64),
+            q, dq, mdp.free[k], mdp.grid(), np.empty(3 * MAX_DIM, np.int64)
         ):
             return q
         q = q + dq
@@ -501,7 +441,7 @@ class Strategy:
 
 
 def solve_scenario(
-    scenario: Any,
+    problem: Any,
     cell: Any,
     *,
     cells: list[int] | None = None,
@@ -513,6 +453,9 @@ def solve_scenario(
 ) -> tuple[Strategy, SolveResult]:
     """Build the model of a scenario's ``strategy:`` section, solve it, wrap the result.
 
+    ``problem`` is the scenario or its compiled section (:func:`~.spec.compiled`; the
+    planner compiles it once for the memory check and the build).
+
     The solver settings are ``solver`` (a :class:`~cellplan.strategies.section.SolverSpec`,
     the planner's options resolved against the scenario), else ``strategy.solver``;
     ``method`` overrides the method (and a refused one is blamed on the option).
@@ -521,9 +464,10 @@ def solve_scenario(
     outside the strategy's domain is refused before solving
     (:func:`~cellplan.strategies.model.mdp.start_problems`).
     """
-    sec = scenario.strategy
+    spec = compiled(problem)
+    scenario, sec = spec.scenario, spec.section
     settings = solver if solver is not None else sec.solver
-    mdp = build_model(scenario, cell, cells, start=start)
+    mdp = build_model(spec, cell, cells, start=start)
     if not snap:
         mdp = forbid_snapping(mdp)
     problem = method_problem(mdp, method or settings.method, settings.damping)
@@ -580,7 +524,7 @@ def checked_state(
         # A mode by name, as Strategy.mode_index reads it ("NR", "<P1,S1,D1,W>",
         # "1,1,1,W", a Q label, "...@phase"); its error names the API's argument.
         try:
-            return arr, Strategy(mdp, np.empty(0), {}).mode_index(mode)
+            return arr, mode_index(mdp, mode)
         except PersistenceError as exc:
             raise ArgumentError([Problem("mode", p.message) for p in exc.problems]) from None
     try:

@@ -22,12 +22,11 @@ within a bound (:func:`wait_bound`; docs/strategies.md, "Simulation status").
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
-from typing import Any, Literal
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from cellplan.core import Progress, Result, Status
 from cellplan.errors import ArgumentError, Problem
@@ -37,7 +36,7 @@ from cellplan.strategies.policy.decisions import FMP, STAY, best_action
 from cellplan.strategies.policy.execution import Executor
 from cellplan.strategies.policy.regions import region_test
 from cellplan.strategies.policy.strategy import Strategy
-from cellplan.strategies.section import MAX_STAGES
+from cellplan.strategies.sim.options import POLICIES, SimulationOptions, run_problems
 from cellplan.strategies.sim.records import (
     COUNT_METRICS,
     Request,
@@ -52,10 +51,8 @@ from cellplan.strategies.sim.report import (
     to_trajectory,
     wait_bound,
 )
-from cellplan.strategies.variants.pending_sim import PENDING_POLICIES, simulate_pending
-
-Policy = Literal["optimal", "reactive", "home"]
-POLICIES: tuple[str, ...] = ("optimal", "reactive", "home")
+from cellplan.strategies.variants.registry import model_variants
+from cellplan.strategies.variants.simulators import simulator_of
 
 
 class _Policies:
@@ -150,17 +147,12 @@ def simulate(
     strategy: Strategy,
     stages: int,
     seed: int,
+    options: SimulationOptions | None = None,
     *,
-    policy: str = "optimal",
-    start: np.ndarray | None = None,
-    start_mode: int = 0,
     cell: Any = None,
-    regions: str = "contact",
-    home: np.ndarray | None = None,
-    learn: bool = True,
     progress: Progress | None = None,
 ) -> Simulation:
-    """Run the assembly process for ``stages`` stages from ``(start, start_mode)``.
+    """Run the assembly process for ``stages`` stages from ``(options.start, options.start_mode)``.
 
     Parameters
     ----------
@@ -168,179 +160,205 @@ def simulate(
         The solved strategy (its model supplies the transition probabilities).
     stages, seed
         Length of the run and the seed of its random generator.
-    policy
-        ``optimal``, ``reactive`` or ``home``.
-    start
-        Start configuration (default: the grid centre of the first live NR cell nearest
-        to the middle).
-    cell, regions
+    options
+        The policy, start, region test, home and learning of the run
+        (:class:`~cellplan.strategies.sim.options.SimulationOptions`; ``start`` None is
+        :func:`~cellplan.strategies.sim.records.default_start` here). ``max_wait`` is
+        :func:`simulate_result`'s.
+    cell
         With a workcell, every FMP is confirmed by the exact region test
-        (:meth:`~cellplan.workcell.Workcell.in_region`); a refused FMP falls back to the
-        best motion.
-    home
-        Home configuration of the ``home`` policy.
-    learn
-        Correct inconsistent values while executing (the LRTA* step of
-        :class:`~cellplan.strategies.policy.execution.Executor`); False keeps its lookahead but
-        drops the correction, and with it the guarantee that no request waits for ever.
+        (:meth:`~cellplan.workcell.Workcell.in_region`, ``options.regions``); a refused
+        FMP falls back to the best motion.
     progress
         Called as ``progress(done, stages, text)`` about 200 times in the run (the CLI
         draws a bar with it).
 
-    A model of simultaneous requests (Section VI-2) runs in
-    :func:`cellplan.strategies.variants.pending_sim.simulate_pending` instead (its policies are
-    ``optimal``, ``fcfs``, ``nearest`` and ``reactive``).
+    A variant whose process this simulator does not run names a simulator of its own
+    (:data:`cellplan.strategies.variants.simulators.SIMULATORS`: simultaneous requests,
+    Section VI-2, run in :func:`~cellplan.strategies.variants.pending_sim.simulate_pending`,
+    whose policies are ``optimal``, ``fcfs``, ``nearest`` and ``reactive``); the others
+    change this one through their simulation hooks (:class:`~.base.Variant`).
     """
-    if strategy.mdp.opt_ptr is not None:
-        return simulate_pending(
-            strategy,
-            stages,
-            seed,
-            policy=policy,
-            start=start,
-            cell=cell,
-            regions=regions,
-            progress=progress,
-        )
-    if policy not in POLICIES:
-        raise ValueError(f"policy must be one of {POLICIES}, not {policy!r}")
-    rng = np.random.default_rng(seed)
-    mdp = strategy.mdp
-    M = mdp.modes_per_phase
-    idle = [mode.kind == NR for mode in mdp.modes]
-    out = mdp.fmp_outcomes()
-    test = region_test(strategy, cell, regions) if cell is not None else None
-    rules = _Policies(strategy, home, learn, test)
-    q = np.asarray(start if start is not None else default_start(strategy), float).copy()
-    m = int(start_mode)
-    dim = len(q)
-    qs = np.empty((stages + 1, dim))
-    ms = np.empty(stages + 1, np.int64)
-    acts = np.empty(stages, np.int64)
-    losses = np.empty(stages)
-    qs[0], ms[0] = q, m
-    requests: list[Request] = []
-    events: list[tuple[int, str, str]] = []
-    current: Request | None = None
-    refused = 0
-    if not idle[m]:
-        mode = mdp.modes[m]
-        current = Request(mode.part, mode.source, mode.destination, 0)
-        requests.append(current)
-        events.append((0, "request", _request_detail(current)))
+    opts = options if options is not None else SimulationOptions()
+    own = simulator_of(strategy.mdp)
+    if own is not None:
+        return own(strategy, stages, seed, opts, cell=cell, progress=progress)
+    if opts.policy not in POLICIES:
+        raise ValueError(f"policy must be one of {POLICIES}, not {opts.policy!r}")
+    run = _Run(strategy, stages, seed, opts, cell)
     every = max(1, stages // 200)
     for k in range(stages):
         if progress is not None and k % every == 0:
             progress(
-                float(k), float(stages), f"stage {k:,} of {stages:,}, {len(requests)} requests"
+                float(k), float(stages), f"stage {k:,} of {stages:,}, {len(run.requests)} requests"
             )
-        fmp_allowed = None
-        if (
-            cell is not None
-            and not idle[m]
-            and np.isfinite(mdp.tf[m, strategy.cell_of(q)])
-            and test is not None
-            and not test(q[None, :], m)[0]
-        ):
-            # The grid cell allows FMP but the exact region test at q does not: (9) is
-            # evaluated without FMP (stay is not offered while a motion is possible, so the
-            # robot does not wait beside the region for ever).
-            fmp_allowed = False
-            refused += 1
-            events.append((k, "fmp_refused", mdp.modes[m].label))
-        u = rules.action(policy, q, m, fmp_allowed)
+        run.stage(k)
+    return run.simulation()
+
+
+class _Run:
+    """The state of one run of the Section V simulator, advanced a stage at a time.
+
+    The variants the model carries (:func:`~cellplan.strategies.variants.registry.model_variants`)
+    change it through their hooks: where a move lands (Section VI-4) and the events of an
+    FMP's outcome (Section VI-3).
+    """
+
+    def __init__(
+        self, strategy: Strategy, stages: int, seed: int, opts: SimulationOptions, cell: Any
+    ) -> None:
+        mdp = strategy.mdp
+        self.s, self.mdp, self.cell, self.policy = strategy, mdp, cell, opts.policy
+        self.variants = model_variants(mdp)
+        self.rng = np.random.default_rng(seed)
+        self.idle = [mode.kind == NR for mode in mdp.modes]
+        self.out = mdp.fmp_outcomes()
+        self.test = (
+            region_test(strategy, cell, opts.region_test(strategy)) if cell is not None else None
+        )
+        home = None if opts.home is None else np.asarray(opts.home, float)
+        self.rules = _Policies(strategy, home, opts.learn, self.test)
+        start = opts.start if opts.start is not None else default_start(strategy)
+        self.q = np.asarray(start, float).copy()
+        self.m = int(opts.start_mode)
+        self.qs = np.empty((stages + 1, len(self.q)))
+        self.ms = np.empty(stages + 1, np.int64)
+        self.acts = np.empty(stages, np.int64)
+        self.losses = np.empty(stages)
+        self.qs[0], self.ms[0] = self.q, self.m
+        self.requests: list[Request] = []
+        self.events: list[tuple[int, str, str]] = []
+        self.current: Request | None = None
+        self.refused = 0
+        if not self.idle[self.m]:
+            self._arrive(0, mdp.modes[self.m])
+
+    def stage(self, k: int) -> None:
+        """One stage: the policy's action, its loss (7) and the transition."""
+        mdp, q, m = self.mdp, self.q, self.m
+        u = self.rules.action(self.policy, q, m, self._fmp_allowed(k))
         # Loss (7).
-        if idle[m]:
+        if self.idle[m]:
             loss = 0.0
         elif u == FMP:
-            loss = float(mdp.tf[m, strategy.cell_of(q)])
+            loss = float(mdp.tf[m, self.s.cell_of(q)])
         else:
             loss = mdp.stage_time
-        if current is not None:
-            current.waiting += loss
-        # Transition.
+        if self.current is not None:
+            self.current.waiting += loss
         if u == FMP:
-            o0, o1 = out.ptr[m], out.ptr[m + 1]
-            oprob = out.prob[o0:o1]
-            o = o0 + min(
-                int(np.searchsorted(np.cumsum(oprob), rng.random() * oprob.sum(), side="right")),
-                o1 - o0 - 1,
-            )
-            m_next = int(out.layer[o])
-            # A rework time (retry in place, Section VI-3) is lost while the request waits.
-            loss += float(out.cost[o])
-            assert current is not None
-            kind = mdp.modes[m].kind
-            where = current.source if kind == "W" else current.destination
-            if o > o0 and kind in ("W", "C"):
-                current.failures += 1
-                then = "retry" if m_next == m else f"reject to {mdp.modes[m_next].reject}"
-                events.append((k + 1, "fmp_failed", f"{current.part} at {where}, {then}"))
-            elif kind == "W":
-                current.pickup = k + 1
-                events.append((k + 1, "pick", f"{current.part} at {current.source}"))
-            elif kind == "X":
-                events.append((k + 1, "reject", f"{current.part} at {mdp.modes[m].reject}"))
-                mode = mdp.modes[m_next]
-                if mode.source != current.source:
-                    events.append((k + 1, "source_change", f"{current.source} to {mode.source}"))
-                    current.source = mode.source
-                current.pickup = -1
-            else:
-                current.delivery = k + 1
-                events.append((k + 1, "place", f"{current.part} at {current.destination}"))
-                current = None
+            m_next, rework = self._fmp(k)
+            # A rework time (retry in place, Section VI-3) is a loss of the stage.
+            loss += rework
         else:
-            if u != STAY:
-                landing = None
-                if len(mdp.noise_prob) > 1:  # Section VI-4: draw where the move lands
-                    cum = np.cumsum(mdp.noise_prob)
-                    landing = min(
-                        int(np.searchsorted(cum, rng.random() * cum[-1], "right")), len(cum) - 1
+            m_next = self._motion(k, u)
+        self.m = m_next
+        self.acts[k], self.losses[k] = u, loss
+        self.qs[k + 1], self.ms[k + 1] = self.q, m_next
+
+    def _fmp_allowed(self, k: int) -> bool | None:
+        """False where the grid cell allows FMP but the exact region test at ``q`` does
+        not (then (9) is evaluated without FMP; stay is not offered while a motion is
+        possible, so the robot does not wait beside the region for ever); else None."""
+        q, m = self.q, self.m
+        if (
+            self.test is None
+            or self.idle[m]
+            or not np.isfinite(self.mdp.tf[m, self.s.cell_of(q)])
+            or self.test(q[None, :], m)[0]
+        ):
+            return None
+        self.refused += 1
+        self.events.append((k, "fmp_refused", self.mdp.modes[m].label))
+        return False
+
+    def _fmp(self, k: int) -> tuple[int, float]:
+        """Draw the FMP's outcome; returns the next layer and the outcome's rework time."""
+        mdp, out, m, current = self.mdp, self.out, self.m, self.current
+        o0, o1 = out.ptr[m], out.ptr[m + 1]
+        oprob = out.prob[o0:o1]
+        pick = np.searchsorted(np.cumsum(oprob), self.rng.random() * oprob.sum(), side="right")
+        o = o0 + min(int(pick), o1 - o0 - 1)
+        m_next = int(out.layer[o])
+        assert current is not None
+        event = next((e for v in self.variants if (e := v.fmp_event(mdp, m, o)) is not None), None)
+        kind = mdp.modes[m].kind
+        if event is not None:  # a variant's outcome (Section VI-3: a failure, a dropped part)
+            self.events.append((k + 1, event.kind, event.detail))
+            if event.kind == "fmp_failed":
+                current.failures += 1
+            nxt = mdp.modes[m_next]
+            if nxt.kind == "W" and kind != "W":  # the part waits at a source again
+                if nxt.source != current.source:
+                    self.events.append(
+                        (k + 1, "source_change", f"{current.source} to {nxt.source}")
                     )
-                q = strategy.next_configuration(q, m, u, landing)
-            b0, b1 = mdp.branch_ptr[m], mdp.branch_ptr[m + 1]
-            probs = mdp.branch_prob[b0:b1]
-            pick = int(np.searchsorted(np.cumsum(probs), rng.random() * probs.sum(), side="right"))
-            m_next = int(mdp.branch_layer[b0 + min(pick, b1 - b0 - 1)])
-            if m_next % M != m % M:  # the phase of a time-varying model aside
-                mode = mdp.modes[m_next]
-                if idle[m]:
-                    current = Request(mode.part, mode.source, mode.destination, k + 1)
-                    requests.append(current)
-                    events.append((k + 1, "request", _request_detail(current)))
-                elif current is not None:
-                    if mode.destination != current.destination:
-                        events.append(
-                            (
-                                k + 1,
-                                "destination_change",
-                                f"{current.destination} to {mode.destination}",
-                            )
-                        )
-                    if mode.source != current.source:
-                        events.append(
-                            (k + 1, "source_change", f"{current.source} to {mode.source}")
-                        )
-                    current.source, current.destination = mode.source, mode.destination
-                    current.changes += 1
-        m = m_next
-        acts[k], losses[k] = u, loss
-        qs[k + 1], ms[k + 1] = q, m
-    fixes, raised = rules.corrections
-    return Simulation(
-        qs,
-        ms,
-        acts,
-        losses,
-        requests,
-        policy,
-        refused,
-        fixes,
-        raised,
-        events,
-        modes_per_phase=M,  # one phase of all layers in a stationary model
-    )
+                    current.source = nxt.source
+                current.pickup = -1
+        elif kind == "W":
+            current.pickup = k + 1
+            self.events.append((k + 1, "pick", f"{current.part} at {current.source}"))
+        else:
+            current.delivery = k + 1
+            self.events.append((k + 1, "place", f"{current.part} at {current.destination}"))
+            self.current = None
+        return m_next, float(out.cost[o])
+
+    def _motion(self, k: int, u: int) -> int:
+        """Move (or stay), then draw the next mode from the branches of ``m``."""
+        mdp, m = self.mdp, self.m
+        if u != STAY:
+            # Where the move lands: a variant's draw (noisy motion, Section VI-4) or as commanded.
+            landing = next(
+                (j for v in self.variants if (j := v.landing(mdp, self.rng)) is not None), None
+            )
+            self.q = self.s.next_configuration(self.q, m, u, landing)
+        b0, b1 = mdp.branch_ptr[m], mdp.branch_ptr[m + 1]
+        probs = mdp.branch_prob[b0:b1]
+        pick = int(np.searchsorted(np.cumsum(probs), self.rng.random() * probs.sum(), side="right"))
+        m_next = int(mdp.branch_layer[b0 + min(pick, b1 - b0 - 1)])
+        M = mdp.modes_per_phase
+        if m_next % M != m % M:  # the phase of a time-varying model aside
+            mode = mdp.modes[m_next]
+            if self.idle[m]:
+                self._arrive(k + 1, mode)
+            elif self.current is not None:
+                self._change(k + 1, mode)
+        return m_next
+
+    def _arrive(self, k: int, mode: Any) -> None:
+        self.current = Request(mode.part, mode.source, mode.destination, k)
+        self.requests.append(self.current)
+        self.events.append((k, "request", _request_detail(self.current)))
+
+    def _change(self, k: int, mode: Any) -> None:
+        """A request's destination (type 2) or source (type 3) changes to ``mode``'s."""
+        current = self.current
+        assert current is not None
+        if mode.destination != current.destination:
+            self.events.append(
+                (k, "destination_change", f"{current.destination} to {mode.destination}")
+            )
+        if mode.source != current.source:
+            self.events.append((k, "source_change", f"{current.source} to {mode.source}"))
+        current.source, current.destination = mode.source, mode.destination
+        current.changes += 1
+
+    def simulation(self) -> Simulation:
+        fixes, raised = self.rules.corrections
+        return Simulation(
+            self.qs,
+            self.ms,
+            self.acts,
+            self.losses,
+            self.requests,
+            self.policy,
+            self.refused,
+            fixes,
+            raised,
+            self.events,
+            modes_per_phase=self.mdp.modes_per_phase,  # all layers in a stationary model
+        )
 
 
 def _request_detail(r: Request) -> str:
@@ -348,11 +366,21 @@ def _request_detail(r: Request) -> str:
 
 
 def compare_policies(
-    strategy: Strategy, stages: int, seeds: list[int], **kw: Any
+    strategy: Strategy,
+    stages: int,
+    seeds: list[int],
+    options: SimulationOptions | None = None,
+    *,
+    cell: Any = None,
 ) -> dict[str, list[dict[str, float]]]:
-    """Metrics of the three policies over the same seeds (paired comparison)."""
+    """Metrics of the three policies over the same seeds (paired comparison); ``options``
+    (its ``policy`` aside) as in :func:`simulate`."""
+    opts = options if options is not None else SimulationOptions()
     return {
-        p: [simulate(strategy, stages, s, policy=p, **kw).metrics() for s in seeds]
+        p: [
+            simulate(strategy, stages, s, replace(opts, policy=p), cell=cell).metrics()
+            for s in seeds
+        ]
         for p in POLICIES
     }
 
@@ -364,15 +392,9 @@ def simulate_result(
     strategy: Strategy,
     stages: int,
     seed: int,
+    options: SimulationOptions | None = None,
     *,
-    policy: str = "optimal",
     cell: Any = None,
-    start: ArrayLike | None = None,
-    start_mode: int = 0,
-    regions: str | None = None,
-    home: ArrayLike | None = None,
-    learn: bool = True,
-    max_wait: float | None = None,
     progress: Progress | None = None,
     robot_spec: Any = None,
 ) -> Result:
@@ -388,24 +410,17 @@ def simulate_result(
         :meth:`Strategy.load <cellplan.strategies.policy.strategy.Strategy.load>`).
     stages, seed
         Length of the run (1 to :data:`MAX_STAGES`) and the seed of its random stream.
-    policy
-        ``optimal`` (the strategy), ``reactive`` or ``home`` (the baselines of Section V-C);
-        with simultaneous requests (Section VI-2) ``optimal``, ``fcfs``, ``nearest`` or
-        ``reactive`` (:mod:`cellplan.strategies.variants.pending_sim`).
+    options
+        How the run is run (:class:`~cellplan.strategies.sim.options.SimulationOptions`,
+        ``cellplan.SimulationOptions``): the policy (``optimal``, ``reactive`` or ``home``,
+        the baselines of Section V-C; with simultaneous requests, Section VI-2,
+        ``optimal``, ``fcfs``, ``nearest`` or ``reactive``), the start and start mode
+        (default: the start recorded in the strategy, the robot's ``start``, in NR), the
+        region test and home (default: the strategy's), the executor's correction and the
+        bound ``max_wait`` on any request's waiting time (default :func:`wait_bound`).
     cell
         The :class:`~cellplan.workcell.Workcell`: with it every FMP is confirmed by the
         exact region test, and the trajectory's columns take the robot's axis names.
-    start, start_mode
-        Where the run starts (radians for angles); ``start`` defaults to the start
-        configuration recorded in the strategy (the robot's ``start``), ``start_mode`` to NR.
-    regions
-        ``contact`` or ``enclosure`` for the exact region test (default: the strategy's).
-    home
-        Home configuration of the ``home`` policy (default: the strategy's).
-    learn
-        Keep the executor's LRTA* correction (see :func:`simulate`).
-    max_wait
-        Bound on any request's waiting time (time units); default :func:`wait_bound`.
     progress
         ``progress(done, stages, text)`` during the run (see :func:`simulate`).
     robot_spec
@@ -425,64 +440,24 @@ def simulate_result(
     Raises
     ------
     ArgumentError
-        ``stages`` or ``seed`` out of range, an unknown ``policy``, a start that is not a
-        configuration of the strategy's C-space or lies outside its domain.
+        ``stages`` or ``seed`` out of range, an option that does not fit the strategy
+        (:meth:`SimulationOptions.problems`), a start that is not a configuration of the
+        strategy's C-space or lies outside its domain.
     """
-    problems = []
-    if not isinstance(stages, int | np.integer) or not 1 <= int(stages) <= MAX_STAGES:
-        problems.append(
-            Problem("stages", f"must be an integer in [1, {MAX_STAGES}], got {stages!r}")
-        )
-    if not isinstance(seed, int | np.integer) or int(seed) < 0:
-        problems.append(Problem("seed", f"must be a non-negative integer, got {seed!r}"))
-    allowed = POLICIES
-    if strategy.mdp.opt_ptr is not None:  # simultaneous requests (Section VI-2)
-        allowed = PENDING_POLICIES
-    if policy not in allowed:
-        problems.append(Problem("policy", f"must be one of {', '.join(allowed)}, got {policy!r}"))
-    if max_wait is not None and not (np.isfinite(max_wait) and max_wait > 0):
-        problems.append(Problem("max_wait", f"must be a positive number, got {max_wait!r}"))
-    mdp = strategy.mdp
-    if not 0 <= start_mode < mdp.n_modes:
-        problems.append(Problem("start_mode", f"must be in [0, {mdp.n_modes - 1}]"))
+    opts = options if options is not None else SimulationOptions()
+    problems = run_problems(strategy, stages, seed, opts)
     if problems:
         raise ArgumentError(problems)
-    names = axis_names(strategy, cell)
-    q0 = _configuration(start, strategy.meta.get("start"), names, "start")
-    if q0 is None:
-        q0 = default_start(strategy)
-    if not strategy.in_domain(q0, start_mode):
-        raise ArgumentError(
-            [Problem("start", "lies outside the strategy's domain (no live state there)")]
-        )
-    home_q = _configuration(home, strategy.meta.get("home"), names, "home")
-    run = functools.partial(
-        simulate,
-        strategy,
-        seed=int(seed),
-        policy=policy,
-        start=q0,
-        start_mode=start_mode,
-        cell=cell,
-        regions=regions or str(strategy.meta.get("regions", "contact")),
-        home=home_q,
-        learn=learn,
-    )
-    sim = run(int(stages), progress=progress)
+    resolved = _resolved(strategy, opts, cell)
+    sim = simulate(strategy, int(stages), int(seed), resolved, cell=cell, progress=progress)
     collision = first_collision(strategy, sim, cell) if cell is not None else None
     if collision is not None and collision[0] > 0:
         # The same run (same seed, same draws) stopped at the sample that collides.
-        sim = run(collision[0])
+        sim = simulate(strategy, collision[0], int(seed), resolved, cell=cell)
     elif collision is not None:
         raise ArgumentError([Problem("start", f"collides with the workcell ({collision[1]})")])
-    bound = float(max_wait) if max_wait is not None else wait_bound(strategy)
-    metrics = sim.metrics()
-    # Counts are stored as ints (their JSON keeps them integers); measures as floats.
-    stats: dict[str, int | float | bool] = {
-        k: int(v) if k in COUNT_METRICS else v for k, v in metrics.items() if np.isfinite(v)
-    }
-    stats["wait_bound"] = bound
-    status, message = _verdict(strategy, sim, metrics, bound)
+    bound = float(opts.max_wait) if opts.max_wait is not None else wait_bound(strategy)
+    status, message = _verdict(strategy, sim, sim.metrics(), bound)
     if collision is not None:
         status = Status.FAILED
         message = (
@@ -491,7 +466,7 @@ def simulate_result(
         )
     meta: dict[str, str | int | float | bool] = {
         "scenario": str(strategy.meta.get("scenario_name", "")),
-        "policy": policy,
+        "policy": opts.policy,
         "seed": int(seed),
         "stages": int(stages),
         "gain": strategy.gain,
@@ -500,8 +475,39 @@ def simulate_result(
         status,
         message,
         planner="strategies.simulate",
-        stats=stats,
+        stats=_stats(sim, bound),
         solution=sim,
         trajectory=to_trajectory(strategy, sim, cell, meta, robot_spec),
-        options={"stages": int(stages), "seed": int(seed), "policy": policy, "max_wait": bound},
+        options={
+            "stages": int(stages),
+            "seed": int(seed),
+            "policy": opts.policy,
+            "max_wait": bound,
+        },
     )
+
+
+def _resolved(strategy: Strategy, opts: SimulationOptions, cell: Any) -> SimulationOptions:
+    """``opts`` with the start, home and region test the run uses (the strategy's where
+    not given); ``ArgumentError`` for a start that is no configuration of the strategy or
+    lies outside its domain, or a home that is none."""
+    names = axis_names(strategy, cell)
+    q0 = _configuration(opts.start, strategy.meta.get("start"), names, "start")
+    if q0 is None:
+        q0 = default_start(strategy)
+    if not strategy.in_domain(q0, opts.start_mode):
+        raise ArgumentError(
+            [Problem("start", "lies outside the strategy's domain (no live state there)")]
+        )
+    home = _configuration(opts.home, strategy.meta.get("home"), names, "home")
+    return replace(opts, start=q0, home=home, regions=opts.region_test(strategy))
+
+
+def _stats(sim: Simulation, bound: float) -> dict[str, int | float | bool]:
+    """The finite metrics of a run plus its ``wait_bound``; counts are stored as ints
+    (their JSON keeps them integers), measures as floats."""
+    stats: dict[str, int | float | bool] = {
+        k: int(v) if k in COUNT_METRICS else v for k, v in sim.metrics().items() if np.isfinite(v)
+    }
+    stats["wait_bound"] = bound
+    return stats

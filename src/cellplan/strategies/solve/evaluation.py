@@ -22,8 +22,6 @@ its successors are final - a single cell directly (a self-loop divided out), a c
 cells (interpolation can point back) by Gauss-Seidel on that component alone.
 """
 
-from __future__ import annotations
-
 from typing import NamedTuple
 
 import numpy as np
@@ -264,6 +262,9 @@ def self_system(m, h, g, nr, pol, cells, local, model):  # pragma: no cover - nu
                 if ssum <= EPS_W:
                     ok = False
                 else:
+                    # Not the transition law (the stencil and its live sum are law.py's):
+                    # the policy's matrix row, one successor and weight per live corner,
+                    # written and closed (fixed, ptr) as layer_system writes its rows.
                     for j in range(nc):
                         i = s.idx[j]
                         if s.w[j] > EPS_W and lay.live[m, i] and h[m, i] < np.inf:

@@ -37,8 +37,6 @@ The action codes of a policy are named here (:data:`STAY`, :data:`FMP`,
 :func:`~cellplan.strategies.model.stencils.fmp_code`).
 """
 
-from __future__ import annotations
-
 from typing import NamedTuple
 
 import numpy as np

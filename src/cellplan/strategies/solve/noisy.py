@@ -27,7 +27,7 @@ from cellplan.strategies.solve.law import landing_row
 
 
 @njit(cache=True)
-def noisy_value_at(q, m, a, h, live, model, bufs):  # pragma: no cover - numba
+def noisy_value_at(q, m, a, h, live, model, pr):  # pragma: no cover - numba
     """``sum_b P_b sum_j p_j H_{L_b}(q_j)`` at a real configuration (without the loss),
     ``q_j = q + dq_{a,j}``, or ``q`` itself where landing ``j``'s swept motion is blocked;
     NaN where every landing is blocked or a value has no live corner.
@@ -36,9 +36,8 @@ def noisy_value_at(q, m, a, h, live, model, bufs):  # pragma: no cover - numba
     centre can be blocked from ``q``. Execution guards the motion (the robot stops where it
     is, :meth:`~cellplan.strategies.policy.strategy.Strategy.next_configuration`), and the value
     here counts that outcome, so the robot is never left without a move. ``bufs`` is the
-    scratch ``(idx, w, ibuf, fbuf, mbuf)`` of :func:`.points.action_values_at`.
+    scratch :class:`~cellplan.strategies.model.bundles.Probe` of a point query.
     """
-    idx, w, ibuf, fbuf, mbuf = bufs
     moves = model.moves
     lay = model.layers
     grid = model.grid
@@ -55,17 +54,7 @@ def noisy_value_at(q, m, a, h, live, model, bufs):  # pragma: no cover - numba
         if p <= 0.0:
             continue
         displacement(q, moves.disp[k, landing_row(na, a, j, J)], moves.heading_axis, dq)
-        if motion_ok(
-            q,
-            dq,
-            moves.free[k],
-            grid.shape,
-            grid.lower,
-            grid.upper,
-            grid.spacing,
-            grid.periodic,
-            mbuf,
-        ):
+        if motion_ok(q, dq, moves.free[k], grid, pr.mbuf):
             moved = True
             for i in range(d):
                 qn[i] = q[i] + dq[i]
@@ -73,10 +62,10 @@ def noisy_value_at(q, m, a, h, live, model, bufs):  # pragma: no cover - numba
         else:
             for i in range(d):
                 qn[i] = q[i]
-        n = stencil(qn, grid.shape, grid.lower, grid.spacing, grid.periodic, idx, w, ibuf, fbuf)
+        n = stencil(qn, grid, pr.idx, pr.w, pr.ibuf, pr.frac)
         for b in range(lay.branch_ptr[m], lay.branch_ptr[m + 1]):
             L = lay.branch_layer[b]
-            v = interp(h[L], live[L], idx, w, n)
+            v = interp(h[L], live[L], pr.idx, pr.w, n)
             if np.isnan(v):
                 return np.nan
             total += lay.branch_prob[b] * p * v

@@ -11,8 +11,6 @@ policy-iteration loop around it is :meth:`cellplan.strategies.solve.layers.Layer
 Every value of an action is the transition law of :mod:`cellplan.strategies.solve.law`.
 """
 
-from __future__ import annotations
-
 from typing import NamedTuple
 
 import numpy as np
@@ -102,6 +100,9 @@ class Slab(NamedTuple):
     work_D: np.ndarray  # (N,)
 
 
+# The tail of sweep_self's cell loop (the record of the policy and of the largest change)
+# repeats sweeps.sweep_policy's in shape: bookkeeping, not the transition law, which both
+# take from law.py (live_sums, move_value).
 @njit(cache=True, nogil=True)
 def sweep_self(m, h, D, g, nr, sw, model, slab):  # pragma: no cover - numba
     """One Gauss-Seidel sweep of a slab of a layer without FMP whose other branches are in

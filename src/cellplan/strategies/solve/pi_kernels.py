@@ -6,8 +6,6 @@ A policy's transition matrix is the transition law of :mod:`cellplan.strategies.
 written as successors (:func:`action_successors`).
 """
 
-from __future__ import annotations
-
 from typing import NamedTuple
 
 import numpy as np

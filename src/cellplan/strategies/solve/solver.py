@@ -63,6 +63,7 @@ from cellplan.strategies.solve.certify import (
 from cellplan.strategies.solve.layers import Layers
 from cellplan.strategies.solve.policy_iteration import solve_policy_iteration
 from cellplan.strategies.solve.threads import workers_for
+from cellplan.strategies.variants.registry import model_variants
 
 # The solver's public names, with those of the certificate it ends with (:mod:`.certify`).
 __all__ = [
@@ -446,12 +447,10 @@ def method_problem(mdp: LayeredMDP, method: str, damping: float = 1.0) -> str | 
             "period); this model has failure modes, noisy motion, simultaneous requests or "
             "a period: use auto or policy"
         )
-    if method == "general" and mdp.period > 1 and damping >= 1.0:
-        return (
-            "relative value iteration (general) cycles with the period of a time-varying "
-            "model (every stage advances the phase): set strategy.solver.damping below 1, "
-            "or use auto or policy"
-        )
+    for variant in model_variants(mdp):
+        problems = variant.check_solver(method, damping)
+        if problems:
+            return problems[0]
     return None
 
 

@@ -23,8 +23,6 @@ Cells are visited in alternating axis orders (``flips``) so that values propagat
 every direction. The model arrives as one :class:`~cellplan.strategies.model.bundles.Model`.
 """
 
-from __future__ import annotations
-
 from typing import NamedTuple
 
 import numpy as np

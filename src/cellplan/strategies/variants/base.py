@@ -170,6 +170,17 @@ class Variant:
         """
         return counts
 
+    # --- solver --------------------------------------------------------------------------
+
+    def check_solver(self, method: str, damping: float) -> list[str]:
+        """Why the solver ``method`` (with ``damping``, for ``general``) cannot solve this
+        variant's models (one line each); empty when it can.
+
+        Called by :func:`~cellplan.strategies.solve.solver.method_problem` for each variant
+        of the model (:func:`~cellplan.strategies.variants.registry.model_variants`).
+        """
+        return []
+
     # --- strategy files -------------------------------------------------------------------
 
     def file_meta(self, mdp: LayeredMDP) -> dict[str, Any]:
@@ -208,29 +219,47 @@ class Variant:
     def policies(self) -> tuple[str, ...] | None:
         """The simulator's policies for this variant's model, or None for Section V's
         (``optimal``, ``reactive``, ``home``). Called by
-        :func:`~cellplan.strategies.sim.simulate.simulate_result` to check ``policy``."""
+        :meth:`~cellplan.strategies.sim.options.SimulationOptions.problems` to check
+        ``policy``. A variant whose process the Section V simulator cannot run names its
+        own simulator in :data:`cellplan.strategies.variants.simulators.SIMULATORS`."""
         return None
 
     def landing(self, mdp: LayeredMDP, rng: np.random.Generator) -> int | None:
         """Where a commanded move lands this stage: the index of its noisy landing, or
         None to land as commanded (Section V). Called by
-        :func:`~cellplan.strategies.sim.simulate.simulate` once per stage of motion."""
+        :func:`~cellplan.strategies.sim.simulate.simulate` once per stage of motion (a
+        variant that draws takes its numbers from ``rng``, the run's one stream)."""
         return None
 
     def fmp_event(self, mdp: LayeredMDP, layer: int, outcome: int) -> SimEvent | None:
         """The event of an FMP whose outcome ``outcome`` (an index into the model's
         outcome table, drawn by the simulator from ``out_prob``) the simulator drew in
         ``layer``, or None for the Section V pick or place. Called by
-        :func:`~cellplan.strategies.sim.simulate.simulate` after each FMP."""
+        :func:`~cellplan.strategies.sim.simulate.simulate` after each FMP; an event of
+        kind ``fmp_failed`` counts as a failure of the request, and an outcome that leads
+        from another kind of mode back to a W mode puts the part at that W mode's source
+        (its pick-up to do again)."""
         return None
 
     def region_offset(self, mdp: LayeredMDP, region: str, layer: int) -> tuple[float, float]:
         """How far ``region`` has moved from its scenario position in ``layer``.
 
-        Called by :func:`~cellplan.strategies.sim.simulate.region_test` before the exact
-        region test of an FMP; ``(0, 0)`` in Section V.
+        Called by :meth:`~cellplan.strategies.policy.regions.RegionTest.option` before the
+        exact region test of an FMP; ``(0, 0)`` in Section V.
         """
         return (0.0, 0.0)
+
+    def lookahead(self, mdp: LayeredMDP) -> int | None:
+        """The deepest lookahead the executor may plan in this variant's model, or None
+        for no limit of its own. Called by
+        :func:`~cellplan.strategies.policy.execution.default_depth`."""
+        return None
+
+    def fmp_options(self) -> bool:
+        """Whether an FMP in this variant's model is a choice among options (Section
+        VI-2), which the executor scores with rule (9) over the options the exact test
+        confirms. Called by :class:`~cellplan.strategies.policy.execution.Executor`."""
+        return False
 
     def describe(self) -> str:
         """One line for documentation and messages: the name and the paper's section."""

@@ -87,6 +87,15 @@ class TimeVaryingVariant(Variant):
 
         return periodic_problems(mdp)
 
+    def check_solver(self, method: str, damping: float) -> list[str]:
+        if method == "general" and damping >= 1.0:
+            return [
+                "relative value iteration (general) cycles with the period of a time-varying "
+                "model (every stage advances the phase): set strategy.solver.damping below 1, "
+                "or use auto or policy"
+            ]
+        return []
+
     def layers(self, section: Any, requests: Any, counts: LayerCounts) -> LayerCounts:
         return LayerCounts(
             counts.modes,

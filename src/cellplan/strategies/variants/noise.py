@@ -110,7 +110,14 @@ class NoiseVariant(Variant):
             )
         ]
 
+    def lookahead(self, mdp: LayeredMDP) -> int | None:
+        if len(mdp.noise_prob) == 1:  # one landing: the moves are exact after all
+            return None
+        return 1  # the lookahead follows commanded landings; noisy moves land elsewhere
+
     def landing(self, mdp: LayeredMDP, rng: np.random.Generator) -> int | None:
+        if len(mdp.noise_prob) == 1:  # one landing: nothing to draw (the stream is kept)
+            return None
         cum = np.cumsum(mdp.noise_prob)
         return min(int(np.searchsorted(cum, rng.random() * cum[-1], "right")), len(cum) - 1)
 

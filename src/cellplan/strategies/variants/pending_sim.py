@@ -30,12 +30,12 @@ Policies (:data:`PENDING_POLICIES`):
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from cellplan.core import Progress
 from cellplan.strategies.model.mdp import NR, LayeredMDP, Mode, compute_live
 from cellplan.strategies.model.stencils import fmp_code
 from cellplan.strategies.policy.decisions import FMP, STAY, best_action
@@ -43,6 +43,7 @@ from cellplan.strategies.policy.execution import Executor
 from cellplan.strategies.policy.regions import region_test
 from cellplan.strategies.policy.strategy import Strategy
 from cellplan.strategies.section import SolverSpec
+from cellplan.strategies.sim.options import SimulationOptions
 from cellplan.strategies.sim.records import (
     Request,
     Simulation,
@@ -51,8 +52,16 @@ from cellplan.strategies.sim.records import (
 )
 from cellplan.strategies.solve.solver import solve
 from cellplan.strategies.variants.pending import mode_keys
+from cellplan.strategies.variants.request_sets import PENDING_POLICIES
 
-PENDING_POLICIES: tuple[str, ...] = ("optimal", "fcfs", "nearest", "reactive")
+__all__ = [
+    "PENDING_POLICIES",
+    "PendingSimulation",
+    "Rules",
+    "simulate_pending",
+    "single_request_model",
+    "single_request_strategy",
+]
 
 
 @dataclass
@@ -226,161 +235,215 @@ def simulate_pending(
     strategy: Strategy,
     stages: int,
     seed: int,
+    options: SimulationOptions | None = None,
     *,
-    policy: str = "optimal",
-    start: np.ndarray | None = None,
     rules: Rules | None = None,
     cell: Any = None,
-    regions: str = "contact",
-    progress: Callable[[float, float, str], Any] | None = None,
+    progress: Progress | None = None,
 ) -> PendingSimulation:
-    """Run ``policy`` for ``stages`` stages from NR at ``start`` (module docstring).
+    """Run ``options.policy`` for ``stages`` stages from NR at ``options.start`` (module
+    docstring; ``start`` None: the strategy's recorded start where it is live in NR, else
+    :func:`~cellplan.strategies.sim.records.default_start`).
 
     With a workcell (``cell``), every FMP is confirmed by its exact region test
-    (:meth:`~cellplan.workcell.Workcell.in_region`, ``regions`` as in the scenario): the
-    source of the request a pick serves, the destination of the carried one; a refused
-    FMP falls back to the best motion (an ``fmp_refused`` event). Without one, FMP follows
-    the grid cell.
+    (:meth:`~cellplan.workcell.Workcell.in_region`, ``options.regions``, by default the
+    strategy's): the source of the request a pick serves, the destination of the carried
+    one; a refused FMP falls back to the best motion (an ``fmp_refused`` event). Without
+    one, FMP follows the grid cell. ``rules``: the policies' rules built once for many
+    runs (:class:`Rules`); ``start_mode``, ``home`` and ``learn`` do not apply here (a run
+    starts in NR; the optimal policy always corrects).
 
     Every request's waiting time counts each stage (and each FMP's fine-motion time) from
     its arrival until its delivery; the loss of a stage is that of the model (the weighted
     number of open requests times the stage's time).
     """
-    if policy not in PENDING_POLICIES:
-        raise ValueError(f"policy must be one of {PENDING_POLICIES}, not {policy!r}")
-    mdp = strategy.mdp
+    opts = options if options is not None else SimulationOptions(policy="optimal")
+    if opts.policy not in PENDING_POLICIES:
+        raise ValueError(f"policy must be one of {PENDING_POLICIES}, not {opts.policy!r}")
     if rules is None:
         # The baselines' navigation is solved here, visibly, to the strategy's own
         # tolerance; the optimal policy needs none.
-        single = single_request_strategy(strategy) if policy != "optimal" else None
+        single = single_request_strategy(strategy) if opts.policy != "optimal" else None
         rules = Rules(strategy, single)
-    R = rules.R
-    k_max = max(open_requests(m) for m in mdp.modes)
-    stream = np.random.default_rng(seed)
-    arrive = stream.random(stages) < mdp.arrival
-    kinds = stream.choice(R, size=stages, p=mdp.request_prob / mdp.request_prob.sum())
-    q = np.asarray(start if start is not None else _start(strategy), float).copy()
-    dim = len(q)
-    qs = np.empty((stages + 1, dim))
-    ms = np.empty(stages + 1, np.int64)
-    acts = np.empty(stages, np.int64)
-    losses = np.empty(stages)
-    counts = np.empty(stages, np.int64)
-    durations = np.empty(stages)
-    waiting: list[Request] = []  # in order of arrival
-    waiting_type: list[int] = []
-    carried: Request | None = None
-    carried_type = -1
-    target = -1  # the baselines' committed request type
-    requests: list[Request] = []
-    events: list[tuple[int, str, str]] = []
-    turned = 0
-    refused = 0
-    m = 0
-    qs[0], ms[0] = q, m
-    opt = mdp.options
+    run = _PendingRun(strategy, stages, seed, opts, (rules, cell))
     every = max(1, stages // 200)
-    test = _CountingTest(region_test(strategy, cell, regions)) if cell is not None else None
-    executor = Executor(strategy, option_test=test)
     for k in range(stages):
         if progress is not None and k % every == 0:
             progress(float(k), float(stages), f"stage {k:,} of {stages:,}")
-        c = strategy.cell_of(q)
-        forbid = False
-        while True:
-            if policy == "optimal":
-                before = test.refused if test is not None else 0
-                u = rules.optimal(executor, q, m)
-                if test is not None and test.refused > before:
-                    refused += test.refused - before
-                    events.append((k, "fmp_refused", mdp.modes[m].label))
-                j = -1 if u >= STAY else (0 if u == FMP else -3 - u)
-                break  # the executor confirmed its FMP options by the exact test
-            elif carried is not None:
-                u = rules.serve(q, carried_type, True, forbid)
-                u = fmp_code(0) if u == FMP else u
-            elif waiting:
-                if target not in waiting_type:
-                    target = _choose(policy, q, waiting_type, rules)
-                u = rules.serve(q, target, False, forbid)
-                if u == FMP:
-                    u = fmp_code(sorted(set(waiting_type)).index(target))
-            else:
-                u = STAY if policy == "reactive" else rules.idle(q)
-            j = -1 if u >= STAY else (0 if u == FMP else -3 - u)
-            if j < 0 or cell is None or forbid:
-                break
-            if carried is not None:
-                where, part = carried.destination, carried.part
-            else:
-                where, part = _triple(rules.names[sorted(set(waiting_type))[j]])[1], None
-            if cell.in_region(q[None, :], where, regions, None, part)[0]:
-                break
-            forbid = True  # the grid cell allows it, the exact test does not
-            refused += 1
-            events.append((k, "fmp_refused", mdp.modes[m].label))
+        run.stage(k)
+    return run.simulation()
+
+
+class _PendingRun:
+    """The state of one run of :func:`simulate_pending`, advanced a stage at a time:
+    the open requests (``waiting`` in order of arrival, ``carried``), the robot's ``q``
+    and mode ``m``, and the samples. ``with_`` is the policies' rules and the workcell."""
+
+    def __init__(
+        self,
+        strategy: Strategy,
+        stages: int,
+        seed: int,
+        opts: SimulationOptions,
+        with_: tuple[Rules, Any],
+    ) -> None:
+        mdp = strategy.mdp
+        self.s, self.mdp, self.policy = strategy, mdp, opts.policy
+        self.rules, self.cell = with_
+        self.regions = opts.region_test(strategy)
+        self.k_max = max(open_requests(m) for m in mdp.modes)
+        stream = np.random.default_rng(seed)
+        self.arrive = stream.random(stages) < mdp.arrival
+        p = mdp.request_prob / mdp.request_prob.sum()
+        self.kinds = stream.choice(self.rules.R, size=stages, p=p)
+        start = opts.start if opts.start is not None else _start(strategy)
+        self.q = np.asarray(start, float).copy()
+        self.qs = np.empty((stages + 1, len(self.q)))
+        self.ms = np.empty(stages + 1, np.int64)
+        self.acts = np.empty(stages, np.int64)
+        self.losses = np.empty(stages)
+        self.counts = np.empty(stages, np.int64)
+        self.durations = np.empty(stages)
+        self.waiting: list[Request] = []  # in order of arrival
+        self.waiting_type: list[int] = []
+        self.carried: Request | None = None
+        self.carried_type = -1
+        self.target = -1  # the baselines' committed request type
+        self.requests: list[Request] = []
+        self.events: list[tuple[int, str, str]] = []
+        self.turned = 0
+        self.refused = 0
+        self.m = 0
+        self.qs[0], self.ms[0] = self.q, self.m
+        test = self.cell is not None
+        self.test = _CountingTest(region_test(strategy, self.cell, self.regions)) if test else None
+        self.executor = Executor(strategy, option_test=self.test)
+
+    def stage(self, k: int) -> None:
+        """One stage: the policy's action (a move, stay, or FMP option ``j``), its loss and
+        duration, the pick or delivery, or the move and an arrival."""
+        mdp, m = self.mdp, self.m
+        c = self.s.cell_of(self.q)
+        u, j = self._action(k)
+        opt = mdp.options
         if j >= 0 and not np.isfinite(mdp.tf[opt[m] + j, c]):
             j, u = -1, STAY  # a baseline's FMP the grid cell does not allow
-        open_now = len(waiting) + (carried is not None)
-        counts[k] = open_now
+        open_now = len(self.waiting) + (self.carried is not None)
+        self.counts[k] = open_now
         if j >= 0:
             loss = float(mdp.tf[opt[m] + j, c])
             duration = loss * mdp.stage_time / mdp.cost[m]
         else:
             loss = float(mdp.cost[m])
             duration = mdp.stage_time
-        durations[k] = duration
-        for r in waiting:
+        self.durations[k] = duration
+        for r in self.waiting:
             r.waiting += duration
-        if carried is not None:
-            carried.waiting += duration
+        if self.carried is not None:
+            self.carried.waiting += duration
         if j >= 0:
-            if carried is not None:
-                carried.delivery = k + 1
-                events.append((k + 1, "place", f"{carried.part} at {carried.destination}"))
-                carried, carried_type = None, -1
-            else:
-                r_type = sorted(set(waiting_type))[j]
-                i = waiting_type.index(r_type)  # the oldest request of that type
-                carried, carried_type = waiting.pop(i), waiting_type.pop(i)
-                carried.pickup = k + 1
-                events.append((k + 1, "pick", f"{carried.part} at {carried.source}"))
-                target = -1
+            self._fmp(k, j)
         else:
             if u != STAY:
-                q = strategy.next_configuration(q, m, u)
-            if arrive[k]:
-                r_type = int(kinds[k])
-                p, s, d = _triple(rules.names[r_type])
-                if open_now >= k_max:
-                    turned += 1
-                    events.append((k + 1, "turned_away", f"<{p},{s},{d}>"))
-                else:
-                    req = Request(p, s, d, k + 1)
-                    requests.append(req)
-                    waiting.append(req)
-                    waiting_type.append(r_type)
-                    events.append((k + 1, "request", f"<{p},{s},{d}>"))
-        losses[k] = loss
-        acts[k] = u
-        m = rules.mode_of(waiting_type, carried_type)
-        qs[k + 1], ms[k + 1] = q, m
-    return PendingSimulation(
-        q=qs,
-        modes=ms,
-        actions=acts,
-        losses=losses,
-        requests=requests,
-        policy=policy,
-        events=events,
-        open_counts=counts,
-        durations=durations,
-        turned_away=turned,
-        fmp_refused=refused,
-        corrections=executor.corrections,
-        raised=executor.raised,
-        arrivals=int(arrive.sum()),
-    )
+                self.q = self.s.next_configuration(self.q, m, u)
+            if self.arrive[k]:
+                self._arrival(k, open_now)
+        self.losses[k] = loss
+        self.acts[k] = u
+        self.m = self.rules.mode_of(self.waiting_type, self.carried_type)
+        self.qs[k + 1], self.ms[k + 1] = self.q, self.m
+
+    def _action(self, k: int) -> tuple[int, int]:
+        """The policy's action ``u`` and its FMP option ``j`` (-1: a move or stay); an FMP
+        the exact region test refuses is replaced by the best motion."""
+        rules, q, m = self.rules, self.q, self.m
+        if self.policy == "optimal":
+            before = self.test.refused if self.test is not None else 0
+            u = rules.optimal(self.executor, q, m)
+            if self.test is not None and self.test.refused > before:
+                self.refused += self.test.refused - before
+                self.events.append((k, "fmp_refused", self.mdp.modes[m].label))
+            # The executor confirmed its FMP options by the exact test.
+            return u, -1 if u >= STAY else (0 if u == FMP else -3 - u)
+        forbid = False
+        while True:
+            u = self._baseline(q, forbid)
+            j = -1 if u >= STAY else (0 if u == FMP else -3 - u)
+            if j < 0 or self.cell is None or forbid:
+                return u, j
+            if self.carried is not None:
+                where, part = self.carried.destination, self.carried.part
+            else:
+                name = rules.names[sorted(set(self.waiting_type))[j]]
+                where, part = _triple(name)[1], None
+            if self.cell.in_region(q[None, :], where, self.regions, None, part)[0]:
+                return u, j
+            forbid = True  # the grid cell allows it, the exact test does not
+            self.refused += 1
+            self.events.append((k, "fmp_refused", self.mdp.modes[m].label))
+
+    def _baseline(self, q: np.ndarray, forbid: bool) -> int:
+        """A baseline's action: serve the carried request, else the committed waiting one
+        (chosen anew when it is no longer waiting), else idle."""
+        rules = self.rules
+        if self.carried is not None:
+            u = rules.serve(q, self.carried_type, True, forbid)
+            return fmp_code(0) if u == FMP else u
+        if self.waiting:
+            if self.target not in self.waiting_type:
+                self.target = _choose(self.policy, q, self.waiting_type, rules)
+            u = rules.serve(q, self.target, False, forbid)
+            if u == FMP:
+                u = fmp_code(sorted(set(self.waiting_type)).index(self.target))
+            return u
+        return STAY if self.policy == "reactive" else rules.idle(q)
+
+    def _fmp(self, k: int, j: int) -> None:
+        """Deliver the carried request, or pick the oldest waiting one of option ``j``."""
+        if self.carried is not None:
+            carried = self.carried
+            carried.delivery = k + 1
+            self.events.append((k + 1, "place", f"{carried.part} at {carried.destination}"))
+            self.carried, self.carried_type = None, -1
+            return
+        r_type = sorted(set(self.waiting_type))[j]
+        i = self.waiting_type.index(r_type)  # the oldest request of that type
+        self.carried, self.carried_type = self.waiting.pop(i), self.waiting_type.pop(i)
+        self.carried.pickup = k + 1
+        self.events.append((k + 1, "pick", f"{self.carried.part} at {self.carried.source}"))
+        self.target = -1
+
+    def _arrival(self, k: int, open_now: int) -> None:
+        """This stage's drawn request arrives, or is turned away when ``k_max`` are open."""
+        r_type = int(self.kinds[k])
+        p, s, d = _triple(self.rules.names[r_type])
+        if open_now >= self.k_max:
+            self.turned += 1
+            self.events.append((k + 1, "turned_away", f"<{p},{s},{d}>"))
+            return
+        req = Request(p, s, d, k + 1)
+        self.requests.append(req)
+        self.waiting.append(req)
+        self.waiting_type.append(r_type)
+        self.events.append((k + 1, "request", f"<{p},{s},{d}>"))
+
+    def simulation(self) -> PendingSimulation:
+        return PendingSimulation(
+            q=self.qs,
+            modes=self.ms,
+            actions=self.acts,
+            losses=self.losses,
+            requests=self.requests,
+            policy=self.policy,
+            events=self.events,
+            open_counts=self.counts,
+            durations=self.durations,
+            turned_away=self.turned,
+            fmp_refused=self.refused,
+            corrections=self.executor.corrections,
+            raised=self.executor.raised,
+            arrivals=int(self.arrive.sum()),
+        )
 
 
 class _CountingTest:

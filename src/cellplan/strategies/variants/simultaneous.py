@@ -143,5 +143,11 @@ class SimultaneousVariant(Variant):
     def policies(self) -> tuple[str, ...] | None:
         return PENDING_POLICIES
 
+    def lookahead(self, mdp: LayeredMDP) -> int | None:
+        return 1  # the lookahead follows one FMP per mode, not a choice of them
+
+    def fmp_options(self) -> bool:
+        return True
+
 
 SIMULTANEOUS = SimultaneousVariant()
