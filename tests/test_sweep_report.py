@@ -274,3 +274,17 @@ def test_figures_carry_their_experiment_caption(tmp_path):
     assert "<figcaption>Ratio for 5 discs over <code>3</code> seeds (f.png)</figcaption>" in html
     assert 'alt="Ratio for 5 discs over 3 seeds"' in html
     assert "<figcaption>f.png</figcaption>" in _figure(png, tmp_path)
+
+
+def test_an_experiment_skipped_for_time_is_a_note_not_an_error(tmp_path):
+    """A budgeted sweep on a busy machine may skip every run of an experiment: by design,
+    so the report says so in a note (and the demo lists it apart), with no error."""
+    exps = [fake.sleepy(sleep=0.01)]
+    sweep = run_sweep(exps, 3, False, tmp_path, serial=True, progress=False, time_budget_s=0.0)
+    pieces = make_pieces(sweep, lambda e: reproduce_command(e, 3, False, tmp_path))
+    assert [(p.skipped, p.piece) for p in pieces] == [(True, None)]
+    found = [PaperExperiments("adaptive", exps)]
+    html = write_report(tmp_path, found, pieces, sweep).read_text(encoding="utf-8")
+    assert Page(html).errors == []
+    assert 'class="error"' not in html
+    assert '<p class="note">every run was skipped: the sweep&#x27;s time budget' in html

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from cellplan.core import Claim, Experiment, ReportPiece, Scalar, ShowcaseItem
-from cellplan.experiments import ExperimentRun, PaperExperiments, SweepResult
+from cellplan.experiments import SKIPPED, ExperimentRun, PaperExperiments, SweepResult
 from cellplan.fileio import write_text
 
 MIME = {
@@ -178,6 +178,9 @@ class ExperimentReport:
     piece: ReportPiece | None
     error: str
     command: str
+    skipped: bool = False
+    """Every run was skipped for time: the report says so as a note, not as an error
+    (a budgeted sweep on a busy machine does this by design, see ``time_budget_s``)."""
 
 
 def make_pieces(
@@ -193,7 +196,10 @@ def make_pieces(
         exp = run.experiment
         piece: ReportPiece | None = None
         error = run.error
-        if not error and not run.ok_rows:
+        skipped = bool(run.rows) and all(row["run_status"] == SKIPPED for row in run.rows)
+        if skipped:
+            error = "every run was skipped: the sweep's time budget was spent before it"
+        elif not error and not run.ok_rows:
             error = (
                 "no run succeeded, nothing to report" if run.rows else "make_runs listed no runs"
             )
@@ -211,7 +217,7 @@ def make_pieces(
                 )
                 error = f"report failed: {type(exc).__name__}: {exc}{where}"
                 piece = None
-        out.append(ExperimentReport(run, piece, error, command_for(exp)))
+        out.append(ExperimentReport(run, piece, error, command_for(exp), skipped))
     return out
 
 
@@ -424,7 +430,8 @@ def _experiment_article(item: ExperimentReport, outdir: Path) -> str:
     parts = [f'<article id="exp-{_e(exp.name)}"><h3>{_e(title)}</h3>']
     parts.append(f'<p class="what"><b>What was run.</b> {_e(_what_was_run(run))}</p>')
     if item.error:
-        parts.append(f'<p class="error">{_e(item.error)}</p>')
+        kind = "note" if item.skipped else "error"
+        parts.append(f'<p class="{kind}">{_e(item.error)}</p>')
     if piece is not None:
         if piece.text:
             parts.append(_paragraphs(piece.text))
