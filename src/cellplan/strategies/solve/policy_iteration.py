@@ -15,16 +15,17 @@ request cycle mixes slowly. Policy iteration needs a handful of iterations, each
    their stencil, renormalised, in every branch, at every landing of a noisy move; stay
    keeps the cell in every branch; FMP takes its outcomes);
 2. *unichain check* (:func:`unichain`): the strongly connected components of the chain;
-   if more than one is closed, the states that do not reach the first take actions one
-   hop nearer to it;
+   if more than one is closed, the one of lowest gain is kept and the states that do not
+   reach it take actions one hop nearer to it;
 3. *evaluation* (:func:`evaluate`): ``h + g = c + P h`` exactly, by one sparse LU
    (SuperLU) on the recurrent class and back-substitution of the transient components in
    their order (:func:`back_substitute`);
 4. *improvement*: a few value iteration sweeps from ``h`` (modified policy iteration,
    :data:`LOOKAHEAD_SWEEPS`), then the Jacobi Bellman operator
    (:func:`cellplan.strategies.solve.certify.bellman`); a state changes its action only where the
-   best action beats the current one by more than a small relative margin, so ties never
-   make the policy cycle.
+   best action beats the current one by more than a small relative margin. Once a
+   policy repeats (the look-ahead and the unichain repair breaking ties opposite ways),
+   the look-ahead is switched off and Howard's improvement alone goes on.
 
 The first policy is proper by construction: NR stays where it is, and every other state
 takes an action with a successor one hop nearer to NR (hop distances through the union of
@@ -38,6 +39,7 @@ docs/strategies.md ("Policy iteration") has the choices and the measurements.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import time
 from typing import Any
@@ -240,16 +242,8 @@ def evaluate(
     key = (members.tobytes(), actions[members].tobytes())
     if memo.get("key") != key:
         # The recurrent class changed (or its actions did): factorise its system again.
-        sub = P[members][:, members].tocoo()
-        off = sub.col != 0
-        size = len(members)
-        rows = np.concatenate([sub.row[off], np.arange(1, size), np.arange(size)])
-        cols = np.concatenate([sub.col[off], np.arange(1, size), np.zeros(size, np.int64)])
-        vals = np.concatenate([-sub.data[off], np.ones(size - 1), np.ones(size)])
-        lu = splu(sp.csc_matrix((vals, (rows, cols)), shape=(size, size)))
-        x = lu.solve(cost[members])
-        # SuperLU's own count: reading lu.L and lu.U would copy the factors.
-        memo.update(key=key, x=x, fill=int(lu.nnz))
+        _, x, fill = _class_system(P, cost, members)
+        memo.update(key=key, x=x, fill=fill)
     x = memo["x"].copy()
     g = float(x[0])
     x[0] = 0.0
@@ -269,17 +263,65 @@ def evaluate(
     return g, h, fill
 
 
+def closed_class_gains(
+    P: sp.csr_matrix, cost: np.ndarray, labels: np.ndarray, closed: np.ndarray
+) -> np.ndarray:
+    """The gain of each closed class ``closed`` (component labels) of a policy's chain.
+
+    A closed class is a recurrent class of its own: its gain solves ``h + g = c + P h``
+    on the class with ``h = 0`` at its first state (the system :func:`evaluate` solves,
+    one sparse LU per class; a single state's gain is its cost, it stays put).
+    """
+    gains = np.empty(len(closed))
+    for j, k in enumerate(closed):
+        members = np.flatnonzero(labels == k)
+        if len(members) == 1:
+            gains[j] = cost[members[0]]
+            continue
+        gains[j] = _class_system(P, cost, members)[0]
+    return gains
+
+
+def _class_system(
+    P: sp.csr_matrix, cost: np.ndarray, members: np.ndarray
+) -> tuple[float, np.ndarray, int]:
+    """``(g, x, nnz of the LU factors)`` of the closed class ``members``: ``(I - P)`` on the
+    class with its first state's column replaced by ones (its unknown is ``g``; ``x[0]``
+    holds it, the other entries are ``h`` with ``h = 0`` at the first state)."""
+    sub = P[members][:, members].tocoo()
+    off = sub.col != 0
+    size = len(members)
+    rows = np.concatenate([sub.row[off], np.arange(1, size), np.arange(size)])
+    cols = np.concatenate([sub.col[off], np.arange(1, size), np.zeros(size, np.int64)])
+    vals = np.concatenate([-sub.data[off], np.ones(size - 1), np.ones(size)])
+    lu = splu(sp.csc_matrix((vals, (rows, cols)), shape=(size, size)))
+    x = lu.solve(cost[members])
+    # SuperLU's own count: reading lu.L and lu.U would copy the factors.
+    return float(x[0]), x, int(lu.nnz)
+
+
 def unichain(
-    mdp: LayeredMDP, chain: _Chain, P: sp.csr_matrix, actions: np.ndarray, model: Model
+    mdp: LayeredMDP,
+    chain: _Chain,
+    P: sp.csr_matrix,
+    cost: np.ndarray,
+    actions: np.ndarray,
+    model: Model,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Make the policy unichain; returns ``(actions, component labels, states changed)``.
 
     The recurrent classes of the policy are the closed strongly connected components of
-    its chain (:func:`scipy.sparse.csgraph.connected_components` numbers them sinks
-    first, so component 0 is closed). With several, the states that do not reach
-    component 0 take actions one hop nearer to it (:func:`hop_policy`; the class keeps
-    its actions): the others still reach it, and these now do too. The labels returned
-    are those of the policy returned (recomputed after a repair).
+    its chain. With several, the one of lowest gain (:func:`closed_class_gains`; the
+    first of equal ones) is kept, and the states that do not reach it take actions one
+    hop nearer to it (:func:`hop_policy`; the class keeps its actions): the others
+    still reach it, and these now do too. Keeping the lowest gain matters: after an
+    improvement every recurrent class of the new policy has a gain no higher than the
+    old policy's (Puterman 1994, Sec. 9.2), and routing every state to the best of them
+    keeps the gains of the iterations non-increasing; an arbitrary class can undo the
+    improvement and make the iteration cycle. The labels returned are those of the
+    policy returned (recomputed after a repair), numbered sinks first
+    (:func:`scipy.sparse.csgraph.connected_components`), so the one closed class is
+    component 0.
     """
     changed = 0
     for _ in range(2):
@@ -288,16 +330,18 @@ def unichain(
         cross = labels[rows] != labels[P.indices]
         leaves = np.zeros(int(labels.max()) + 1, np.bool_)
         leaves[labels[rows[cross]]] = True
-        if np.count_nonzero(~leaves) == 1:
+        closed = np.flatnonzero(~leaves)
+        if len(closed) == 1:
             return actions, labels, changed
-        start = int(np.flatnonzero(labels == 0)[0])
+        best = int(closed[np.argmin(closed_class_gains(P, cost, labels, closed))])
+        start = int(np.flatnonzero(labels == best)[0])
         reach = csgraph.breadth_first_order(P.T, start, directed=True, return_predecessors=False)
         ok = np.zeros(chain.size, np.bool_)
         ok[reach] = True
-        hop, _, _ = hop_policy(mdp, chain, labels == 0, actions, model)
+        hop, _, _ = hop_policy(mdp, chain, labels == best, actions, model)
         actions = np.where(ok, actions, hop)
         changed += int(np.count_nonzero(~ok))
-        P, _, _ = assemble(chain, actions, model, Workers(1))
+        P, cost, _ = assemble(chain, actions, model, Workers(1))
     raise RuntimeError("policy iteration: the repaired policy is not unichain (a bug)")
 
 
@@ -340,6 +384,8 @@ def solve_policy_iteration(
     h, g, sweeps, evaluations, it = np.zeros(chain.size), 0.0, 0, 0, 0
     cert: Certificate | None = None
     memo: dict[str, Any] = {}
+    seen: set[bytes] = set()  # digests of the policies evaluated
+    lookahead = True
     with workers_for(chain.size, threads) as workers:
         for it in range(1, max_iterations + 1):
             P, cost, bad = assemble(chain, actions, model, workers)
@@ -347,7 +393,7 @@ def solve_policy_iteration(
                 raise RuntimeError(
                     f"policy iteration: {bad} states have an unavailable action (a bug)"
                 )
-            repaired, labels, fixed = unichain(mdp, chain, P, actions, model)
+            repaired, labels, fixed = unichain(mdp, chain, P, cost, actions, model)
             if fixed:
                 log.debug("iteration %d: %d states did not reach the recurrent class", it, fixed)
                 actions = repaired
@@ -380,20 +426,23 @@ def solve_policy_iteration(
             )
             if changes == 0 or hi - lo < tol * INNER_FACTOR:
                 break
+            # A policy evaluated twice means the iteration cycles: ties the look-ahead
+            # breaks one way and the unichain repair the other. From then on the
+            # improvement is Howard's alone (strict, on the evaluated values), which
+            # cannot cycle on a unichain model; should it still repeat, stop.
+            digest = hashlib.blake2b(actions.tobytes(), digest_size=16).digest()
+            if digest in seen:
+                if not lookahead:
+                    log.warning("policy iteration: the policy repeats; stopping at %d", it)
+                    break
+                log.debug("iteration %d: the policy repeats; no more look-ahead", it)
+                lookahead = False
+            seen.add(digest)
             cert = None
-            # Modified policy iteration: a few value iteration sweeps from the policy's
-            # values carry an improvement several states further up the paths before
-            # the next (greedy) policy is taken; late iterations otherwise move it by
-            # one state each, along every path whose better route is found at its end.
-            h2, th, pol = _lookahead(mdp, th, g, workers)
-            sweeps += LOOKAHEAD_SWEEPS
-            q2 = cost + P @ h2.ravel()[chain.states]
-            thv = th.ravel()[chain.states]
-            better2 = thv < q2 - IMPROVE_MARGIN * np.maximum(1.0, np.abs(q2))
-            if np.any(better2):
-                better = better2
-            else:
-                pol = cert_pol
+            better, pol, n = _improvement(
+                mdp, (P, cost, chain), (g, better, cert_pol), th, lookahead, workers
+            )
+            sweeps += n
             actions = np.where(better, pol.ravel()[chain.states], actions)
         tally = Tally("policy", t0, sweeps, sweeps, it, ref_cell)
         result = finish(mdp, chain.spread(h), g, tol, tally, cert, workers)
@@ -421,6 +470,38 @@ def _trusted_evaluation(
         np.all(np.isfinite(h)) and np.max(np.abs(res)) <= EVAL_RESIDUAL * (1.0 + np.max(np.abs(h)))
     )
     return g, h, trusted
+
+
+def _improvement(
+    mdp: LayeredMDP,
+    policy: tuple[sp.csr_matrix, np.ndarray, _Chain],
+    greedy: tuple[float, np.ndarray, np.ndarray],
+    th: np.ndarray,
+    lookahead: bool,
+    workers: Workers,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(states that change, their new actions (M, N), sweeps)`` of one improvement.
+
+    ``policy`` is the evaluated policy's ``(P, c, chain)``; ``greedy`` is ``(g, the
+    states whose greedy action beats the policy's on the evaluated values, that greedy
+    policy)``, and ``th`` its Bellman values. With ``lookahead``, modified policy
+    iteration: a few value iteration sweeps from the policy's values carry an
+    improvement several states further up the paths before the next (greedy) policy is
+    taken; late iterations otherwise move it by one state each, along every path whose
+    better route is found at its end. Without, or when the look-ahead finds nothing,
+    Howard's improvement.
+    """
+    P, cost, chain = policy
+    g, better, pol = greedy
+    if not lookahead:
+        return better, pol, 0
+    h2, th2, pol2 = _lookahead(mdp, th, g, workers)
+    q2 = cost + P @ h2.ravel()[chain.states]
+    thv = th2.ravel()[chain.states]
+    better2 = thv < q2 - IMPROVE_MARGIN * np.maximum(1.0, np.abs(q2))
+    if np.any(better2):
+        return better2, pol2, LOOKAHEAD_SWEEPS
+    return better, pol, LOOKAHEAD_SWEEPS
 
 
 def _lookahead(
