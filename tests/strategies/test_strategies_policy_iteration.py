@@ -20,7 +20,11 @@ from cellplan.errors import ScenarioError
 from cellplan.scenario import loads_scenario
 from cellplan.strategies.model.bundles import Outcomes
 from cellplan.strategies.model.mdp import LayeredMDP, build_model, compute_live
-from cellplan.strategies.solve.policy_iteration import closed_class_gains, solve_policy_iteration
+from cellplan.strategies.solve.policy_iteration import (
+    closed_class_gains,
+    solve_policy_iteration,
+    stranded_modes,
+)
 from cellplan.strategies.solve.solver import solve, solve_structured
 from cellplan.workcell import Workcell
 
@@ -394,3 +398,71 @@ def test_closed_class_gains_match_the_stationary_distributions(sizes, transient,
         pi = np.real(v[:, np.argmin(np.abs(w - 1.0))])
         pi /= pi.sum()
         assert g == pytest.approx(float(pi @ cost[b]), abs=1e-9)
+
+
+def test_a_strategy_that_holds_requests_open_for_ever_is_not_solved():
+    # At 0.2 arrivals per stage the bounded model's optimum keeps two P1 requests (urgency
+    # 1) open for ever, so that P2 requests (urgency 3) are turned away at no cost: gain
+    # 2.0, the loss of two open P1 requests. A certified optimum, but no strategy.
+    text = SPLITTING.replace("arrival: {probability: 0.04}", "arrival: {probability: 0.2}")
+    result = cellplan.plan(cellplan.loads(text), "strategies", sample_stages=20)
+    assert result.status is Status.FAILED
+    assert result.stats["gain"] == pytest.approx(2.0, abs=1e-9)
+    assert "keeps requests open for ever" in result.message
+    assert "strategy.max_pending" in result.message
+    sc = loads_scenario(text)
+    mdp = build_model(sc, Workcell.from_scenario(sc))
+    held = stranded_modes(mdp, solve(mdp, "auto", 1e-9).policy)
+    # Every mode held open carries or waits for P1 requests only, two of them in all.
+    for m in held:
+        mode = mdp.modes[int(m)]
+        open_parts = [w.split(",")[0] for w in mode.waiting] + ([mode.part] if mode.part else [])
+        assert open_parts == ["P1", "P1"]
+    assert len(held) > 0
+
+
+def test_a_strategy_that_serves_holds_nothing_open():
+    sc = loads_scenario(SPLITTING)
+    mdp = build_model(sc, Workcell.from_scenario(sc))
+    assert len(stranded_modes(mdp, solve(mdp, "auto", 1e-9).policy)) == 0
+    sc, cell = tiny(12)  # Section V, the structured solver's policy
+    mdp = build_model(sc, cell)
+    assert len(stranded_modes(mdp, solve(mdp, "structured", 1e-9).policy)) == 0
+
+
+def _splitting_variant(arrival: float, k: int, urgency: float) -> LayeredMDP:
+    """The two-part model of :data:`SPLITTING` at 8 x 8 cells with other request rates."""
+    text = (
+        SPLITTING.replace("arrival: {probability: 0.04}", f"arrival: {{probability: {arrival}}}")
+        .replace("max_pending: 2", f"max_pending: {k}")
+        .replace("urgency: {P2: 3.0}", f"urgency: {{P2: {urgency}}}")
+        .replace("cells: [12, 12]", "cells: [8, 8]")
+    )
+    sc = loads_scenario(text)
+    return build_model(sc, Workcell.from_scenario(sc))
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    arrival=st.sampled_from([0.01, 0.03, 0.05, 0.08, 0.12, 0.2]),
+    k=st.integers(1, 3),
+    urgency=st.sampled_from([0.5, 1.0, 2.0, 6.0]),
+)
+def test_generated_request_models_match_plain_sparse_rvi(arrival, k, urgency):
+    # Held-out models (rates, bounds and urgencies nobody tuned the solver on), many of
+    # whose improvements split the chain: policy iteration ends certified at the gain of
+    # the independent value iteration.
+    mdp = _splitting_variant(arrival, k, urgency)
+    res = solve_policy_iteration(mdp, tol=1e-9, max_iterations=300)
+    assert res.status is Status.SOLVED
+    assert res.gain == pytest.approx(sparse_rvi_outcomes(mdp, tol=1e-10), abs=1e-7)
+
+
+@settings(max_examples=4, deadline=None)
+@given(arrival=st.sampled_from([0.01, 0.05, 0.12, 0.2]), k=st.integers(1, 3))
+def test_with_equal_urgencies_the_optimum_holds_nothing_open(arrival, k):
+    # Holding k requests open for ever costs k per stage, the most any policy can cost
+    # with equal urgencies; serving costs less whenever the queue is ever short, so the
+    # optimum passes through NR.
+    mdp = _splitting_variant(arrival, k, 1.0)
+    assert len(stranded_modes(mdp, solve(mdp, "auto", 1e-9).policy)) == 0

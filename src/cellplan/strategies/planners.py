@@ -31,6 +31,7 @@ __all__ = ["MAX_STAGES", "StrategiesOptions", "run_strategies", "solver_settings
 
 if TYPE_CHECKING:
     from cellplan.setup import Setup
+    from cellplan.strategies.model.mdp import LayeredMDP
     from cellplan.strategies.model.spec import ProblemSpec
 
 Method = SolverMethod
@@ -156,13 +157,17 @@ def run_strategies(
         ``SOLVED`` when the solver's span test passed (the gain is certified to the
         scenario's tolerance) and the sample run served its requests;
         ``NOT_CONVERGED`` when the solver stopped at ``strategy.solver.max_sweeps``;
-        ``FAILED`` when the solve converged but the sample run left a request waiting
-        longer than its bound (see :func:`~cellplan.strategies.sim.simulate.simulate_result`).
+        ``FAILED`` when the solve converged but its policy keeps requests open for ever
+        (a recurrent class without NR:
+        :func:`~cellplan.strategies.solve.policy_iteration.stranded_modes`), or the
+        sample run left a request waiting longer than its bound (see
+        :func:`~cellplan.strategies.sim.simulate.simulate_result`).
         ``stats`` holds the solve's figures (gain and its bracket, span, sweeps,
         seconds ...) and the sample run's metrics prefixed ``sim_``.
     """
     from cellplan.strategies.policy.strategy import solve_scenario
     from cellplan.strategies.sim.simulate import simulate_result
+    from cellplan.strategies.solve.policy_iteration import stranded_modes
 
     section = setup.section("strategy")
     cell = setup.workcell
@@ -209,6 +214,9 @@ def run_strategies(
             f"{solved.span:.3g} >= tolerance {settings.tolerance:g}; gain bracket "
             f"{bracket})"
         )
+    elif held := _held_open(strategy.mdp, stranded_modes(strategy.mdp, solved.policy).tolist()):
+        status = Status.FAILED
+        message = f"gain {solved.gain:.4f} per stage, but {held}"
     elif not sample.success:
         status = Status.FAILED
         message = f"gain {solved.gain:.4f} per stage, but the sample run failed: {sample.message}"
@@ -226,3 +234,21 @@ def run_strategies(
         solution=strategy,
         trajectory=sample.trajectory,
     )
+
+
+def _held_open(mdp: LayeredMDP, modes: Sequence[int]) -> str:
+    """Why an optimal policy is no strategy: it keeps requests open for ever in
+    ``modes`` (:func:`~cellplan.strategies.solve.policy_iteration.stranded_modes`); empty
+    when there are none."""
+    if len(modes) == 0:
+        return ""
+    names = ", ".join(mdp.modes[int(m)].label for m in modes[:3])
+    more = f" and {len(modes) - 3} more" if len(modes) > 3 else ""
+    text = f"the strategy keeps requests open for ever (modes {names}{more})"
+    if any(m.kind == "Q" for m in mdp.modes):
+        text += (
+            ": a request that arrives while strategy.max_pending are open is turned away "
+            "at no cost, so holding the least urgent ones open pays here; raise "
+            "strategy.max_pending, lower strategy.arrival or bring strategy.urgency closer"
+        )
+    return text

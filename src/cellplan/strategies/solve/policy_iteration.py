@@ -50,7 +50,7 @@ from scipy.sparse import csgraph
 from scipy.sparse.linalg import splu
 
 from cellplan.strategies.model.bundles import Model
-from cellplan.strategies.model.mdp import LayeredMDP
+from cellplan.strategies.model.mdp import NR, LayeredMDP
 from cellplan.strategies.solve.bellman import residual_range
 from cellplan.strategies.solve.certify import (
     INNER_FACTOR,
@@ -263,6 +263,40 @@ def evaluate(
     return g, h, fill
 
 
+def closed_classes(P: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+    """``(labels, closed)``: the strongly connected components of a chain, numbered sinks
+    first (:func:`scipy.sparse.csgraph.connected_components`), and the labels of the
+    closed ones (no transition leaves them): its recurrent classes."""
+    _, labels = csgraph.connected_components(P, directed=True, connection="strong")
+    rows = np.repeat(np.arange(P.shape[0]), np.diff(P.indptr))
+    cross = labels[rows] != labels[P.indices]
+    leaves = np.zeros(int(labels.max()) + 1, np.bool_)
+    leaves[labels[rows[cross]]] = True
+    return labels, np.flatnonzero(~leaves)
+
+
+def stranded_modes(mdp: LayeredMDP, policy: np.ndarray) -> np.ndarray:
+    """The modes in which ``policy`` (``(M, N)``, as :class:`.certify.SolveResult` holds
+    it) can keep requests open for ever: those of its recurrent classes that contain no
+    NR state.
+
+    A recurrent class is never left once entered; without an NR state in it, the
+    requests open in its modes are never all finished. A Section V model's optimal
+    policy has none (a request held open costs at least as much per stage as serving
+    it), but where a request can be turned away at no cost (simultaneous requests with
+    ``max_pending`` open, Section VI-2) and parts differ in urgency, holding cheap
+    requests open so that urgent ones are turned away can be optimal. Empty when every
+    recurrent class passes through NR.
+    """
+    chain = _Chain(mdp)
+    P, _, _ = assemble(chain, policy.ravel()[chain.states], mdp.kernel_args(), Workers(1))
+    labels, closed = closed_classes(P)
+    mode = chain.states // mdp.live.shape[1]
+    idle = np.array([m.kind == NR for m in mdp.modes])[mode]
+    held = np.setdiff1d(closed, labels[idle])
+    return np.unique(mode[np.isin(labels, held)])
+
+
 def closed_class_gains(
     P: sp.csr_matrix, cost: np.ndarray, labels: np.ndarray, closed: np.ndarray
 ) -> np.ndarray:
@@ -325,12 +359,7 @@ def unichain(
     """
     changed = 0
     for _ in range(2):
-        _, labels = csgraph.connected_components(P, directed=True, connection="strong")
-        rows = np.repeat(np.arange(chain.size), np.diff(P.indptr))
-        cross = labels[rows] != labels[P.indices]
-        leaves = np.zeros(int(labels.max()) + 1, np.bool_)
-        leaves[labels[rows[cross]]] = True
-        closed = np.flatnonzero(~leaves)
+        labels, closed = closed_classes(P)
         if len(closed) == 1:
             return actions, labels, changed
         best = int(closed[np.argmin(closed_class_gains(P, cost, labels, closed))])
