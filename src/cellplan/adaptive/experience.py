@@ -13,11 +13,12 @@ frameworks (which the pip bindings of OMPL do not offer):
 4. the executed path ``u, û, Γ, ŵ, w`` comes back as the Result's trajectory.
 
 Environment changes (:meth:`~ExperiencePlanner.add`, :meth:`~ExperiencePlanner.remove`,
-:meth:`~ExperiencePlanner.move`) go through the same :class:`~.world.World` primitives
-as a scenario's scheduled ``changes:``; subgoals attached to a moved object follow it
-(Section 2.3) and the next query repairs G. With ``db`` the graph, the pointers and
-the changed world are written to the SQLite experience database after every query and
-change (one transaction each), so a later session continues with the same graph.
+:meth:`~ExperiencePlanner.move`, :meth:`~ExperiencePlanner.turn`) go through the same
+:class:`~.world.World` primitives as a scenario's scheduled ``changes:``; subgoals
+attached to a moved or turned object follow it (Section 2.3) and the next query repairs
+G. With ``db`` the graph, the pointers and the changed world are written to the SQLite
+experience database after every query and change (one transaction each), so a later
+session continues with the same graph.
 
 The scenario task list (:func:`~.runner.run_adaptive`) drives the same object: each
 task is a query from where the robot stands to a named goal.
@@ -498,6 +499,33 @@ class ExperiencePlanner:
         self._known_object(name)
         moved = self.world.set_pose(name, self.world.pose_of(pose))
         self._changed(moved)
+
+    def turn(
+        self, name: str, angle: float | Sequence[float], about: Sequence[float] | None = None
+    ) -> None:
+        """Turn object ``name`` from where it is now, as a scheduled ``rotate_object``
+        change does and through the same primitive (:meth:`~.worldbase.ChangingWorld.turn`).
+
+        Planar cell: ``angle`` is one angle ``theta`` in radians, counter-clockwise, about
+        ``about = (x, y)`` (default: the object's centroid now). 3-D cell: ``angle`` is
+        ``(roll, pitch, yaw)`` in radians about fixed world axes (``R = Rz Ry Rx``) about
+        ``about = (x, y, z)`` metres (default: the object's centre now). Subgoals and goals
+        attached to it turn with it and come back by IK (Section 2.3); a new environment
+        generation, so the next query repairs G; the database records the new pose.
+        An unknown object, an angle of the wrong count, not finite or beyond two turns
+        (degrees given where radians are expected) and a bad centre are refused, one
+        line each, before anything changes."""
+        problems = []
+        if name not in self.world.objects:
+            known = ", ".join(sorted(self.world.objects)) or "none"
+            problems.append(Problem("name", f"unknown object {name!r} (objects: {known})"))
+        try:
+            rad, centre = self.world.checked_turn(angle, about)
+        except ArgumentError as exc:
+            problems.extend(exc.problems)
+        if problems:
+            raise ArgumentError(problems)
+        self._changed(self.world.turn(name, rad, centre))
 
     def pose(self, name: str) -> tuple[float, float, float]:
         """The current pose of an object (relative to its original coordinates)."""

@@ -26,7 +26,12 @@ from cellplan.adaptive.space import FloatArray
 from cellplan.adaptive.store import shape_from_json, shape_to_json
 from cellplan.adaptive.tags import Tag
 from cellplan.adaptive.world3d import World3D
-from cellplan.adaptive.worldbase import ChangingWorld, checked_pose, validated_spec
+from cellplan.adaptive.worldbase import (
+    ChangingWorld,
+    checked_pose,
+    checked_turn,
+    validated_spec,
+)
 from cellplan.errors import ArgumentError, Problem, ScenarioError
 from cellplan.geometry import ShapeSet
 from cellplan.robots import PlanarArm, Robot
@@ -357,21 +362,35 @@ class World(ChangingWorld[ObjectState, ShapeSet]):
         """The shape of an ``add_object`` change (a polygon, box or disc)."""
         return ShapeSet.from_spec(spec)
 
-    def moved(self, change: MoveObject | RotateObject) -> Pose:
-        """The pose a scheduled move (a shift) or turn (about a point, else the object's
-        centroid) puts its object at."""
+    def moved(self, change: MoveObject) -> Pose:
+        """The pose a scheduled move (a shift) puts its object at."""
         st = self.objects[change.object]
-        if isinstance(change, MoveObject):
-            return (st.pose[0] + change.by[0], st.pose[1] + change.by[1], st.pose[2])
-        if change.about is None:
-            c = self.geometries()[change.object].centroid
-            cx, cy = float(c.x), float(c.y)
-        else:
-            cx, cy = float(change.about[0]), float(change.about[1])
+        return (st.pose[0] + change.by[0], st.pose[1] + change.by[1], st.pose[2])
+
+    def turn_angle(self, change: RotateObject) -> FloatArray:
+        """A scheduled turn's ``degrees`` as ``[theta]`` radians."""
         # the section gives a planar turn its degrees (adaptive.section._check_dimension)
         assert change.degrees is not None
-        turn: Pose = (0.0, 0.0, units.radians(change.degrees))
-        return compose((cx, cy, 0.0), compose(turn, compose((-cx, -cy, 0.0), st.pose)))
+        return np.array([units.radians(change.degrees)], float)
+
+    def turn(self, name: str, angle: FloatArray, about: Any = None) -> set[str]:
+        """Turn object ``name`` counter-clockwise by ``angle`` (``[theta]`` radians) about
+        ``about = (x, y)`` (``None``: the object's centroid now): the pose becomes
+        ``T(c) R(theta) T(-c) pose`` (Chen, Section 2.3: attached subgoals turn with it)."""
+        st = self.objects[name]
+        if about is None:
+            c = self.geometries()[name].centroid
+            cx, cy = float(c.x), float(c.y)
+        else:
+            cx, cy = float(about[0]), float(about[1])
+        turn: Pose = (0.0, 0.0, float(np.asarray(angle, float).reshape(-1)[0]))
+        pose = compose((cx, cy, 0.0), compose(turn, compose((-cx, -cy, 0.0), st.pose)))
+        return self.set_pose(name, pose)
+
+    def checked_turn(self, angle: Any, about: Any) -> tuple[FloatArray, Any]:
+        """``ExperiencePlanner.turn``'s arguments: one angle ``theta`` (radians) and an
+        optional centre ``(x, y)``."""
+        return checked_turn(angle, about, "theta", "x, y")
 
     def add_object(self, name: str, shape: ShapeSet, pose: Pose = (0.0, 0.0, 0.0)) -> None:
         """Add an object: ``shape`` in its own coordinates, placed at ``pose``."""

@@ -39,14 +39,18 @@ from cellplan import arm as arms
 from cellplan import solids, units
 from cellplan.adaptive.section import (
     AdaptiveSection,
-    Change,
     GoalSpec,
     MoveObject,
     RotateObject,
 )
 from cellplan.adaptive.space import FloatArray
 from cellplan.adaptive.tags import Tag
-from cellplan.adaptive.worldbase import ChangingWorld, checked_pose, validated_spec
+from cellplan.adaptive.worldbase import (
+    ChangingWorld,
+    checked_pose,
+    checked_turn,
+    validated_spec,
+)
 from cellplan.errors import ArgumentError, Problem
 from cellplan.scenario import Scenario
 from cellplan.scenario3d import MeshSolid, Solid
@@ -337,42 +341,52 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
         """The solid of an ``add_object`` change (a primitive; no mesh)."""
         return solid_from_spec(spec, "shape")
 
-    def moved(self, change: MoveObject | RotateObject) -> Offset:
-        """The offset a scheduled move shifts its object to, or a turn leaves it at
-        (:meth:`turned`)."""
-        if isinstance(change, RotateObject):
-            return self.turned(change)[0]
+    def moved(self, change: MoveObject) -> Offset:
+        """The offset a scheduled move shifts its object to."""
         p = self.objects[change.object].pose
         by = [float(v) for v in change.by]
         return (p[0] + by[0], p[1] + by[1], p[2] + by[2])
 
-    def turned(self, change: RotateObject) -> tuple[Offset, tuple[float, ...]]:
-        """Offset and turn after a scheduled ``rotate_object``: the rotation ``R_c`` of its
-        ``rpy`` (degrees, fixed world axes, ``R_c = Rz Ry Rx``) about ``about`` (metres;
-        default: the object's centre now). ``D_new = T(a) R_c T(-a) D_old``, so
+    def turn_angle(self, change: RotateObject) -> FloatArray:
+        """A scheduled turn's ``rpy`` (degrees) as radians."""
+        # the section gives a 3-D turn its rpy (adaptive.section._check_dimension)
+        assert change.rpy is not None
+        return np.asarray(units.radians(change.rpy), float)
+
+    def turned(
+        self, name: str, rpy: FloatArray, about: Any = None
+    ) -> tuple[Offset, tuple[float, ...]]:
+        """Offset and turn of object ``name`` after the rotation ``R_c`` of ``rpy``
+        (radians, fixed world axes, ``R_c = Rz Ry Rx``) about ``about`` (metres; default:
+        the object's centre now). ``D_new = T(a) R_c T(-a) D_old``, so
         ``turn_new = R_c turn_old`` and ``pose_new = R_c (c + pose_old - a) + a - c``."""
-        obj = self.objects[change.object]
-        spin = np.asarray(_rotation(change.rpy or (0.0, 0.0, 0.0)), float).reshape(3, 3)
+        obj = self.objects[name]
+        spin = solids.pose_matrix(np.zeros(3), rpy)[:3, :3]
         centre = obj.solid.translation
         offset = np.asarray(obj.pose, float)
-        about = centre + offset if change.about is None else np.asarray(change.about, float)
-        new = spin @ (centre + offset - about) + about - centre
+        at = centre + offset if about is None else np.asarray(about, float)
+        new = spin @ (centre + offset - at) + at - centre
         turn = spin @ np.asarray(obj.turn, float).reshape(3, 3)
         return (
             (float(new[0]), float(new[1]), float(new[2])),
             tuple(float(v) for v in turn.ravel()),
         )
 
-    def apply(self, change: Change) -> set[str]:
-        """Apply one scheduled change (a turn sets the object's offset and turn)."""
-        if isinstance(change, RotateObject):
-            offset, turn = self.turned(change)
-            self._moved_from[change.object] = self.objects[change.object].frame()
-            obj = self.objects[change.object]
-            obj.pose, obj.turn = offset, turn
-            self._changed()
-            return {change.object}
-        return super().apply(change)
+    def turn(self, name: str, angle: FloatArray, about: Any = None) -> set[str]:
+        """Turn object ``name`` by ``angle = (roll, pitch, yaw)`` radians about ``about``
+        (:meth:`turned`): its offset and turn are set, and its attached tags follow from
+        the frame it had before (Chen, Section 2.3)."""
+        offset, turn = self.turned(name, angle, about)
+        self._moved_from[name] = self.objects[name].frame()
+        obj = self.objects[name]
+        obj.pose, obj.turn = offset, turn
+        self._changed()
+        return {name}
+
+    def checked_turn(self, angle: Any, about: Any) -> tuple[FloatArray, Any]:
+        """``ExperiencePlanner.turn``'s arguments: ``(roll, pitch, yaw)`` radians and an
+        optional centre ``(x, y, z)`` metres."""
+        return checked_turn(angle, about, "roll, pitch, yaw", "x, y, z")
 
     def set_pose(self, name: str, pose: Any) -> set[str]:
         """Place object ``name`` at offset ``pose`` (its turn kept); its attached tags

@@ -4,9 +4,10 @@
 :class:`~.world3d.World3D` (solids translated by offsets ``(x, y, z)``) keep objects,
 named goals and the environment generation the same way: every change goes through
 :meth:`ChangingWorld.apply` and the primitives :meth:`~ChangingWorld.add_object`,
-:meth:`~ChangingWorld.remove_object` and :meth:`~ChangingWorld.set_pose`, and each starts
-a new generation (edge verification is stamped with it). What differs (the shapes, how
-a pose composes, goals as tags, IK) is each subclass's.
+:meth:`~ChangingWorld.remove_object`, :meth:`~ChangingWorld.set_pose` and
+:meth:`~ChangingWorld.turn` (a scheduled ``rotate_object`` and ``ExperiencePlanner.turn``
+alike), and each starts a new generation (edge verification is stamped with it). What
+differs (the shapes, how a pose composes, goals as tags, IK) is each subclass's.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any, Generic, Protocol, TypeVar
 import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
+from cellplan import units
 from cellplan.adaptive.section import (
     AdaptiveSection,
     AddGoal,
@@ -30,8 +32,9 @@ from cellplan.adaptive.section import (
 )
 from cellplan.adaptive.space import FloatArray
 from cellplan.adaptive.tags import Tag
-from cellplan.errors import ArgumentError
+from cellplan.errors import ArgumentError, Problem
 from cellplan.scenario import Scenario
+from cellplan.schema import COORD_LIMIT
 from cellplan.validity import RobotModel, ValiditySpace
 
 Pose = tuple[float, float, float]
@@ -60,6 +63,56 @@ def checked_pose(pose: Any, axes: str, note: str = "") -> Pose:
     if len(values) != 3 or not all(np.isfinite(values)):
         raise ArgumentError(f"expected three finite numbers ({axes}){note}, got {pose!r}", "pose")
     return (values[0], values[1], values[2])
+
+
+def _finite_numbers(value: Any, count: int) -> list[float] | None:
+    """``value`` as ``count`` finite real numbers (a bare number when ``count == 1``), else
+    ``None``."""
+    try:
+        arr = units.real_array(value, "value")
+    except ArgumentError:
+        return None
+    if arr.ndim > 1 or arr.size != count or not np.all(np.isfinite(arr)):
+        return None
+    return [float(v) for v in arr.reshape(-1)]
+
+
+def checked_turn(
+    angle: Any, about: Any, angles: str, point: str
+) -> tuple[FloatArray, tuple[float, ...] | None]:
+    """The arguments of ``ExperiencePlanner.turn`` checked before any work: ``angle`` as
+    the numbers ``angles`` names (``"theta"``; ``"roll, pitch, yaw"``), radians within
+    :data:`cellplan.units.ANGLE_LIMIT` (a value in degrees is the usual mistake), and
+    ``about`` as ``None`` or the coordinates ``point`` names (``"x, y"``), within
+    :data:`cellplan.schema.COORD_LIMIT`. One :class:`~cellplan.errors.Problem` per bad
+    argument (fields ``angle`` and ``about``)."""
+    problems = []
+    n_angles, n_point = len(angles.split(", ")), len(point.split(", "))
+    values = _finite_numbers(angle, n_angles)
+    what = "one finite number" if n_angles == 1 else f"{n_angles} finite numbers"
+    if values is None:
+        problems.append(Problem("angle", f"expected {what} ({angles}) in radians, got {angle!r}"))
+    elif max(abs(v) for v in values) > units.ANGLE_LIMIT:
+        problems.append(
+            Problem(
+                "angle",
+                f"({', '.join(f'{v:g}' for v in values)}) exceeds two turns; angles are "
+                "radians here",
+            )
+        )
+    centre = None
+    if about is not None:
+        pts = _finite_numbers(about, n_point)
+        if pts is None or max(abs(v) for v in pts) > COORD_LIMIT:
+            problems.append(
+                Problem("about", f"expected {n_point} finite coordinates ({point}), got {about!r}")
+            )
+        else:
+            centre = tuple(pts)
+    if problems:
+        raise ArgumentError(problems)
+    assert values is not None
+    return np.array(values, float), centre
 
 
 class PlacedObject(Protocol):
@@ -108,8 +161,24 @@ class ChangingWorld(ABC, Generic[ObjectT, ShapeT]):
         """The shape of a scenario's ``add_object`` change (a validated spec)."""
 
     @abstractmethod
-    def moved(self, change: MoveObject | RotateObject) -> Pose:
-        """The pose a scheduled move (or turn) puts its object at."""
+    def moved(self, change: MoveObject) -> Pose:
+        """The pose a scheduled move puts its object at."""
+
+    @abstractmethod
+    def turn_angle(self, change: RotateObject) -> FloatArray:
+        """A scheduled turn's angle in radians, as :meth:`turn` takes it (the scenario
+        writes degrees; :mod:`cellplan.units` converts)."""
+
+    @abstractmethod
+    def turn(self, name: str, angle: FloatArray, about: Any = None) -> set[str]:
+        """Turn object ``name`` by ``angle`` (radians) about the point ``about`` (``None``:
+        the subclass's default centre); returns ``{name}`` (its attached tags follow).
+        The one law of a turn, for a scheduled ``rotate_object`` and
+        ``ExperiencePlanner.turn`` alike; a new generation."""
+
+    @abstractmethod
+    def checked_turn(self, angle: Any, about: Any) -> tuple[FloatArray, Any]:
+        """The arguments of ``ExperiencePlanner.turn`` checked (:func:`checked_turn`)."""
 
     @abstractmethod
     def add_object(self, name: str, shape: ShapeT, pose: Pose = (0.0, 0.0, 0.0)) -> None:
@@ -188,7 +257,9 @@ class ChangingWorld(ABC, Generic[ObjectT, ShapeT]):
             self.add_object(change.object, self.shape_from_spec(change.shape))
         elif isinstance(change, RemoveObject):
             self.remove_object(change.object)
-        elif isinstance(change, MoveObject | RotateObject):
+        elif isinstance(change, RotateObject):
+            return self.turn(change.object, self.turn_angle(change), change.about)
+        elif isinstance(change, MoveObject):
             return self.set_pose(change.object, self.moved(change))
         elif isinstance(change, AddGoal):
             self.goals[change.goal] = self._goal_tag(change.spec())
