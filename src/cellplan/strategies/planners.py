@@ -30,6 +30,8 @@ from cellplan.strategies.sim.options import SimulationOptions
 __all__ = ["MAX_STAGES", "StrategiesOptions", "run_strategies", "solver_settings"]
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from cellplan.setup import Setup
     from cellplan.strategies.model.mdp import LayeredMDP
     from cellplan.strategies.model.spec import ProblemSpec
@@ -167,7 +169,6 @@ def run_strategies(
     """
     from cellplan.strategies.policy.strategy import solve_scenario
     from cellplan.strategies.sim.simulate import simulate_result
-    from cellplan.strategies.solve.policy_iteration import stranded_modes
 
     section = setup.section("strategy")
     cell = setup.workcell
@@ -214,7 +215,7 @@ def run_strategies(
             f"{solved.span:.3g} >= tolerance {settings.tolerance:g}; gain bracket "
             f"{bracket})"
         )
-    elif held := _held_open(strategy.mdp, stranded_modes(strategy.mdp, solved.policy).tolist()):
+    elif held := _held_open(strategy.mdp, _stranded(strategy.mdp, solved.policy)):
         status = Status.FAILED
         message = f"gain {solved.gain:.4f} per stage, but {held}"
     elif not sample.success:
@@ -234,6 +235,20 @@ def run_strategies(
         solution=strategy,
         trajectory=sample.trajectory,
     )
+
+
+def _stranded(mdp: LayeredMDP, policy: np.ndarray) -> list[int]:
+    """:func:`~cellplan.strategies.solve.policy_iteration.stranded_modes` where it can find
+    any: not in a Section V model (:meth:`LayeredMDP.is_simple`), whose requests all weigh
+    one, so that holding one open for ever costs the most any policy can (one request's
+    loss per stage) and the optimum never does; this also spares the structured solver's
+    large grids a chain it never builds."""
+    # Imported here like run_strategies' algorithm modules (load time: module docstring).
+    from cellplan.strategies.solve.policy_iteration import stranded_modes
+
+    if mdp.is_simple():
+        return []
+    return [int(m) for m in stranded_modes(mdp, policy)]
 
 
 def _held_open(mdp: LayeredMDP, modes: Sequence[int]) -> str:
