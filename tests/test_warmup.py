@@ -68,3 +68,27 @@ def test_a_warm_up_group_runs_its_commands(tmp_path: Path) -> None:
 def test_a_failing_warm_up_command_is_an_error(tmp_path: Path) -> None:
     with pytest.raises(ScenarioError, match="no such bundled scenario"):
         warmup._run_group([("validate", "no_such_scenario")], str(tmp_path))
+
+
+def test_every_file_a_warm_up_command_reads_is_written_before_in_its_group() -> None:
+    # Groups run in separate processes at the same time: a strategy file read with
+    # --strategy must come from an earlier command of the same group.
+    for group in warmup.WARMUP_GROUPS:
+        written: set[str] = set()
+        for command in group:
+            args = list(command)
+            if "--strategy" in args:
+                assert args[args.index("--strategy") + 1] in written, command
+            if "-o" in args:
+                written.add(args[args.index("-o") + 1])
+
+
+def test_the_warm_up_reaches_the_policy_iteration_and_query_kernels() -> None:
+    # The kernels a structured solve of strategies_tiny does not compile: policy
+    # iteration (models with failures or noise), strategy.action (plot, the demo's
+    # pictures) and the reactive baseline. Without them the demo's two sweep workers
+    # each compiled them again (issue 34).
+    commands = [list(c) for group in warmup.WARMUP_GROUPS for c in group]
+    assert any(c[0] == "solve" and "--method" in c and "policy" in c for c in commands)
+    assert any(c[0] == "plot" for c in commands)
+    assert any(c[0] == "simulate" and "reactive" in c for c in commands)

@@ -1192,9 +1192,10 @@ def _cell_points(
     return res
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _put(dest: FloatArray, row: int, src: FloatArray) -> None:  # pragma: no cover - compiled
     # Element-wise: numba compiles a row assignment ``dest[row] = src`` seconds slower.
+    # Inlined: called apart, numba compiled it twice, for a literal row 0 and an int.
     for c in range(3):
         dest[row, c] = src[c]
 

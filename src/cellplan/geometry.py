@@ -415,8 +415,11 @@ def _gap_impl(
     out = np.empty(n_cfg)
     kmax = pv.shape[1]
     for q in nb.prange(n_cfg):
-        wx = np.empty(kmax)
-        wy = np.empty(kmax)
+        # Strided views, as the obstacles' ov[m, :, 0] are: the polygon helpers then see
+        # one array layout and numba compiles each once (issue 34, first run)
+        w = np.empty((kmax, 2))
+        wx = w[:, 0]
+        wy = w[:, 1]
         best = np.inf
         done = False
         for p in range(pv.shape[0]):
@@ -519,8 +522,10 @@ def _raster_kernel(
     hy: float,
 ) -> NDArray[np.bool_]:
     out = np.zeros((nx, ny), np.bool_)
-    bx = np.empty(4)
-    by = np.empty(4)
+    # Strided views, as pv[m, :, 0] is: one layout, so one compile of the helpers
+    b4 = np.empty((4, 2))
+    bx = b4[:, 0]
+    by = b4[:, 1]
     for m in range(pv.shape[0]):
         n = pc[m]
         xmin = pv[m, 0, 0]

@@ -10,9 +10,13 @@ file, in its ``__pycache__`` folder (``*.nbi`` index and ``*.nbc`` code files), 
 :func:`warm_up` (``python -m cellplan.warmup``, run by ``make install``) runs the
 commands a newcomer runs first, on small bundled problems, in one process per core, so
 that their kernels are compiled once at install time instead of during a first
-``cellplan solve``. A compile that still happens in a command (a kernel this warm-up does
-not reach, or one specialised at run time) is announced by the CLI in one ``note:`` line
-(:func:`cellplan.cliutil.announce_compiles`).
+``cellplan solve``. They also reach every kernel the demo runs (policy iteration, the
+strategy's point queries, the reactive baseline, the place rule), so the demo's sweep
+workers load them all instead of each compiling them again. The groups are balanced (about
+the same compile each) and compile no (kernel, signature) twice:
+``benchmarks/bench_warmup_compiles.py`` prints both. A compile that still happens in a
+command (a kernel this warm-up does not reach, or one specialised at run time) is
+announced by the CLI in one ``note:`` line (:func:`cellplan.cliutil.announce_compiles`).
 """
 
 from __future__ import annotations
@@ -53,8 +57,41 @@ WARMUP_GROUPS: tuple[tuple[tuple[str, ...], ...], ...] = (
         # without --pictures: drawing compiles no kernel, and cost about 5 CPU s a command
         ("assemble", "discs_seven", "-o", "{tmp}/gradient"),
         ("assemble", "discs_seven", "--algorithm", "sequential", "-o", "{tmp}/sequential"),
+        # the place rule's segment clearances (segments_gap_kernel)
+        (
+            "assemble",
+            "discs_seven",
+            "--algorithm",
+            "sequential",
+            "--rule",
+            "place",
+            "-o",
+            "{tmp}/place",
+        ),
         ("adapt", "adaptive_fig3", "--tasks", "3", "-o", "{tmp}/adapt"),
         ("validate", "ur5_cell"),
+        # Last, once the first group has compiled the model's kernels (it starts with
+        # them): policy iteration, the solver of every model with failures or noise, whose
+        # kernels no structured solve reaches. It also compiles the certificate's Bellman
+        # sweep and the point queries of the sample run before the first group gets
+        # there, which then loads them: the two groups share the strategies' compiling.
+        ("solve", "strategies_tiny", "--method", "policy", "-o", "{tmp}/policy.npz"),
+        # strategy.action (the query kernels), as `plot` and the demo's pictures use it
+        ("plot", "strategies_tiny", "--strategy", "{tmp}/policy.npz", "-o", "{tmp}/plot.png"),
+        # the reactive baseline's layer sweeps
+        (
+            "simulate",
+            "strategies_tiny",
+            "--strategy",
+            "{tmp}/policy.npz",
+            "--stages",
+            "50",
+            "--policy",
+            "reactive",
+            "--no-gif",
+            "-o",
+            "{tmp}/reactive",
+        ),
     ),
 )
 

@@ -289,7 +289,10 @@ def stranded_modes(mdp: LayeredMDP, policy: np.ndarray) -> np.ndarray:
     recurrent class passes through NR.
     """
     chain = _Chain(mdp)
-    P, _, _ = assemble(chain, policy.ravel()[chain.states], mdp.kernel_args(), Workers(1))
+    # int64 like the iteration's own actions (a solve's policy is int16): one compile of
+    # the row kernels serves both.
+    actions = policy.ravel()[chain.states].astype(np.int64)
+    P, _, _ = assemble(chain, actions, mdp.kernel_args(), Workers(1))
     labels, closed = closed_classes(P)
     mode = chain.states // mdp.live.shape[1]
     idle = np.array([m.kind == NR for m in mdp.modes])[mode]
