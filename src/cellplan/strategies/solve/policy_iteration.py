@@ -377,6 +377,33 @@ def unichain(
     raise RuntimeError("policy iteration: the repaired policy is not unichain (a bug)")
 
 
+class _Repeats:
+    """The policies evaluated so far (16-byte digests of their actions), and whether the
+    improvement still looks ahead.
+
+    A policy evaluated twice means the iteration cycles: ties that the look-ahead breaks
+    one way and the unichain repair the other. From then on the improvement is Howard's
+    alone (strict, on the evaluated values), which cannot cycle on a unichain model;
+    should a policy still repeat, the iteration stops.
+    """
+
+    def __init__(self) -> None:
+        self.seen: set[bytes] = set()
+        self.lookahead = True
+
+    def stop(self, actions: np.ndarray, it: int) -> bool:
+        """Record the policy ``actions`` of iteration ``it``; whether to stop."""
+        digest = hashlib.blake2b(actions.tobytes(), digest_size=16).digest()
+        if digest in self.seen:
+            if not self.lookahead:
+                log.warning("policy iteration: the policy repeats; stopping at %d", it)
+                return True
+            log.debug("iteration %d: the policy repeats; no more look-ahead", it)
+            self.lookahead = False
+        self.seen.add(digest)
+        return False
+
+
 def solve_policy_iteration(
     mdp: LayeredMDP,
     tol: float = 1e-6,
@@ -416,8 +443,7 @@ def solve_policy_iteration(
     h, g, sweeps, evaluations, it = np.zeros(chain.size), 0.0, 0, 0, 0
     cert: Certificate | None = None
     memo: dict[str, Any] = {}
-    seen: set[bytes] = set()  # digests of the policies evaluated
-    lookahead = True
+    repeats = _Repeats()
     with workers_for(chain.size, threads) as workers:
         for it in range(1, max_iterations + 1):
             P, cost, bad = assemble(chain, actions, model, workers)
@@ -458,21 +484,11 @@ def solve_policy_iteration(
             )
             if changes == 0 or hi - lo < tol * INNER_FACTOR:
                 break
-            # A policy evaluated twice means the iteration cycles: ties the look-ahead
-            # breaks one way and the unichain repair the other. From then on the
-            # improvement is Howard's alone (strict, on the evaluated values), which
-            # cannot cycle on a unichain model; should it still repeat, stop.
-            digest = hashlib.blake2b(actions.tobytes(), digest_size=16).digest()
-            if digest in seen:
-                if not lookahead:
-                    log.warning("policy iteration: the policy repeats; stopping at %d", it)
-                    break
-                log.debug("iteration %d: the policy repeats; no more look-ahead", it)
-                lookahead = False
-            seen.add(digest)
+            if repeats.stop(actions, it):
+                break
             cert = None
             better, pol, n = _improvement(
-                mdp, (P, cost, chain), (g, better, cert_pol), th, lookahead, workers
+                mdp, (P, cost, chain), (g, better, cert_pol), th, repeats.lookahead, workers
             )
             sweeps += n
             actions = np.where(better, pol.ravel()[chain.states], actions)
