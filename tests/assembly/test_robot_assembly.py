@@ -8,10 +8,18 @@ import numpy as np
 import pytest
 
 import cellplan
-from cellplan.assembly.experiments_robot import report, robot_problem_text, runs
+from cellplan.assembly.experiments_robot import (
+    design_runs,
+    report,
+    robot_problem_text,
+    runs,
+    runs_more_moves,
+)
+from cellplan.assembly.experiments_robot import run as run_one
 from cellplan.assembly.robot import RobotAssembly, held_parts, tool_pose
 from cellplan.core import RunSpec, Scalar, Status
-from cellplan.errors import ScenarioError
+from cellplan.errors import ArgumentError, ScenarioError
+from cellplan.experiments import discover
 from cellplan.registry import scenario_path
 from cellplan.scene3d import cell_scene
 from cellplan.setup import as_setup
@@ -195,6 +203,41 @@ def test_generated_problems_are_legal_and_seeded() -> None:
     setup = cellplan.loads(a)  # validates the discs (legal starts and goals)
     assert len(setup.scenario.parts) == 4
     assert runs(3, True) == [RunSpec("assembly.robot", {"n": 3}, s) for s in range(3)]
+
+
+def test_the_puck_count_and_first_seed_are_the_run_specs() -> None:
+    """``assembly.robot`` keeps 4 pucks on seeds 0..; ``assembly.robot6`` (the
+    pre-registered design) lists 6 pucks on seeds from 300; both quick versions 3 pucks
+    on seeds 0.. (as every experiment's)."""
+    assert runs(3, False) == [RunSpec("assembly.robot", {"n": 4}, s) for s in range(3)]
+    assert runs_more_moves(3, False) == [
+        RunSpec("assembly.robot6", {"n": 6}, s) for s in (300, 301, 302)
+    ]
+    assert runs_more_moves(2, True) == [RunSpec("assembly.robot6", {"n": 3}, s) for s in (0, 1)]
+    found = {e.name: e for f in discover(["assembly"]) for e in f.experiments}
+    assert found["assembly.robot6"].make_runs(2, False) == runs_more_moves(2, False)
+    with pytest.raises(ArgumentError) as err:
+        design_runs(2, False, "assembly.robot", 0, -1)
+    assert [p.field for p in err.value.problems] == ["pucks", "first_seed"]
+
+
+def test_the_puck_count_reaches_the_run() -> None:
+    """A 2-puck run spec plans 2 generated pucks: the row's count, at least one part move
+    per puck, and the thirds taken over those moves."""
+    row = run_one(RunSpec("assembly.robot6", {"n": 2}, 3))
+    assert row["n"] == 2 and row["solved"] is True
+    assert int(row["grasps"]) >= 2
+    assert row["drop"] == float(row["checks_first_third"]) - float(row["checks_last_third"])
+
+
+def test_a_planar_plan_that_does_not_finish_is_an_unsolved_row() -> None:
+    """8 pucks on seed 105 crowd the table until the planar plan gives up (160 switches):
+    the run is a row with ``solved`` false and no arm statistics, which the claim leaves
+    out, not a failed run."""
+    row = run_one(RunSpec("assembly.robot6", {"n": 8}, 105))
+    assert row["solved"] is False
+    assert (row["vertices"], row["solve_calls"]) == (0, 0)
+    assert np.isnan(float(row["drop"]))
 
 
 def test_the_trajectory_plays_in_the_viewer_with_the_part_on_the_tool(

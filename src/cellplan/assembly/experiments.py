@@ -14,6 +14,9 @@
     Issue 31: the sequential assembly executed by the UR5, each move planned by the
     adaptive planner; checks per move as its experience grows
     (:mod:`~cellplan.assembly.experiments_robot`).
+``assembly.robot6``
+    The same at 6 pucks on seeds from 300: the pre-registered design with more part
+    moves per run (docs/assembly.md).
 ``assembly.sensitivity``
     Not in the paper: the Figs. 3-4 ratio against the workspace fill (how much of the
     workspace the discs cover, hence how far out the random starts lie) and the spacing
@@ -775,6 +778,14 @@ EXPERIMENTS: list[Experiment] = [
         PAPER,
         "Sequential assembly executed by the UR5: checks per move",
         experiments_robot.runs,
+        experiments_robot.run,
+        experiments_robot.report,
+    ),
+    Experiment(
+        "assembly.robot6",
+        PAPER,
+        "Sequential assembly executed by the UR5, 6 pucks: checks per move",
+        experiments_robot.runs_more_moves,
         experiments_robot.run,
         experiments_robot.report,
     ),
