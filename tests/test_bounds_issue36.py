@@ -89,6 +89,17 @@ def test_long_accepted_work_is_announced_in_one_note_line(cellplan, monkeypatch)
     assert cellplan("validate", "strategies_tiny").stderr == ""
 
 
+def test_a_long_adaptive_run_is_announced_once_by_validate(cellplan, monkeypatch):
+    # validate checks the task count's time once (preflight) and prints the count from the
+    # section; it used to check it twice and print the note twice (a scenario fuzzer's
+    # case: 15,011 random tasks in adaptive_fig3).
+    monkeypatch.setattr(budget, "NOTICE_SECONDS", 0.0)
+    r = cellplan("validate", "adaptive_fig3")
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("note: adaptive.tasks.count: about "), r.stderr
+
+
 def test_the_second_gif_check_names_the_flag():
     """The pictures check a frame's memory again after planning; on the command line the
     refusal names --gif-size, as the first check does, not the library's ``size``."""

@@ -46,7 +46,7 @@ def describe(setup: Setup) -> Sequence[Fact]:
     for ``validate --json``: the goals' names, the task count with how they are chosen,
     the number of changes, and the repair, Solve and Reach settings by name.
     """
-    from cellplan.adaptive.runner import settings_for, task_count
+    from cellplan.adaptive.runner import listed_count, settings_for
     from cellplan.adaptive.section import RandomTasks
     from cellplan.adaptive.world import preflight
 
@@ -58,7 +58,7 @@ def describe(setup: Setup) -> Sequence[Fact]:
     seed = sec.tasks.seed if isinstance(sec.tasks, RandomTasks) else None
     kind = f"random, seed {seed}" if random else "listed"
     goals = sorted(sec.goals)
-    count = int(task_count(sc, None))
+    count = listed_count(sec)  # preflight ran task_count's time check (and notice) once
     return [
         Fact("adaptive_goals", "adaptive goals", goals, f"{len(goals)} ({', '.join(goals)})"),
         Fact(

@@ -85,6 +85,12 @@ measured (``cellplan adapt adaptive_fig4``, 10 and 80 tasks, on the shared 2-cor
 at load about 4), rounded up."""
 
 
+def listed_count(sec: AdaptiveSection) -> int:
+    """Number of tasks the section asks for (listed, or ``tasks.count`` random ones), with
+    no time check: what ``validate`` prints after :func:`task_count` has checked it."""
+    return len(sec.tasks) if isinstance(sec.tasks, list) else sec.tasks.count
+
+
 def task_count(scenario: Scenario, tasks: int | None) -> int:
     """Number of tasks of the run (``tasks`` overrides the section's), refused when their
     estimated time passes the time limit (:func:`cellplan.budget.require_time`)."""
@@ -96,7 +102,7 @@ def task_count(scenario: Scenario, tasks: int | None) -> int:
             raise ArgumentError(f"the scenario lists only {len(sec.tasks)} tasks", "tasks")
         budget.require_time(tasks * SECONDS_PER_TASK, "tasks", f"for {tasks} tasks")
         return tasks
-    n = len(sec.tasks) if isinstance(sec.tasks, list) else sec.tasks.count
+    n = listed_count(sec)
     budget.require_time(
         n * SECONDS_PER_TASK, "adaptive.tasks.count", f"for {n} tasks", ScenarioError
     )
