@@ -62,7 +62,7 @@ def run_peer(
         counter,
         tuple(world.robot.periodic),
     )
-    changes = sec.ordered_changes()
+    stages = sec.stages()
     u = np.asarray(world.robot.start, float)
     current: str | None = None
     prm: PRMSession | None = None
@@ -70,10 +70,9 @@ def run_peer(
     try:
         for t in range(n):
             changed = []
-            for _, change in changes:
-                if change.after_task == t:
-                    world.apply(change)
-                    changed.append(describe_change(change))
+            for _, change in stages.get(t, []):
+                world.apply(change)
+                changed.append(describe_change(change))
             if changed and prm is not None:
                 prm.close()
                 prm = None

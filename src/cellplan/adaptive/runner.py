@@ -23,7 +23,7 @@ from cellplan.adaptive.adapt import Adapter, Hook, Settings, TaskResult, derive_
 from cellplan.adaptive.experience import ExperiencePlanner, failure_state, saved_failures
 from cellplan.adaptive.graph import ExperienceGraph
 from cellplan.adaptive.repair import STRATEGIES
-from cellplan.adaptive.section import AdaptiveSection, Change, RandomTasks
+from cellplan.adaptive.section import AdaptiveSection, Change, RandomTasks, stage_words
 from cellplan.adaptive.solve import (
     check_planner_name,
     ompl_planner_name,
@@ -184,7 +184,7 @@ def run_adaptive(
         preflight(scenario, settings.resolution, settings.seed)
     planner = ExperiencePlanner(scenario, settings.repair, seed=settings.seed, hook=hook)
     world, adapter, counter = planner.world, planner.adapter, planner.counter
-    changes = sec.ordered_changes()
+    stages = sec.stages()
     outcome = RunOutcome(planner=planner)
     u_base = adapter.u.copy()
     start_t = 0
@@ -208,20 +208,21 @@ def run_adaptive(
             u_base = np.array(saved["u_base"], float)
     for t in range(start_t, n_tasks):
         applied = []
-        for i, change in changes:
-            if change.after_task == t:
-                moved = world.apply(change)
-                applied.append(describe_change(change))
-                if not adapter.space.free(adapter.u[None, :])[0]:
-                    raise ScenarioError(
-                        [
-                            Problem(
-                                f"adaptive.changes[{i}]",
-                                f"puts an obstacle on the robot at task {t + 1}",
-                            )
-                        ]
-                    )
-                adapter.follow_objects(moved)
+        stage = stages.get(t, [])
+        moved: set[str] = set()
+        for _, change in stage:
+            moved |= world.apply(change)
+            applied.append(describe_change(change))
+        if stage:
+            # After the stage's last change, as the preflight checks: subgoals follow their
+            # objects' final poses, one inverse-kinematics solve each however many moves.
+            if not adapter.space.free(adapter.u[None, :])[0]:
+                field, what = stage_words(stage)
+                verb = "puts" if len(stage) == 1 else f"{what} put"
+                raise ScenarioError(
+                    [Problem(field, f"{verb} an obstacle on the robot at task {t + 1}")]
+                )
+            adapter.follow_objects(moved)
         goal = choose_goal(sec, list(world.goals), t, adapter.current_goal, settings.seed)
         w = world.goal_config(goal)
         assert w is not None  # preflight checked every goal at every stage

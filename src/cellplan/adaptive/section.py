@@ -11,6 +11,7 @@ a point robot.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import Field
@@ -179,6 +180,17 @@ class AdaptiveSection(StrictModel):
         """Changes with their index in the file, by task number (stable)."""
         return sorted(enumerate(self.changes), key=lambda ic: ic[1].after_task)
 
+    def stages(self) -> dict[int, list[tuple[int, Change]]]:
+        """The changes applied after each task number, with their index in the file.
+
+        The robot sees the workcell only between tasks, so a stage's changes act together:
+        its goals and the parked robot are checked after the last of them.
+        """
+        stages: dict[int, list[tuple[int, Change]]] = {}
+        for i, change in self.ordered_changes():
+            stages.setdefault(change.after_task, []).append((i, change))
+        return stages
+
     def check(self, scenario: Scenario) -> list[Problem]:
         """Cross-references: objects and goals named by goals, tasks and changes exist then."""
         problems: list[Problem] = []
@@ -314,3 +326,16 @@ class AdaptiveSection(StrictModel):
                 problems.append(
                     Problem(f"adaptive.tasks[{t}]", f"goal {name!r} does not exist at task {t + 1}")
                 )
+
+
+def stage_words(stage: Sequence[tuple[int, Change]]) -> tuple[str, str]:
+    """The field and the subject that name a stage's changes in a message.
+
+    One change: ``("adaptive.changes[i]", "adaptive.changes[i]")``. Several: the first
+    one's field, and ``"the N changes adaptive.changes[i, j, ...]"`` (at most four indices).
+    """
+    field = f"adaptive.changes[{stage[0][0]}]"
+    if len(stage) == 1:
+        return field, field
+    shown = ", ".join(str(i) for i, _ in stage[:4]) + (", ..." if len(stage) > 4 else "")
+    return field, f"the {len(stage)} changes adaptive.changes[{shown}]"

@@ -12,7 +12,7 @@ environment generation that edge verification is stamped with.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,7 +21,13 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from cellplan import units
-from cellplan.adaptive.section import AdaptiveSection, GoalSpec, MoveObject, RotateObject
+from cellplan.adaptive.section import (
+    AdaptiveSection,
+    GoalSpec,
+    MoveObject,
+    RotateObject,
+    stage_words,
+)
 from cellplan.adaptive.space import FloatArray
 from cellplan.adaptive.store import shape_from_json, shape_to_json
 from cellplan.adaptive.tags import Tag
@@ -267,11 +273,14 @@ class World(ChangingWorld[ObjectState, ShapeSet]):
         """Configuration of a goal in the current environment (``None``: no IK solution)."""
         return self.config_of(self.goals[name])
 
-    def goal_problems(self, where: str, when: str = "") -> list[Problem]:
+    def goal_problems(
+        self, where: str, when: str = "", skip: Collection[str] = ()
+    ) -> list[Problem]:
         """Goals without IK solution or in collision now (fields ``where.<goal>``; ``when``
-        ends each message, e.g. " after adaptive.changes[0]")."""
+        ends each message, e.g. " after adaptive.changes[0]"); goals named in ``skip`` are
+        not checked."""
         problems = []
-        for name in sorted(self.goals):
+        for name in sorted(set(self.goals) - set(skip)):
             q = self.goal_config(name)
             if q is None:
                 problems.append(
@@ -442,32 +451,34 @@ def preflight(scenario: Scenario, resolution: float | None, seed: int) -> None:
 
     world = make_world(scenario, resolution)
     problems = world.goal_problems("adaptive.goals")
-    named = {p.field for p in problems}
+    failed = {p.field.rsplit(".", 1)[-1] for p in problems}
     sec = world.section
     assert sec is not None
-    changes = sec.ordered_changes()
     n_tasks = task_count(scenario, None)
-    last = max((c.after_task for _, c in changes), default=0)
+    stages = sec.stages()
     q: FloatArray | None = np.asarray(world.robot.start, float)
     current: str | None = None
-    for t in range(max(n_tasks, last + 1)):
-        for i, change in changes:
-            if change.after_task != t:
-                continue
+    # Only the stages count: the tasks, and the task numbers where changes land (a change
+    # may name any task up to a million, so the loop must not walk every number up to it).
+    for t in sorted(set(range(n_tasks)) | set(stages)):
+        stage = stages.get(t, [])
+        for _, change in stage:
             world.apply(change)
-            when = f" after adaptive.changes[{i}] (after task {change.after_task})"
-            for p in world.goal_problems("adaptive.goals", when):
-                if p.field not in named:  # the first stage where a goal goes wrong is enough
-                    named.add(p.field)
-                    problems.append(p)
+        if stage:
+            # Once a stage, as the run checks (AdaptiveSection.stages): thousands of changes
+            # at one task must not cost thousands of inverse-kinematics solves. A goal
+            # already reported is not solved again: its first stage is enough.
+            field, what = stage_words(stage)
             if t < n_tasks and q is not None and not world.is_free(q[None, :])[0]:
                 where = "at its start" if current is None else f"at goal {current!r}"
-                problems.append(
-                    Problem(
-                        f"adaptive.changes[{i}]",
-                        f"puts an obstacle on the robot, parked {where} after task {t}",
-                    )
-                )
+                verb = "puts" if len(stage) == 1 else f"{what} put"
+                words = f"{verb} an obstacle on the robot, parked {where} after task {t}"
+                problems.append(Problem(field, words))
+            for p in world.goal_problems(
+                "adaptive.goals", f" after {what} (after task {t})", skip=failed
+            ):
+                failed.add(p.field.rsplit(".", 1)[-1])
+                problems.append(p)
         if t < n_tasks:
             current = choose_goal(sec, list(world.goals), t, current, seed)
             q = world.goal_config(current) if current in world.goals else None

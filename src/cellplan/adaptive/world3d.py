@@ -29,7 +29,7 @@ sample: a segment that passes Reach is free everywhere along it.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -320,10 +320,13 @@ class World3D(ChangingWorld[Object3D, solids.Solid]):
         q = self._goal_cache[key]
         return None if q is None else q.copy()
 
-    def goal_problems(self, where: str, when: str = "") -> list[Problem]:
-        """Goals without a free IK solution now (fields ``where.<goal>``)."""
+    def goal_problems(
+        self, where: str, when: str = "", skip: Collection[str] = ()
+    ) -> list[Problem]:
+        """Goals without a free IK solution now (fields ``where.<goal>``); goals named in
+        ``skip`` are not solved."""
         problems = []
-        for name in sorted(self.goals):
+        for name in sorted(set(self.goals) - set(skip)):
             if self.goal_config(name) is None:
                 x, y, z = self.tool_pose_of(self.goals[name])
                 problems.append(
