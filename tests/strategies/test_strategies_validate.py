@@ -192,3 +192,24 @@ def test_only_the_part_too_wide_for_the_opening_is_named(cellplan, tmp_path):
     named = [line for line in lines if "strategy.requests" in line]
     assert len(named) == 4 and all("<P1," in line for line in named)
     assert not any("P2" in line for line in lines)
+
+
+def test_validate_leaves_a_long_model_build_to_the_solve(cellplan, tmp_path):
+    # The scenario fuzzer: strategies_p3 with 4096 cells along x (about 24 min to build
+    # the model) kept validate busy for minutes. validate answers in seconds: it gives
+    # the modes and the grid, and a note that the solve runs the model's checks.
+    import json
+
+    from cellplan.registry import resolve_scenario_path
+
+    text = resolve_scenario_path("strategies_p3").read_text(encoding="utf-8")
+    assert text.count("cells: [64, 64, 30]") >= 1
+    path = tmp_path / "big.yaml"
+    path.write_text(text.replace("cells: [64, 64, 30]", "cells: [4096, 64, 30]"), encoding="utf-8")
+    r = cellplan("validate", str(path), "--json")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout)["summary"]
+    assert summary["strategy_grid"][0] == 4096 and summary["assembly_modes"] == 9
+    assert "free_live_nr" not in summary
+    notes = [line for line in r.stderr.splitlines() if "were not run" in line]
+    assert len(notes) == 1 and "cellplan solve runs them" in notes[0]

@@ -7,11 +7,18 @@ their algorithm modules when they run.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+from cellplan.budget import NOTICE_SECONDS
 from cellplan.core import Fact, Package, PlannerSpec
-from cellplan.strategies.planners import StrategiesOptions, run_strategies
+from cellplan.strategies.planners import (
+    BUILD_SECONDS_PER_CELL_MODE,
+    StrategiesOptions,
+    check_memory,
+    run_strategies,
+)
 from cellplan.strategies.section import StrategySection
 
 TITLE = "Optimal motion strategies under a stochastic assembly process"
@@ -38,6 +45,17 @@ if TYPE_CHECKING:
     from cellplan.setup import Setup
 
 
+VALIDATE_BUILD_SECONDS = NOTICE_SECONDS
+"""Longest model build (estimated with
+:data:`~cellplan.strategies.planners.BUILD_SECONDS_PER_CELL_MODE`) that ``cellplan
+validate`` runs for its checks: a build long enough to be announced is left to the solve,
+with a note. The estimate is cautious (about 9 times the build of strategies_p3 and P6 on
+2 cores), so every bundled scenario is built (P6 is estimated at 89 s, built in about
+10 s)."""
+
+log = logging.getLogger(__name__)
+
+
 def describe(setup: Setup) -> Sequence[Fact]:
     """``cellplan validate`` facts; runs the checks ``cellplan solve`` runs before solving.
 
@@ -51,16 +69,36 @@ def describe(setup: Setup) -> Sequence[Fact]:
     (a source or destination no configuration reaches, a part that cannot be carried to
     its destination, a free space split between a destination and a source) and a robot
     start outside the strategy's domain, naming the region, the request or the field.
+    A model estimated to take longer than :data:`VALIDATE_BUILD_SECONDS` to build is not
+    built: a note says that the solve runs those checks, and only the modes and the grid
+    are given.
     """
     import numpy as np
 
-    from cellplan.strategies.model.mdp import build_model
+    from cellplan.budget import format_duration
+    from cellplan.strategies.model.mdp import build_model, grid_shape
+    from cellplan.strategies.model.memory import estimate_memory
     from cellplan.strategies.model.spec import compiled
-    from cellplan.strategies.planners import check_memory
 
     sc, cell = setup.scenario, setup.workcell
     spec = compiled(sc)  # once, for the memory check and the build
     check_memory(setup, None, spec=spec)  # before allocating, as the planner does
+    est = estimate_memory(spec, cell, None, None)
+    build_s = est.cells * est.modes * BUILD_SECONDS_PER_CELL_MODE
+    if build_s > VALIDATE_BUILD_SECONDS:
+        # validate answers in seconds: a model that takes minutes to build is checked by
+        # the solve, first thing, and the user is told so.
+        log.warning(
+            "strategy: the checks that build the model (every request can be served, the "
+            "robot's start in the strategy's domain) were not run: building it takes about "
+            "%s; cellplan solve runs them before it solves",
+            format_duration(build_s),
+        )
+        grid = [int(n) for n in grid_shape(sc, cell, None)]
+        return [
+            Fact("assembly_modes", "assembly modes", int(est.modes), f"{est.modes}"),
+            Fact("strategy_grid", "strategy grid", grid, " x ".join(map(str, grid)) + " cells"),
+        ]
     mdp = build_model(spec, cell, start=cell.robot.start)
     shape = " x ".join(str(int(n)) for n in mdp.shape)
     free_nr = float(np.mean(mdp.free[mdp.vcls[0]]))

@@ -148,6 +148,8 @@ class Executor:
         self._seq = np.empty(self.depth + 1, np.int64)
         self._plan: list[int] = []
         self._plan_mode = -1
+        self._visited: set[int] = set()  # cells met since the mode last changed (options)
+        self._visited_mode = -1
         self.corrections = 0
         self.raised = 0.0
         d = len(mdp.shape)
@@ -264,8 +266,9 @@ class Executor:
         with the correction step at its start, is carried out to its end unless the mode
         changes or a planned FMP is refused. In a model with FMP options (simultaneous
         requests) it is (9) over the motions and the options ``option_test`` confirms
-        (:func:`~.strategy.option_or_motion`), then the correction step; an option ``j``
-        is returned as ``fmp_code(j)``. Raises ``ValueError`` where no action is
+        (:func:`~.strategy.option_or_motion`), then the correction step where the robot
+        meets a cell again in the same mode (:meth:`_revisit`); an option ``j`` is
+        returned as ``fmp_code(j)``. Raises ``ValueError`` where no action is
         available.
         """
         mdp = self.strategy.mdp
@@ -281,7 +284,8 @@ class Executor:
                 fmp_allowed is False,
                 self.option_test,
             )
-            self._correct(q, mode, best - self.offset)
+            if self._revisit(q, mode):
+                self._correct(q, mode, best - self.offset)
             return u
         if self._plan and self._plan_mode == mode:
             u = self._plan.pop(0)
@@ -299,6 +303,25 @@ class Executor:
         u = best_action(vals)
         self._correct(q, mode, float(np.nanmin(vals)) - self.offset)
         return u
+
+    def _revisit(self, q: np.ndarray, mode: int) -> bool:
+        """Whether ``q``'s cell was met before since the mode last changed (and note it).
+
+        With FMP options the correction step runs only on such a revisit: a request held
+        for ever in one mode is a cycle, whose cells are all met again, so the LRTA*
+        argument holds on them; elsewhere the robot is making its way and rule (9) acts
+        alone. Correcting at every state instead raised the values at about one stage in
+        ten in ``strategies_pending`` (the interpolation residuals of its many modes
+        exceed half the small delay cost of a cheap mode) and the raises, kept for the
+        run, cost about 7% more loss than rule (9) (issue 35; docs/strategies.md).
+        """
+        if mode != self._visited_mode:
+            self._visited_mode, self._visited = mode, set()
+        cell = int(self.strategy._cell_of(q))
+        if cell in self._visited:
+            return True
+        self._visited.add(cell)
+        return False
 
     def _lookahead(self, q: np.ndarray, mode: int, fmp_root: bool) -> tuple[float, list[int]]:
         """The lookahead (:func:`.points.lookahead`), FMP confirmed by ``fmp_test`` if given."""
