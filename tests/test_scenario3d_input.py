@@ -301,6 +301,14 @@ CASES = [
         "2-D shape in a 3-D workcell",
     ),
     Case(
+        # The scenario fuzzer: a part box 2.5e-19 m thick was refused under the field
+        # "vertices" of the sphere cover, which names nothing in the file.
+        "flat-part-in-3d",
+        lambda: with_part("ur5_cell", {"type": "box", "size": [0.05, 0.05, 2.5e-19]}),
+        ("parts.P1.shape",),
+        "no volume",
+    ),
+    Case(
         "2d-box-source-in-3d",
         lambda: edit("ur5_cell", "sources.bin_a.components", [SOLID_BOX_2D]),
         ("sources.bin_a.components[0]",),

@@ -222,7 +222,19 @@ class Workcell3D:
         for name, p in sc.parts.items():
             solid = scenario_solid(p.shape, where, f"parts.{name}.shape")
             vertices, faces = solid.triangles()
-            centers, radii = arms.cover_mesh(vertices, faces, PART_SPHERE_RADIUS)
+            try:
+                centers, radii = arms.cover_mesh(vertices, faces, PART_SPHERE_RADIUS)
+            except ArgumentError as exc:
+                # The cover's own field ("vertices") means nothing in a scenario file.
+                raise ScenarioError(
+                    [
+                        Problem(
+                            f"parts.{name}.shape",
+                            f"cannot be covered for the collision check: {p.message}",
+                        )
+                        for p in exc.problems
+                    ]
+                ) from None
             parts[name] = _Part(solid, centers, radii)
 
         def region(name: str, role: str, spec: Any) -> Region3D:
