@@ -35,6 +35,11 @@ so it is a sketch, which the tests and measurements confirm, not a proof.) Where
 values are consistent (cell centres, open space) nothing is raised and, with ``D = 1``
 at a cell centre, the action is the paper's.
 
+With FMP options (simultaneous requests) the lookahead is off (depth 1) and the
+correction runs only where the robot meets a cell again since its mode last changed
+(:meth:`Executor._revisit`): a held request is a cycle, whose cells are met again, while
+raising at every state drifted the values away from the solved ones (issue 35).
+
 The corrections belong to one execution (one simulated run); the strategy's values are
 never modified.
 """
