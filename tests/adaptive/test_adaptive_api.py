@@ -143,19 +143,24 @@ def test_showcase_draws_figure_3_through_the_api_without_printing(
     assert "11 of 11 tasks solved" in item.caption
 
 
-def test_validate_refuses_a_change_that_lands_on_the_parked_robot(cellplan, tmp_path: Path) -> None:
+def _fig3_with_box_on_parked_robot(more: str = "") -> str:
+    """adaptive_fig3 with box D dropped after task 2 on the robot, parked at w2 = (3.5,
+    9.5), followed by the changes ``more`` (YAML list items)."""
     from cellplan.registry import resolve_scenario_path
 
     text = resolve_scenario_path("adaptive_fig3").read_text(encoding="utf-8")
-    # after task 2 the robot is parked at w2 = (3.5, 9.5); drop a box on it
-    text = text.replace(
+    return text.replace(
         "  changes:\n",
         "  changes:\n"
         "    - after_task: 2\n"
         "      type: add_object\n"
         "      object: D\n"
-        "      shape: {type: box, min: [3.3, 9.3], max: [3.7, 9.7]}\n",
+        "      shape: {type: box, min: [3.3, 9.3], max: [3.7, 9.7]}\n" + more,
     )
+
+
+def test_validate_refuses_a_change_that_lands_on_the_parked_robot(cellplan, tmp_path: Path) -> None:
+    text = _fig3_with_box_on_parked_robot()
     path = tmp_path / "parked.yaml"
     path.write_text(text, encoding="utf-8")
     lines = [line for line in cellplan("validate", str(path)).stderr.splitlines() if line]
@@ -177,24 +182,15 @@ def test_a_stage_of_changes_acts_together_and_is_checked_once(
     the goals are solved once a stage however many changes it holds (a fuzzed file with
     5,001 moves at one task took over a minute to validate)."""
     from cellplan.adaptive import world as world_module
-    from cellplan.registry import resolve_scenario_path
     from cellplan.scenario import loads_scenario
 
-    text = resolve_scenario_path("adaptive_fig3").read_text(encoding="utf-8")
     moves = "".join(
         "    - {after_task: 2, type: move_object, object: D, by: [0.01, 0.0]}\n"
         "    - {after_task: 2, type: move_object, object: D, by: [-0.01, 0.0]}\n"
         for _ in range(100)
     )
-    text = text.replace(
-        "  changes:\n",
-        "  changes:\n"
-        "    - after_task: 2\n"
-        "      type: add_object\n"
-        "      object: D\n"
-        "      shape: {type: box, min: [3.3, 9.3], max: [3.7, 9.7]}\n"
-        + moves
-        + "    - {after_task: 2, type: remove_object, object: D}\n",
+    text = _fig3_with_box_on_parked_robot(
+        moves + "    - {after_task: 2, type: remove_object, object: D}\n"
     )
     calls: list[str] = []
     real = world_module.World.goal_problems
