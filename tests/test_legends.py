@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pathlib
+
 import numpy as np
 import pytest
 
@@ -86,3 +88,18 @@ def test_assembly_sequence_names_discs_goals_and_paths(saved, tmp_path):
     assert fig.get_suptitle() == f"gradient, {run.problem.n} discs"
     titles = [ax.get_title() for ax in fig.axes]
     assert titles[0] == f"(i) step 0 of {len(run.path) - 1}"
+
+
+def test_a_failed_save_still_closes_the_figure(tmp_path: pathlib.Path) -> None:
+    # The hostile-paths fuzzer: `show` and `plot` to a path that is a folder left every
+    # figure open in the process (matplotlib warned after 20).
+    import matplotlib.pyplot as plt
+
+    from cellplan.errors import ArgumentError
+    from cellplan.plots import new_figure, save_figure
+
+    (tmp_path / "out.png").mkdir()
+    fig, _ = new_figure()
+    with pytest.raises(ArgumentError):
+        save_figure(fig, tmp_path / "out.png")
+    assert fig.number not in plt.get_fignums()
