@@ -22,7 +22,7 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/cellplan demo -o cellplan-out
 
-# The suite runs on every core (pytest-xdist): on 2 idle cores about 9 min (9 min 11 s, 2026-11-27).
+# The suite runs on every core (pytest-xdist): on 2 idle cores about 8 min (8 min 1 s, 2026-11-28).
 TEST_WORKERS ?= auto
 test: $(STAMP)
 	$(BIN)/python -m pytest -n $(TEST_WORKERS)
