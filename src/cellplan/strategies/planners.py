@@ -34,6 +34,7 @@ if TYPE_CHECKING:
 
     from cellplan.setup import Setup
     from cellplan.strategies.model.mdp import LayeredMDP
+    from cellplan.strategies.model.memory import MemoryEstimate
     from cellplan.strategies.model.spec import ProblemSpec
 
 Method = SolverMethod
@@ -120,12 +121,14 @@ def check_memory(
     cells: Sequence[int] | None,
     method: str | None = None,
     spec: ProblemSpec | None = None,
-) -> None:
+) -> MemoryEstimate:
     """Refuse a grid whose model and solve cannot fit in memory, before allocating it.
 
     The estimate is :func:`~cellplan.strategies.model.memory.estimate_memory` (the arrays the
     model and the solver allocate); the refusal names the cells and where they came from.
     ``spec`` is the scenario's compiled section when the caller has it (else compiled here).
+    Also refuses a model whose build (:func:`build_seconds`) would pass the time limit.
+    Returns the estimate.
     """
     from cellplan import budget
     from cellplan.errors import ScenarioError
@@ -141,11 +144,18 @@ def check_memory(
         est.total, f"{where} {','.join(map(str, shape))}", f"for {est.modes} modes", error
     )
     budget.require_time(
-        est.cells * est.modes * BUILD_SECONDS_PER_CELL_MODE,
+        build_seconds(est),
         f"{where} {','.join(map(str, shape))}",
         f"to build the model of {est.modes} modes",
         error,
     )
+    return est
+
+
+def build_seconds(est: MemoryEstimate) -> float:
+    """Estimated seconds to build the model of ``est`` (the reference machine's
+    :data:`BUILD_SECONDS_PER_CELL_MODE` per grid cell and mode)."""
+    return est.cells * est.modes * BUILD_SECONDS_PER_CELL_MODE
 
 
 def run_strategies(

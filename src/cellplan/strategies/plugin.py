@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 from cellplan.budget import NOTICE_SECONDS
 from cellplan.core import Fact, Package, PlannerSpec
 from cellplan.strategies.planners import (
-    BUILD_SECONDS_PER_CELL_MODE,
     StrategiesOptions,
+    build_seconds,
     check_memory,
     run_strategies,
 )
@@ -47,7 +47,7 @@ if TYPE_CHECKING:
 
 VALIDATE_BUILD_SECONDS = NOTICE_SECONDS
 """Longest model build (estimated with
-:data:`~cellplan.strategies.planners.BUILD_SECONDS_PER_CELL_MODE`) that ``cellplan
+:func:`~cellplan.strategies.planners.build_seconds`) that ``cellplan
 validate`` runs for its checks: a build long enough to be announced is left to the solve,
 with a note. The estimate is cautious (about 9 times the build of strategies_p3 and P6 on
 2 cores), so every bundled scenario is built (P6 is estimated at 89 s, built in about
@@ -77,14 +77,12 @@ def describe(setup: Setup) -> Sequence[Fact]:
 
     from cellplan.budget import format_duration
     from cellplan.strategies.model.mdp import build_model, grid_shape
-    from cellplan.strategies.model.memory import estimate_memory
     from cellplan.strategies.model.spec import compiled
 
     sc, cell = setup.scenario, setup.workcell
     spec = compiled(sc)  # once, for the memory check and the build
-    check_memory(setup, None, spec=spec)  # before allocating, as the planner does
-    est = estimate_memory(spec, cell, None, None)
-    build_s = est.cells * est.modes * BUILD_SECONDS_PER_CELL_MODE
+    est = check_memory(setup, None, spec=spec)  # before allocating, as the planner does
+    build_s = build_seconds(est)
     if build_s > VALIDATE_BUILD_SECONDS:
         # validate answers in seconds: a model that takes minutes to build is checked by
         # the solve, first thing, and the user is told so.
