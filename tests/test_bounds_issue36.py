@@ -77,14 +77,22 @@ def test_gif_frames_stream_and_decode_to_what_was_drawn(tmp_path: Path):
     assert durations == [100, 100, 200, 100, 500]
 
 
-def test_long_accepted_work_is_announced_in_one_note_line(cellplan, monkeypatch):
-    """Work estimated past budget.NOTICE_SECONDS says so on stderr, even off a terminal."""
+def _the_one_note_of_validate(cellplan, monkeypatch, scenario: str) -> str:
+    """``validate scenario`` with every estimate announced: it succeeds and prints exactly
+    one line on stderr, which is returned."""
     monkeypatch.setattr(budget, "NOTICE_SECONDS", 0.0)
-    r = cellplan("validate", "strategies_tiny")
+    r = cellplan("validate", scenario)
     assert r.returncode == 0, r.stderr
     lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("note: strategy.cells "), r.stderr
-    assert "of work to build the model of 5 modes" in lines[0]
+    assert len(lines) == 1, r.stderr
+    return lines[0]
+
+
+def test_long_accepted_work_is_announced_in_one_note_line(cellplan, monkeypatch):
+    """Work estimated past budget.NOTICE_SECONDS says so on stderr, even off a terminal."""
+    line = _the_one_note_of_validate(cellplan, monkeypatch, "strategies_tiny")
+    assert line.startswith("note: strategy.cells ")
+    assert "of work to build the model of 5 modes" in line
     monkeypatch.setattr(budget, "NOTICE_SECONDS", budget.DEFAULT_TIME_LIMIT_S)
     assert cellplan("validate", "strategies_tiny").stderr == ""
 
@@ -93,11 +101,8 @@ def test_a_long_adaptive_run_is_announced_once_by_validate(cellplan, monkeypatch
     # validate checks the task count's time once (preflight) and prints the count from the
     # section; it used to check it twice and print the note twice (a scenario fuzzer's
     # case: 15,011 random tasks in adaptive_fig3).
-    monkeypatch.setattr(budget, "NOTICE_SECONDS", 0.0)
-    r = cellplan("validate", "adaptive_fig3")
-    assert r.returncode == 0, r.stderr
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("note: adaptive.tasks.count: about "), r.stderr
+    line = _the_one_note_of_validate(cellplan, monkeypatch, "adaptive_fig3")
+    assert line.startswith("note: adaptive.tasks.count: about ")
 
 
 def test_the_second_gif_check_names_the_flag():
